@@ -1,0 +1,325 @@
+"""PSF and OTF banks by Fraunhofer (FFT) diffraction of the third-order pupil.
+
+Sampling. The image pixel pitch is ``Delta`` (default the paper's ``lambda f# / 2``, 1.5625 um
+for f = 25 mm, y = 2 mm, lambda = 0.5 um). With an ``N x N`` FFT the pupil-plane sample spacing is
+``lambda f / (N Delta)``, so the pupil radius spans ``R = N Delta / (2 lambda f#)`` samples
+(``N / 4`` at the Nyquist pitch: the pupil fills half the grid and the OTF support,
+``|f| < Delta / (lambda f#)`` cycles/pixel, just fits in ``[-1/2, 1/2)``). A pitch coarser than
+``lambda f# / 2`` would alias the OTF and is refused.
+
+FFT size. A wavefront slope of ``G`` waves per unit normalised pupil radius is
+``G / R`` waves per pupil sample and moves light by ``G lambda f / (y Delta)`` pixels
+(``4 G`` at the Nyquist pitch). :func:`fft_size` picks the smallest FFT-friendly ``N`` for which
+the largest slope over the pupil uses at most ``fill`` of the Nyquist limit (0.5 wave per
+sample) and the geometric PSF plus ``margin_px`` pixels of diffraction fits in the grid, so
+neither the pupil phase nor the PSF aliases.
+
+Orientation. PSF arrays are indexed ``[..., row, col] = [y, x]`` in image-plane pixel units
+with the paraxial image point at ``[N // 2, N // 2]`` (or ``[0, 0]`` for the unshifted banks).
+The pupil field is ``A exp(-2 pi i W)`` with ``W`` in Welford's sign, so that the light lands at
+the transverse ray aberration ``eps = -(f / y) grad W`` (see :mod:`lenssim.aberrations`).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import torch
+
+from .aberrations import _check_coeffs, wavefront, wavefront_gradient
+from .lens import ThinLens, as_tensor
+
+__all__ = [
+    "nice_fft_size",
+    "max_wavefront_slope",
+    "fft_size",
+    "pupil_radius_samples",
+    "pupil_amplitude",
+    "psf",
+    "psf_at",
+    "otf",
+    "otf_quarter",
+]
+
+
+def nice_fft_size(n: int, multiple: int = 16) -> int:
+    """Smallest ``m >= n`` that is a multiple of ``multiple`` and has no prime factor above 5."""
+    m = max(multiple, int(math.ceil(n / multiple)) * multiple)
+    while True:
+        k = m
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        if k == 1:
+            return m
+        m += multiple
+
+
+@lru_cache(maxsize=8)
+def _polar_probe(n_r: int = 33, n_t: int = 72):
+    r = torch.linspace(0, 1, n_r, dtype=torch.float64)
+    t = torch.linspace(0, 2 * math.pi, n_t + 1, dtype=torch.float64)[:-1]
+    R, T = torch.meshgrid(r, t, indexing="ij")
+    return (R * torch.cos(T)).flatten(), (R * torch.sin(T)).flatten()
+
+
+def max_wavefront_slope(coeffs: torch.Tensor) -> torch.Tensor:
+    """Largest ``|grad_rho W|`` over the unit pupil (waves per unit radius), shape ``(*)``.
+
+    Evaluated on a 33 x 72 polar probe of the disc (the maximum of these quartic polynomials lies
+    on the rim or at an interior critical point; the probe's step is 1/32 in radius).
+    """
+    _check_coeffs(coeffs)
+    rr, rt = _polar_probe()
+    rr, rt = rr.to(coeffs.device), rt.to(coeffs.device)
+    g_r, g_t = wavefront_gradient(coeffs.to(torch.float64), rr, rt)
+    return torch.sqrt(g_r**2 + g_t**2).amax(dim=-1)
+
+
+def _pitch_um(lens: ThinLens, pixel_pitch_um: float | None) -> float:
+    if pixel_pitch_um is None:
+        return lens.pixel_pitch_um
+    nyq = lens.pixel_pitch_um
+    if not (pixel_pitch_um > 0 and pixel_pitch_um <= nyq * (1 + 1e-12)):
+        raise ValueError(f"pixel_pitch_um={pixel_pitch_um!r} is not allowed: must be in (0, {nyq}] um "
+                         "(coarser than lambda f#/2 aliases the OTF)")
+    return float(pixel_pitch_um)
+
+
+def pupil_radius_samples(lens: ThinLens, n: int, pixel_pitch_um: float | None = None) -> float:
+    """Pupil radius in samples of an ``n``-point FFT: ``n Delta / (2 lambda f#)``."""
+    return n * _pitch_um(lens, pixel_pitch_um) / (2 * lens.wavelength_um * lens.f_number)
+
+
+def fft_size(lens: ThinLens, coeffs: torch.Tensor, *, fill: float = 0.7, margin_px: int = 16,
+             min_size: int = 64, pixel_pitch_um: float | None = None) -> torch.Tensor:
+    """FFT size ``N`` for each coefficient set ``(*, 4)``; returns an int64 tensor ``(*)``.
+
+    ``N`` is the smallest :func:`nice_fft_size` with (i) at most ``fill`` x 0.5 wave of pupil
+    phase per sample and (ii) the geometric PSF diameter ``2 G lambda f / (y Delta)`` plus
+    ``margin_px`` pixels inside the grid (``G`` = :func:`max_wavefront_slope`), and ``N >= min_size``.
+    """
+    if not 0 < fill <= 1:
+        raise ValueError(f"fill={fill!r} is not allowed: must be in (0, 1]")
+    delta = _pitch_um(lens, pixel_pitch_um)
+    G = max_wavefront_slope(coeffs).cpu()
+    r_per_n = pupil_radius_samples(lens, 1, delta)  # pupil radius (samples) per unit N
+    n_phase = G / (0.5 * fill) / r_per_n
+    half_extent_px = G * lens.wavelength_um * lens.focal_length_mm / (lens.pupil_radius_mm * delta)
+    n_psf = 2 * half_extent_px / fill + margin_px
+    need = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(min_size), dtype=G.dtype))
+    sizes = sorted({nice_fft_size(int(math.ceil(v))) for v in need.flatten().tolist()})
+    table = torch.tensor(sizes, dtype=torch.float64)
+    idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
+    return table[idx].to(torch.int64).reshape(need.shape)
+
+
+def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: int) -> torch.Tensor:
+    """Area fraction of each unit sample centred at ``(yv[i], xv[j])`` inside the disc ``|r| <= radius``.
+
+    Samples farther than ``sqrt(2)/2`` from the rim are 0 or 1; only rim samples are supersampled
+    (``supersample^2`` points), so memory stays ``O(len(yv) len(xv))`` for any size.
+    """
+    r = torch.hypot(yv[:, None], xv[None, :])
+    amp = (r <= radius).to(torch.float64)
+    rim = (r - radius).abs() < 0.7072
+    if rim.any():
+        iy, ix = torch.nonzero(rim, as_tuple=True)
+        sub = (torch.arange(supersample, dtype=torch.float64) + 0.5) / supersample - 0.5
+        py = yv[iy][:, None, None] + sub[None, :, None]
+        px = xv[ix][:, None, None] + sub[None, None, :]
+        amp[iy, ix] = ((py**2 + px**2) <= radius**2).to(torch.float64).mean(dim=(1, 2))
+    return amp
+
+
+@lru_cache(maxsize=32)
+def _pupil_cached(n: int, radius: float, supersample: int):
+    """Anti-aliased pupil amplitude on the DFT grid (origin at index 0), float64 CPU ``(n, n)``."""
+    k = torch.arange(n, dtype=torch.float64)
+    x = torch.where(k < n / 2, k, k - n)
+    return _coverage(x, x, radius, supersample), x
+
+
+def pupil_amplitude(lens: ThinLens, n: int, *, pixel_pitch_um: float | None = None, supersample: int = 8,
+                    dtype=torch.float32, device=None):
+    """Pupil transmission (area fraction of each sample inside the disc) and sample coordinates.
+
+    Returns ``(amp, rho)``: ``amp`` ``(n, n)`` with the pupil centre at index ``[0, 0]`` (DFT
+    order) and ``rho`` ``(n,)``, the normalised pupil coordinate of each index.
+    """
+    R = pupil_radius_samples(lens, n, pixel_pitch_um)
+    if R > n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    amp, x = _pupil_cached(int(n), float(R), int(supersample))
+    return amp.to(dtype=dtype, device=device), (x / R).to(dtype=dtype, device=device)
+
+
+def _field(lens, coeffs, n, azimuth_rad, pixel_pitch_um, dtype, device):
+    """Complex pupil field ``(B, n, n)`` in DFT order for coefficients ``(B, 4)``."""
+    amp, rho = pupil_amplitude(lens, n, pixel_pitch_um=pixel_pitch_um, dtype=dtype, device=device)
+    ry, rx = rho[:, None], rho[None, :]  # rows = y, cols = x
+    if azimuth_rad is None:
+        W = wavefront(coeffs, ry.expand(n, n), rx.expand(n, n))
+    else:  # rotate the pupil to each image point's azimuth, one PSF per coefficient row
+        c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]
+        rho_r, rho_t = rx * c + ry * s, -rx * s + ry * c
+        r2 = rho_r**2 + rho_t**2
+        a, b, cc, d = (coeffs[:, i, None, None] for i in range(4))
+        W = a * r2**2 + b * r2 * rho_r + cc * rho_r**2 + d * r2
+    return torch.polar(amp.expand_as(W), -2 * math.pi * W)
+
+
+def _batch_coeffs(coeffs: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+    _check_coeffs(coeffs)
+    return coeffs.reshape(-1, 4), coeffs.shape[:-1]
+
+
+def psf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, pixel_pitch_um: float | None = None,
+        centered: bool = True) -> torch.Tensor:
+    """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, 4)`` in waves.
+
+    ``azimuth_deg`` ``(*)`` gives, per PSF, the direction (deg, from +x towards +y) of the image
+    point seen from the optical axis; the pupil coordinates are rotated exactly (no resampling).
+    ``None`` puts the field along +y (rows). With ``centered`` the paraxial image point is at
+    ``[n // 2, n // 2]``, else at ``[0, 0]``. Complex dtype follows ``coeffs`` (complex64 for float32).
+    """
+    flat, lead = _batch_coeffs(coeffs)
+    az = None
+    if azimuth_deg is not None:
+        az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
+    field = _field(lens, flat, int(n), az, pixel_pitch_um, flat.dtype, flat.device)
+    p = torch.fft.fft2(field).abs().square()
+    p = p / p.sum(dim=(-2, -1), keepdim=True)
+    if centered:
+        p = torch.fft.fftshift(p, dim=(-2, -1))
+    return p.reshape(lead + (n, n))
+
+
+def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitch_um: float | None = None,
+           centered: bool = True):
+    """PSFs at image points ``(x_mm, y_mm)`` (mm from the optical axis, image-plane axes).
+
+    The field angle is ``atan(r / f)``, ``r = hypot(x, y)``, and the pupil is rotated to the point's
+    azimuth, so the coma flare lies along the radial direction of ``(x, y)``. ``s``, ``Q``, ``x_mm``,
+    ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n`` defaults to :func:`fft_size`.
+    """
+    from .aberrations import wavefront_coefficients
+
+    s, Q, x, y = torch.broadcast_tensors(*(as_tensor(v) for v in (s, Q, x_mm, y_mm)))
+    lens.check_design(s, Q)
+    alpha = lens.field_angle_deg(x, y)
+    if (alpha >= 90).any():
+        raise ValueError("image point at or beyond 90 degrees of field")
+    coeffs = wavefront_coefficients(lens, s, Q, alpha, elementwise=True).reshape(-1, 4)
+    azimuth = torch.rad2deg(torch.atan2(y, x)).flatten()
+    if n is None:
+        n = int(fft_size(lens, coeffs, pixel_pitch_um=pixel_pitch_um).max())
+    out = psf(lens, coeffs, n, azimuth_deg=azimuth, pixel_pitch_um=pixel_pitch_um, centered=centered)
+    return out.reshape(s.shape + (n, n)), n
+
+
+def otf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
+        pixel_pitch_um: float | None = None) -> torch.Tensor:
+    """OTFs ``(*, n, n)`` (complex, DFT order, ``OTF[0, 0] = 1``): ``fft2`` of ``|fft2(pupil)|^2``.
+
+    Frequencies are ``k / n`` cycles/pixel. This is the general (reference) path; like
+    :func:`otf_quarter` it is normalised by the pupil area (see :func:`_area_normalise`).
+    """
+    flat, lead = _batch_coeffs(coeffs)
+    az = None
+    if azimuth_deg is not None:
+        az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
+    field = _field(lens, flat, int(n), az, pixel_pitch_um, flat.dtype, flat.device)
+    H = torch.fft.fft2(torch.fft.fft2(field).abs().square())
+    amp, _ = pupil_amplitude(lens, n, pixel_pitch_um=pixel_pitch_um, dtype=flat.dtype, device=flat.device)
+    return _area_normalise(H, amp).reshape(lead + (n, n))
+
+
+@lru_cache(maxsize=32)
+def _quarter_basis_cached(n: int, radius: float, supersample: int):
+    """Half-pupil amplitude and monomial basis for :func:`otf_quarter` (float64, CPU).
+
+    Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..n/2``.
+    Basis ``(4, rows, n/2+1)``: ``rho^4, rho^2 rho_r, rho_r^2, rho^2`` with ``rho_r = y / R``.
+    """
+    h = n // 2
+    ry = int(math.floor(radius + 0.5))
+    yv = torch.arange(-ry, ry + 1, dtype=torch.float64)
+    xv = torch.arange(0, h + 1, dtype=torch.float64)
+    a = _coverage(yv, xv, radius, supersample)
+    area = 2 * a.sum() - a[:, 0].sum()  # the x < 0 half mirrors x > 0
+    yy = (yv / radius)[:, None]
+    xx = (xv / radius)[None, :]
+    r2 = yy**2 + xx**2
+    basis = torch.stack([r2**2, r2 * yy, (yy**2).expand_as(r2), r2])
+    return a, basis, area
+
+
+def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um: float | None = None,
+                oversample: int = 1) -> torch.Tensor:
+    """Fast OTF bank for field-axis PSFs: ``H[fy, fx]`` for ``fy, fx = 0..m/2``, ``m = oversample n``.
+
+    Frequencies are ``k / m`` cycles/pixel. Input ``(B, 4)`` coefficients (waves) with the field
+    along +y, output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With ``oversample=1`` it
+    equals the quarter of :func:`otf` to rounding; ``oversample > 1`` zero-pads the ``n x n`` PSF
+    (which :func:`fft_size` keeps inside the grid) to sample the same OTF on a finer frequency
+    grid, for integrals whose integrand is not band-limited (the Wiener error). It exploits:
+
+    * the mirror symmetry ``W(x, y) = W(-x, y)``: only the ``x >= 0`` half of the pupil is
+      evaluated and its ``x``-DFT (even sequence) is two real inverse FFTs of half length,
+    * the zero rows of the pupil: the ``y``-FFT runs on the ``~n/2`` pupil rows, zero-padded by
+      the FFT itself (the row offset this implies is a phase factor that ``|.|^2`` removes),
+    * real transforms for PSF -> OTF: ``rfft`` along ``y``, then the even ``x``-DFT on ``n/2+1`` rows,
+    * Hermitian symmetry ``H(-f) = conj H(f)`` with evenness in ``fx``: ``|H|^2`` and ``Re H`` are
+      even in both axes, so the quarter plane carries everything the MSE integrals need.
+    """
+    _check_coeffs(coeffs)
+    if coeffs.ndim != 2:
+        raise ValueError(f"coeffs has shape {tuple(coeffs.shape)}: otf_quarter expects (B, 4)")
+    if n % 2:
+        raise ValueError(f"n={n} is not allowed: must be even")
+    R = pupil_radius_samples(lens, n, pixel_pitch_um)
+    if R > n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    dtype, device = coeffs.dtype, coeffs.device
+    a, basis, area = (v.to(dtype=dtype, device=device) for v in _quarter_basis_cached(int(n), float(R), 8))
+    h = n // 2
+    B = coeffs.shape[0]
+    W = (coeffs @ basis.reshape(4, -1)).reshape(B, *a.shape)
+    phase = (-2 * math.pi) * W
+    re_im = torch.stack([a * torch.cos(phase), a * torch.sin(phase)], dim=1)  # (B, 2, rows, h+1)
+    row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
+    field_x = torch.complex(row_dft[:, 0], row_dft[:, 1])
+    amp_img = torch.fft.fft(field_x, n=n, dim=-2)  # (B, n, h+1)
+    p_half = amp_img.real.square() + amp_img.imag.square()  # PSF for u >= 0 (up to n^2 scaling)
+    m = n * int(oversample)
+    if m != n:  # zero-pad the PSF from n to m; the Nyquist row/column splits between +h and -h
+        p_half = p_half.clone()
+        p_half[:, h] *= 0.5
+        p_half[..., h] *= 0.5
+        p_half = torch.cat([p_half[:, : h + 1], p_half.new_zeros(B, m - n - 1, h + 1), p_half[:, h:]], dim=1)
+        p_half = torch.nn.functional.pad(p_half, (0, m // 2 - h))
+    hm = m // 2
+    g = torch.fft.rfft(p_half, dim=-2)  # (B, hm+1, hm+1): fy = 0..hm, x still in image space
+    G = torch.fft.irfft(torch.stack([g.real, g.imag], dim=1), n=m, dim=-1)[..., : hm + 1]
+    # the irffts divide by n and m, and p_half carries 1/n^2: G = (fft2 |fft2 field|^2) / (n^3 m),
+    # and the area-normalised OTF is that over (area n^2) (see _area_normalise)
+    H = torch.complex(G[:, 0], G[:, 1]) * (m / area)
+    H[..., 0, 0] = 1
+    return H
+
+
+def _area_normalise(H: torch.Tensor, amp: torch.Tensor) -> torch.Tensor:
+    """Normalise an un-normalised OTF (autocorrelation of the sampled pupil) by the pupil area.
+
+    The anti-aliased pupil's autocorrelation at shift ``k != 0`` approximates the overlap area of
+    the two shifted discs, but at ``k = 0`` it sums ``amp^2`` instead of ``amp`` (a partial sample
+    overlaps itself fully). Dividing by the area ``sum(amp)`` and setting ``H(0) = 1`` removes an
+    ``O(1 / (3 R))`` low-frequency error (R = pupil radius in samples) that the usual ``H / H(0)``
+    leaves; the MTF then converges to the analytic one as ``O(1/R^2)`` at low frequencies.
+    """
+    n = amp.shape[-1]
+    H = H / (amp.sum() * n * n)
+    H[..., 0, 0] = 1
+    return H
