@@ -1,0 +1,63 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy import optimize
+
+from lenssim import PAPER_LENS, LensError, ThinLens, best_fit_sphere_curvature, slope_departure_cost, \
+    slope_departure_cost_third_order
+
+D = torch.float64
+
+
+def test_zero_cost_contour():
+    s = torch.linspace(-2, 1, 13, dtype=D)
+    assert torch.all(slope_departure_cost(PAPER_LENS, s, 0.0) < 1e-15)  # Q = 0: a sphere
+    Q = torch.linspace(-10, 1.2, 12, dtype=D)
+    assert torch.all(slope_departure_cost(PAPER_LENS, 1.0, Q) == 0)  # s = 1: flat back, any Q
+
+
+def test_cost_grows_with_conicity_and_with_more_negative_shape_factor():
+    Q = torch.linspace(-10, -0.1, 50, dtype=D)
+    c = slope_departure_cost(PAPER_LENS, -0.775, Q)
+    assert torch.all(c[:-1] > c[1:])
+    s = torch.linspace(-2, 0.9, 50, dtype=D)
+    c = slope_departure_cost(PAPER_LENS, s, -2.4)
+    assert torch.all(c[:-1] > c[1:])
+    assert slope_departure_cost(PAPER_LENS, -0.775, 1.0) > 0
+
+
+def test_best_fit_sphere_matches_a_brute_force_fit():
+    y, n = 2.0, 101
+    r = np.linspace(0, y, n)
+    for s, Q in [(-2.0, -10.0), (-0.775, -2.4), (0.5, 1.2)]:
+        _, c = PAPER_LENS.curvatures(s)
+        conic = c * r / np.sqrt(1 - (1 + Q) * c**2 * r**2)
+        f = lambda k: np.mean((conic - k * r / np.sqrt(1 - k**2 * r**2)) ** 2)  # noqa: E731
+        ref = optimize.minimize_scalar(f, bracket=(c * 0.9, c * 1.1), tol=1e-14)
+        k = float(best_fit_sphere_curvature(torch.tensor(c, dtype=D), torch.tensor(Q, dtype=D), y, n))
+        assert k == pytest.approx(ref.x, rel=1e-7)
+        assert float(slope_departure_cost(PAPER_LENS, s, Q, n)) == pytest.approx(math.sqrt(ref.fun), rel=1e-6)
+
+
+def test_third_order_limit_at_small_aperture():
+    # next order is ~(1 + Q) c^2 y^2: 0.4 % at y = 0.2 mm, s = -2, Q = -10; 16x less at 0.05 mm
+    lens = ThinLens(pupil_radius_mm=0.05)
+    for s, Q in [(-2.0, -10.0), (-0.5, 1.0)]:
+        exact = float(slope_departure_cost(lens, s, Q, n_points=4001))
+        assert exact == pytest.approx(float(slope_departure_cost_third_order(lens, s, Q)), rel=1e-3)
+
+
+def test_cost_converges_with_the_number_of_points():
+    vals = [float(slope_departure_cost(PAPER_LENS, -0.775, -2.4, n)) for n in (11, 101, 1001, 10001)]
+    assert abs(vals[1] - vals[3]) / vals[3] < 2e-2
+    assert abs(vals[2] - vals[3]) < abs(vals[1] - vals[3]) < abs(vals[0] - vals[3])
+
+
+def test_cost_errors_and_dtype():
+    with pytest.raises(ValueError, match="n_points=1"):
+        slope_departure_cost(PAPER_LENS, -0.5, -1.0, 1)
+    with pytest.raises(LensError, match="Q=20"):
+        slope_departure_cost(PAPER_LENS, -2.0, 20.0)
+    assert slope_departure_cost(PAPER_LENS, torch.tensor([-0.5], dtype=torch.float32), -1.0).dtype == torch.float32
