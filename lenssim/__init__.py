@@ -22,7 +22,7 @@ from .designs import Design, load_designs
 from .image_model import PAPER_RHO0, PAPER_SNR_DB, image_psd, noise_variance, psd_continuous
 from .lens import PAPER_LENS, LensError, ThinLens
 from .metrics import evaluate, mse_bank, mse_from_otf_quarter
-from .psf import fft_size, max_wavefront_slope, otf, otf_quarter, psf, psf_at, pupil_amplitude
+from .psf_bank import fft_size, max_wavefront_slope, otf, otf_quarter, psf, psf_at, pupil_amplitude
 
 __all__ = [
     "__version__",

@@ -156,7 +156,13 @@ def cmd_demo(args) -> int:
     print("The paper's two highlighted designs (f = 25 mm, f/6.25, n = 1.5, 0.5 um, 0-14 deg):\n")
     print(_design_table(results))
     cfg_path = _configs_dir() / "small_grid.toml"
-    cfg = load_config(cfg_path)
+    if cfg_path.exists():
+        cfg = load_config(cfg_path)
+    else:  # installed without the repository's configs/: the same coarse grid, built in
+        from .lens import ThinLens
+        from .sweep import SweepConfig
+
+        cfg = SweepConfig(lens=ThinLens(field_angles_deg=tuple(range(0, 15, 2))), s=(-2.0, 1.0, 0.25), Q=(-10.0, 1.0, 1.0))
     out = Path(args.out)
     print(f"\nSmall sweep {cfg_path.name}: {len(cfg.s_values)} s x {len(cfg.Q_values)} Q x "
           f"{len(cfg.lens.field_angles_deg)} angles -> {out}", file=sys.stderr)

@@ -8,7 +8,7 @@ For each field angle ``alpha`` and noise level ``sigma_w^2 = 10^(-SNR/10)`` (Sec
     MSE_S/R = < MSE_s/r(alpha) >_alpha,   RMS_W = sqrt(< RMS_w(alpha)^2 >_alpha)
 
 (``P_es`` is the derivation's ``|1 - H|^2 P_x``; the paper prints ``P_x^-1``, a typo.)
-``H`` is the OTF of the pixel-sampled PSF (:func:`lenssim.psf.otf_quarter`), ``P_x`` the image
+``H`` is the OTF of the pixel-sampled PSF (:func:`lenssim.psf_bank.otf_quarter`), ``P_x`` the image
 model of :mod:`lenssim.image_model`. MSE is per pixel, relative to the unit signal variance.
 """
 
@@ -22,8 +22,8 @@ from .aberrations import field_rms_wavefront, rms_wavefront, wavefront_coefficie
 from .cost import DEFAULT_COST_POINTS, slope_departure_cost
 from .image_model import PAPER_RHO0, PAPER_SNR_DB, image_psd, noise_variance
 from .lens import ThinLens, as_tensor
-from .psf import fft_size as choose_fft_size
-from .psf import otf_quarter
+from .psf_bank import fft_size as choose_fft_size
+from .psf_bank import otf_quarter
 
 __all__ = ["mse_from_otf_quarter", "mse_bank", "evaluate"]
 
@@ -65,7 +65,7 @@ def mse_bank(lens: ThinLens, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db=P
 
     PSFs are grouped by FFT size ``sizes`` ``(P,)`` and processed in chunks of at most
     ``chunk_bytes`` of working memory, so memory stays bounded whatever ``P``. The frequency
-    integrals use ``oversample`` x finer grids than the FFT (see :func:`lenssim.psf.otf_quarter`):
+    integrals use ``oversample`` x finer grids than the FFT (see :func:`lenssim.psf_bank.otf_quarter`):
     the Wiener-error integrand is not band-limited and needs them. ``progress`` is
     called with the number of PSFs finished after each chunk.
     """

@@ -5,7 +5,7 @@ import torch
 from scipy.special import j1
 
 from lenssim import PAPER_LENS, fft_size, otf, otf_quarter, psf, psf_at, pupil_amplitude, wavefront_coefficients
-from lenssim.psf import nice_fft_size, pupil_radius_samples
+from lenssim.psf_bank import nice_fft_size, pupil_radius_samples
 
 D = torch.float64
 ZERO = torch.zeros(1, 4, dtype=D)

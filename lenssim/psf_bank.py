@@ -73,8 +73,12 @@ def max_wavefront_slope(coeffs: torch.Tensor) -> torch.Tensor:
     _check_coeffs(coeffs)
     rr, rt = _polar_probe()
     rr, rt = rr.to(coeffs.device), rt.to(coeffs.device)
-    g_r, g_t = wavefront_gradient(coeffs.to(torch.float64), rr, rt)
-    return torch.sqrt(g_r**2 + g_t**2).amax(dim=-1)
+    flat = coeffs.reshape(-1, 4).to(torch.float64)
+    out = torch.empty(flat.shape[0], dtype=torch.float64, device=coeffs.device)
+    for i in range(0, flat.shape[0], 4096):  # bounded memory for any batch
+        g_r, g_t = wavefront_gradient(flat[i:i + 4096], rr, rt)
+        out[i:i + 4096] = torch.sqrt(g_r**2 + g_t**2).amax(dim=-1)
+    return out.reshape(coeffs.shape[:-1])
 
 
 def _pitch_um(lens: ThinLens, pixel_pitch_um: float | None) -> float:
