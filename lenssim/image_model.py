@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import torch
 
-__all__ = ["PAPER_RHO0", "PAPER_SNR_DB", "psd_continuous", "image_psd", "noise_variance"]
+__all__ = ["PAPER_RHO0", "PAPER_SNR_DB", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
 
 PAPER_RHO0 = 0.97
 PAPER_SNR_DB = (21.6, 27.6, 33.6)  # ISO 400 (low light), ISO 100 (expected), ISO 25 (high light)
@@ -41,31 +41,58 @@ def psd_continuous(f_cpp: torch.Tensor, rho0: float = PAPER_RHO0) -> torch.Tenso
     return 2 * math.pi * a / (a * a + 4 * math.pi**2 * f_cpp**2) ** 1.5
 
 
-@lru_cache(maxsize=64)
-def _psd_cached(n: int, rho0: float, model: str) -> torch.Tensor:
+def _even_dft_quarter(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """DFT (length ``n``) of a sequence even about 0, given on ``0..n/2`` along ``dim``; first ``n/2+1`` outputs."""
+    return torch.fft.irfft(x, n=n, dim=dim).narrow(dim, 0, n // 2 + 1) * n
+
+
+@lru_cache(maxsize=8)
+def _psd_quarter_cached(n: int, rho0: float, model: str) -> torch.Tensor:
+    """``P_x`` on the quarter plane ``0..n/2`` x ``0..n/2`` (float64, CPU); memory ``O(n^2 / 4)``."""
+    h = n // 2
     if model == "continuous":
-        k = torch.fft.fftfreq(n, dtype=torch.float64)
+        k = torch.arange(h + 1, dtype=torch.float64) / n
         return psd_continuous(torch.hypot(k[:, None], k[None, :]), rho0)
     L = int(math.ceil(math.log(1e-13) / math.log(rho0)))
     m = torch.arange(-L, L + 1, dtype=torch.float64)
     corr = rho0 ** torch.hypot(m[:, None], m[None, :])
-    idx = torch.remainder(torch.arange(-L, L + 1), n)
-    folded = torch.zeros(2 * L + 1, n, dtype=torch.float64).index_add_(1, idx, corr)
-    folded = torch.zeros(n, n, dtype=torch.float64).index_add_(0, idx, folded)
-    return torch.fft.fft2(folded).real
+    # fold the lattice correlation modulo n (it is even, so the folded one is too) and keep 0..n/2
+    r = torch.remainder(torch.arange(-L, L + 1), n)
+    keep = r <= h
+    idx = r[keep]
+    folded = torch.zeros(2 * L + 1, h + 1, dtype=torch.float64).index_add_(1, idx, corr[:, keep])
+    folded = torch.zeros(h + 1, h + 1, dtype=torch.float64).index_add_(0, idx, folded[keep])
+    if n % 2:
+        raise ValueError(f"n={n} is not allowed here: the quarter-plane spectrum needs an even size")
+    return _even_dft_quarter(_even_dft_quarter(folded, n, 1), n, 0)
+
+
+def image_psd_quarter(n: int, rho0: float = PAPER_RHO0, *, model: str = "discrete", dtype=torch.float32,
+                      device=None) -> torch.Tensor:
+    """``P_x`` for ``f = (ky, kx) / n`` with ``ky, kx = 0..n/2`` (``n`` even): shape ``(n/2+1, n/2+1)``.
+
+    The spectrum is even in both axes, so this quarter carries all of it (used by the metrics).
+    """
+    if model not in ("discrete", "continuous"):
+        raise ValueError(f"model={model!r} is not allowed: 'discrete' or 'continuous'")
+    if not (isinstance(n, int) and n >= 2 and n % 2 == 0):
+        raise ValueError(f"n={n!r} is not allowed: an even integer >= 2")
+    return _psd_quarter_cached(n, _check_rho0(rho0), model).to(dtype=dtype, device=device)
 
 
 def image_psd(n: int, rho0: float = PAPER_RHO0, *, model: str = "discrete", dtype=torch.float32,
               device=None) -> torch.Tensor:
     """Image power spectrum ``P_x`` on the ``n x n`` DFT grid (DFT order, ``f = k/n`` cycles/pixel).
 
-    Unit-variance normalisation: ``P_x.mean() == 1`` for ``model="discrete"``.
+    Unit-variance normalisation: ``P_x.mean() == 1`` for ``model="discrete"`` once ``n`` exceeds the
+    correlation length many times (on small grids the mean is the periodised correlation at lag 0).
     """
-    if model not in ("discrete", "continuous"):
-        raise ValueError(f"model={model!r} is not allowed: 'discrete' or 'continuous'")
-    if not (isinstance(n, int) and n >= 2):
-        raise ValueError(f"n={n!r} is not allowed: an integer >= 2")
-    return _psd_cached(n, _check_rho0(rho0), model).to(dtype=dtype, device=device)
+    if not (isinstance(n, int) and n >= 2 and n % 2 == 0):
+        raise ValueError(f"n={n!r} is not allowed: an even integer >= 2")
+    q = image_psd_quarter(n, rho0, model=model, dtype=torch.float64)
+    k = torch.arange(n)
+    fold = torch.minimum(k, n - k)
+    return q[fold][:, fold].to(dtype=dtype, device=device)
 
 
 def noise_variance(snr_db) -> torch.Tensor:

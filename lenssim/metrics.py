@@ -20,7 +20,7 @@ import torch
 
 from .aberrations import field_rms_wavefront, rms_wavefront, wavefront_coefficients
 from .cost import DEFAULT_COST_POINTS, slope_departure_cost
-from .image_model import PAPER_RHO0, PAPER_SNR_DB, image_psd, noise_variance
+from .image_model import PAPER_RHO0, PAPER_SNR_DB, image_psd_quarter, noise_variance
 from .lens import ThinLens, as_tensor
 from .psf_bank import fft_size as choose_fft_size
 from .psf_bank import otf_quarter
@@ -47,14 +47,16 @@ def mse_from_otf_quarter(H: torch.Tensor, psd_quarter: torch.Tensor, sigma2: tor
     """
     n = 2 * (H.shape[-1] - 1)
     pw = psd_quarter * _quarter_weights(n, psd_quarter.dtype, psd_quarter.device)
-    H2 = H.real.square() + H.imag.square()
-    E = H2 - 2 * H.real + 1  # |1 - H|^2
-    blur = (E * pw).sum(dim=(-2, -1)).to(torch.float64)
+    H2 = H.real.square().add_(H.imag.square())
+    E = (H2 - 2 * H.real).add_(1).mul_(pw)  # |1 - H|^2 P_x w
+    blur = E.sum(dim=(-2, -1)).to(torch.float64)
+    del E
     sig = sigma2.to(torch.float64)
     mse_s = sig[None, :] + blur[:, None]
-    H2psd = H2 * psd_quarter
-    mse_r = torch.stack([(pw / (H2psd + s2)).sum(dim=(-2, -1)).to(torch.float64) * float(s2)
-                         for s2 in sigma2.to(psd_quarter.dtype)], dim=-1)
+    H2psd = H2.mul_(psd_quarter)
+    tmp = torch.empty_like(H2psd)
+    mse_r = torch.stack([torch.div(pw, torch.add(H2psd, s2, out=tmp), out=tmp).sum(dim=(-2, -1)).to(torch.float64)
+                         * float(s2) for s2 in sigma2.to(psd_quarter.dtype)], dim=-1)
     return mse_s, mse_r
 
 
@@ -79,8 +81,7 @@ def mse_bank(lens: ThinLens, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db=P
     for n in torch.unique(sizes).tolist():
         idx = torch.nonzero(sizes == n).flatten().to(coeffs.device)
         m = n * oversample
-        psd = image_psd(m, rho0, model=psd_model, dtype=coeffs.dtype, device=coeffs.device)
-        psd_q = psd[: m // 2 + 1, : m // 2 + 1]
+        psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=coeffs.dtype, device=coeffs.device)
         per_psf = 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
         step = max(1, int(chunk_bytes // per_psf))
         for start in range(0, idx.numel(), step):

@@ -23,6 +23,7 @@ the transverse ray aberration ``eps = -(f / y) grad W`` (see :mod:`lenssim.aberr
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from functools import lru_cache
 
 import torch
@@ -137,7 +138,7 @@ def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: in
     return amp
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=4)
 def _pupil_cached(n: int, radius: float, supersample: int):
     """Anti-aliased pupil amplitude on the DFT grid (origin at index 0), float64 CPU ``(n, n)``."""
     k = torch.arange(n, dtype=torch.float64)
@@ -240,8 +241,7 @@ def otf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
     return _area_normalise(H, amp).reshape(lead + (n, n))
 
 
-@lru_cache(maxsize=32)
-def _quarter_basis_cached(n: int, radius: float, supersample: int):
+def _quarter_basis_compute(n: int, radius: float, supersample: int):
     """Half-pupil amplitude and monomial basis for :func:`otf_quarter` (float64, CPU).
 
     Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..n/2``.
@@ -257,7 +257,26 @@ def _quarter_basis_cached(n: int, radius: float, supersample: int):
     xx = (xv / radius)[None, :]
     r2 = yy**2 + xx**2
     basis = torch.stack([r2**2, r2 * yy, (yy**2).expand_as(r2), r2])
-    return a, basis, area
+    return a, basis, float(area)
+
+
+_BASIS_CACHE: OrderedDict = OrderedDict()
+_BASIS_CACHE_BYTES = 1 << 30
+
+
+def _quarter_basis_cached(n: int, radius: float, supersample: int):
+    """:func:`_quarter_basis_compute`, cached (LRU) up to 1 GiB in total: sweeps cycle through ~30
+    FFT sizes per chunk, while 4x-size checks make single entries of hundreds of MB."""
+    key = (n, radius, supersample)
+    if key in _BASIS_CACHE:
+        _BASIS_CACHE.move_to_end(key)
+        return _BASIS_CACHE[key]
+    val = _quarter_basis_compute(n, radius, supersample)
+    _BASIS_CACHE[key] = val
+    size = lambda v: v[0].nbytes + v[1].nbytes  # noqa: E731
+    while len(_BASIS_CACHE) > 1 and sum(size(v) for v in _BASIS_CACHE.values()) > _BASIS_CACHE_BYTES:
+        _BASIS_CACHE.popitem(last=False)
+    return val
 
 
 def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um: float | None = None,
@@ -287,7 +306,8 @@ def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um:
     if R > n / 4 * (1 + 1e-9):
         raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
     dtype, device = coeffs.dtype, coeffs.device
-    a, basis, area = (v.to(dtype=dtype, device=device) for v in _quarter_basis_cached(int(n), float(R), 8))
+    a, basis, area = _quarter_basis_cached(int(n), float(R), 8)
+    a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)
     h = n // 2
     B = coeffs.shape[0]
     W = (coeffs @ basis.reshape(4, -1)).reshape(B, *a.shape)
@@ -306,10 +326,14 @@ def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um:
         p_half = torch.nn.functional.pad(p_half, (0, m // 2 - h))
     hm = m // 2
     g = torch.fft.rfft(p_half, dim=-2)  # (B, hm+1, hm+1): fy = 0..hm, x still in image space
-    G = torch.fft.irfft(torch.stack([g.real, g.imag], dim=1), n=m, dim=-1)[..., : hm + 1]
+    del p_half
     # the irffts divide by n and m, and p_half carries 1/n^2: G = (fft2 |fft2 field|^2) / (n^3 m),
     # and the area-normalised OTF is that over (area n^2) (see _area_normalise)
-    H = torch.complex(G[:, 0], G[:, 1]) * (m / area)
+    scale = float(m / area)
+    g_re = torch.fft.irfft(g.real, n=m, dim=-1)[..., : hm + 1].mul_(scale)
+    g_im = torch.fft.irfft(g.imag, n=m, dim=-1)[..., : hm + 1].mul_(scale)
+    del g
+    H = torch.complex(g_re, g_im)
     H[..., 0, 0] = 1
     return H
 
