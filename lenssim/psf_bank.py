@@ -207,7 +207,8 @@ def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitc
 
     The field angle is ``atan(r / f)``, ``r = hypot(x, y)``, and the pupil is rotated to the point's
     azimuth, so the coma flare lies along the radial direction of ``(x, y)``. ``s``, ``Q``, ``x_mm``,
-    ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n`` defaults to :func:`fft_size`.
+    ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n`` defaults to :func:`fft_size`
+    with the metrics' ``fill = 0.5`` (at least 128).
     """
     from .aberrations import wavefront_coefficients
 
@@ -219,7 +220,7 @@ def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitc
     coeffs = wavefront_coefficients(lens, s, Q, alpha, elementwise=True).reshape(-1, 4)
     azimuth = torch.rad2deg(torch.atan2(y, x)).flatten()
     if n is None:
-        n = int(fft_size(lens, coeffs, pixel_pitch_um=pixel_pitch_um).max())
+        n = int(fft_size(lens, coeffs, fill=0.5, min_size=128, pixel_pitch_um=pixel_pitch_um).max())
     out = psf(lens, coeffs, n, azimuth_deg=azimuth, pixel_pitch_um=pixel_pitch_um, centered=centered)
     return out.reshape(s.shape + (n, n)), n
 

@@ -139,3 +139,14 @@ def test_fft_size_rules():
     assert torch.all(fft_size(PAPER_LENS, c * 0.1, fill=0.5) <= n)
     with pytest.raises(ValueError, match="fill=0"):
         fft_size(PAPER_LENS, c, fill=0)
+
+
+def test_bad_shapes_and_sizes_are_refused():
+    with pytest.raises(ValueError, match=r"otf_quarter expects \(B, 4\)"):
+        otf_quarter(PAPER_LENS, torch.zeros(2, 3, 4), 64)
+    with pytest.raises(ValueError, match="n=65"):
+        otf_quarter(PAPER_LENS, torch.zeros(1, 4), 65)
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        psf(PAPER_LENS, torch.zeros(3), 64)
+    with pytest.raises(ValueError, match="90 degrees"):
+        psf_at(PAPER_LENS, -0.5, -1.0, 1e9, 0.0, n=64)
