@@ -6,6 +6,7 @@ Subcommands::
     lenssim evaluate (--design NAME | --s S --Q Q) [--snr DB ...] [--json]
     lenssim sweep CONFIG --out FILE [--device auto|cpu|cuda]
     lenssim optimum FILE --criterion rms_w|mse_s|mse_r|cost [--snr DB] [--json]
+    lenssim reproduce --out DIR [--config CONFIG]   figures 3-6, Table 1 and a report vs the paper
     lenssim designs                           list named designs
 """
 
@@ -180,6 +181,20 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_reproduce(args) -> int:
+    from .report import reproduce
+    from .sweep import load_config
+
+    cfg_path = Path(args.config) if args.config else _configs_dir() / "paper_grid_fast.toml"
+    cfg = load_config(cfg_path)
+    t0 = time.perf_counter()
+    report = reproduce(args.out, cfg, device=args.device, show_progress=not args.quiet)
+    print(report.read_text())
+    print(f"wrote {args.out}/ (report.md, fig3..6 .png/.svg, table1.csv/.md) in {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr)
+    return 0
+
+
 def cmd_designs(args) -> int:
     for d in _designs(args.designs).values():
         print(f"{d.name:20s} s = {d.s:7g}  Q = {d.Q:7g}  {d.description}")
@@ -221,6 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--device", default="auto")
     d.add_argument("--quiet", action="store_true")
     d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser("reproduce", help="the paper's figures 3-6, Table 1 and a claims report")
+    r.add_argument("--out", required=True, help="output folder (a second run reuses what is there)")
+    r.add_argument("--config", help="sweep config (default: configs/paper_grid_fast.toml, ~10 min on 2 cores)")
+    r.add_argument("--device", default="auto")
+    r.add_argument("--quiet", action="store_true")
+    r.set_defaults(func=cmd_reproduce)
 
     g = sub.add_parser("designs", help="list named designs")
     g.add_argument("--designs", help="TOML file of named designs")

@@ -1,0 +1,159 @@
+"""The paper's Figures 3-6 and Table 1 from a sweep and its trade-off (matplotlib, headless).
+
+Every function writes ``NAME.png`` and ``NAME.svg`` into ``out_dir`` and returns the PNG path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+__all__ = ["fig3_cost", "fig4_landscapes", "fig5_tradeoff_configs", "fig6_performance_vs_cost", "table1",
+           "all_figures"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, out_dir: Path, name: str) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    png = out_dir / f"{name}.png"
+    for path in (png, out_dir / f"{name}.svg"):
+        tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+        fig.savefig(tmp, dpi=130)
+        tmp.replace(path)
+    _plt().close(fig)
+    return png
+
+
+def _landscape(ax, da: xr.DataArray, label: str, levels=None, log=False, cmap="viridis"):
+    Q, s = da["Q"].values, da["s"].values
+    z = np.log10(da.values) if log else da.values
+    im = ax.contourf(Q, s, z, levels=40, cmap=cmap)
+    if levels is not None:
+        ax.contour(Q, s, z, levels=levels, colors="white", linewidths=0.6)
+    ax.set_xlabel("conic constant Q")
+    ax.set_ylabel("shape factor s")
+    cb = ax.figure.colorbar(im, ax=ax)
+    cb.set_label(("log10 " if log else "") + label)
+    return im
+
+
+def fig3_cost(ds: xr.Dataset, out_dir: Path, levels=None) -> Path:
+    """C_a over (Q, s) with iso-cost contours; the zero-cost contour (Q = 0 or s = 1) in red."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 5), constrained_layout=True)
+    levels = np.linspace(0, 2e-3, 30)[1:] if levels is None else levels
+    _landscape(ax, ds["cost"], "C_a (RMS slope departure)", cmap="magma")
+    ax.contour(ds["Q"].values, ds["s"].values, ds["cost"].values, levels=levels, colors="white", linewidths=0.5)
+    ax.axvline(0, color="red", lw=1.2, label="C_a = 0: Q = 0 or s = 1")
+    if ds["s"].values[-1] >= 1:
+        ax.axhline(1, color="red", lw=1.2)
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_title("Fig. 3: industrial cost C_a (white: iso-cost levels 0..2e-3)")
+    return _save(fig, out_dir, "fig3_cost")
+
+
+def fig4_landscapes(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> Path:
+    """RMS_W, MSE_S and MSE_R (at ``snr`` dB) over (Q, s) with contours."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8), constrained_layout=True)
+    for ax, (da, label) in zip(axes, [(ds["rms_w"], "RMS_W [waves]"),
+                                      (ds["mse_s"].sel(snr=snr, method="nearest"), f"MSE_S at {snr:g} dB"),
+                                      (ds["mse_r"].sel(snr=snr, method="nearest"), f"MSE_R at {snr:g} dB")]):
+        _landscape(ax, da, label, levels=12, log=label.startswith("MSE"))
+        i, j = np.unravel_index(int(np.argmin(da.values)), da.shape)
+        ax.plot(da["Q"].values[j], da["s"].values[i], "o", mfc="none", mec="red", ms=10, mew=2)
+        ax.set_title(label + " (red circle: grid optimum)")
+    fig.suptitle("Fig. 4: quality landscapes")
+    return _save(fig, out_dir, "fig4_landscapes")
+
+
+def fig5_tradeoff_configs(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path, poly_degree: int = 3) -> Path:
+    """Optimal trade-off configurations over the cost contours, with fitted polynomials."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 6), constrained_layout=True)
+    ax.contour(ds["Q"].values, ds["s"].values, ds["cost"].values, levels=trade["level"].values[1:],
+               cmap="Greys", linewidths=0.6)
+    snrs = [float(v) for v in ds["snr"].values]
+    styles = [("mse_s@%g" % snrs[len(snrs) // 2], "x", "red", "MSE_S")]
+    markers = [("^", "magenta", "low"), ("s", "blue", "medium"), ("v", "green", "high")]
+    for snr, (m, col, word) in zip(sorted(snrs), markers if len(snrs) == 3 else markers[1:2] * len(snrs)):
+        styles.append((f"mse_r@{snr:g}", m, col, f"MSE_R, {word} SNR ({snr:g} dB)"))
+    for crit, m, col, label in styles:
+        t = trade.sel(criterion=crit)
+        s, Q = t["s"].values[1:], t["Q"].values[1:]
+        ok = np.isfinite(s)
+        ax.plot(Q[ok], s[ok], m, color=col, mfc="none" if m != "x" else col, label=label)
+        if ok.sum() > poly_degree + 1:
+            p = np.polyfit(Q[ok], s[ok], poly_degree)
+            qq = np.linspace(Q[ok].min(), Q[ok].max(), 200)
+            ax.plot(qq, np.polyval(p, qq), ":", color=col, lw=1)
+        da = ds[crit.split("@")[0]].sel(snr=float(crit.split("@")[1]))
+        i, j = np.unravel_index(int(np.argmin(da.values)), da.shape)
+        ax.plot(da["Q"].values[j], da["s"].values[i], "o", ms=16, mfc="none", mec=col, mew=1.5)
+    ax.set_xlabel("conic constant Q")
+    ax.set_ylabel("shape factor s")
+    ax.set_title("Fig. 5: optimal cost-performance configurations (circles: absolute optima)")
+    ax.legend(fontsize=8, loc="best")
+    return _save(fig, out_dir, "fig5_tradeoff_configs")
+
+
+def fig6_performance_vs_cost(trade: xr.Dataset, out_dir: Path) -> Path:
+    """RMS_W / MSE_S and the expected MSE after restoration against C_a, sequential vs end-to-end."""
+    plt = _plt()
+    ref = trade.attrs.get("reference_snr_db", 27.6)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+    e2e = trade.sel(criterion=f"mse_r@{ref:g}")
+    for ax, crit, label in ((axes[0], "rms_w", "RMS_W [waves]"), (axes[1], f"mse_s@{ref:g}", f"MSE_S at {ref:g} dB")):
+        t = trade.sel(criterion=crit)
+        lv = trade["level"].values
+        ax.plot(lv, t["value"], "-", color="tab:blue", label=f"{label} (optimising it)")
+        ax.set_xlabel("C_a (iso-cost level, slope units)")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
+        ax.set_ylabel(label, color="tab:blue")
+        ax2 = ax.twinx()
+        ax2.plot(lv, t["mse_r_ref"], "-", color="darkorange", label="MSE after Wiener, sequential design")
+        ax2.plot(lv, e2e["value"], "--", color="darkorange", label="MSE_R, end-to-end design")
+        ax2.set_ylabel(f"expected MSE after restoration ({ref:g} dB)", color="darkorange")
+        lines = ax.get_lines() + ax2.get_lines()
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper right")
+    fig.suptitle("Fig. 6: performance against cost (|Q| bounded by the grid)")
+    return _save(fig, out_dir, "fig6_performance_vs_cost")
+
+
+def table1(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> tuple[Path, Path, list[dict]]:
+    """Table 1: for the designs optimising RMS_W, MSE_S, MSE_R, the relative MSE_R and C_a (CSV + Markdown)."""
+    from .cli import find_optimum
+
+    rows = []
+    best = find_optimum(ds, "mse_r", snr)["value"]
+    for crit in ("rms_w", "mse_s", "mse_r"):
+        r = find_optimum(ds, crit, snr)
+        mr = r["mse_r"][f"{snr:g}"]
+        rows.append({"design": crit.upper(), "s": r["s"], "Q": r["Q"], "mse_r": mr, "mse_r_relative": mr / best,
+                     "cost_Ca": r["cost_Ca"]})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    csv = out_dir / "table1.csv"
+    md = out_dir / "table1.md"
+    csv.write_text("design,s,Q,mse_r,mse_r_relative,cost_Ca\n" + "".join(
+        f"{r['design']},{r['s']:g},{r['Q']:g},{r['mse_r']:.6g},{r['mse_r_relative']:.4f},{r['cost_Ca']:.4e}\n" for r in rows))
+    md.write_text(f"| design (optimises) | s | Q | MSE_R at {snr:g} dB | relative to best | C_a |\n|---|---|---|---|---|---|\n"
+                  + "".join(f"| {r['design']} | {r['s']:g} | {r['Q']:g} | {r['mse_r']:.5f} | {r['mse_r_relative']:.3f} | "
+                            f"{r['cost_Ca']:.3e} |\n" for r in rows))
+    return csv, md, rows
+
+
+def all_figures(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path) -> list[Path]:
+    out_dir = Path(out_dir)
+    ref = trade.attrs.get("reference_snr_db", 27.6)
+    return [fig3_cost(ds, out_dir), fig4_landscapes(ds, out_dir, ref), fig5_tradeoff_configs(ds, trade, out_dir),
+            fig6_performance_vs_cost(trade, out_dir)]

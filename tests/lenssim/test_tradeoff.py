@@ -1,0 +1,90 @@
+import json
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+import torch
+import xarray as xr
+
+from lenssim import PAPER_LENS, slope_departure_cost
+from lenssim.figures import all_figures, table1
+from lenssim.report import reproduce
+from lenssim.sweep import SweepConfig
+from lenssim.tradeoff import iso_cost_curve, min_cost_for_quality, tradeoff
+from lenssim.lens import ThinLens
+
+
+def synthetic_sweep(metric):
+    """A sweep-shaped dataset whose criteria are a known function of (s, Q); cost from the real model."""
+    s = np.round(np.arange(-1.0, 1.0 + 1e-9, 0.05), 6)
+    Q = np.round(np.arange(-10.0, 1.2 + 1e-9, 0.2), 6)
+    S, QQ = np.meshgrid(s, Q, indexing="ij")
+    m = metric(S, QQ)
+    snr = np.array([21.6, 27.6, 33.6])
+    cost = slope_departure_cost(PAPER_LENS, torch.from_numpy(S), torch.from_numpy(QQ)).numpy()
+    three = np.repeat(m[..., None], 3, axis=-1)
+    ds = xr.Dataset({"rms_w": (("s", "Q"), m), "mse_s": (("s", "Q", "snr"), three), "mse_r": (("s", "Q", "snr"), three),
+                     "cost": (("s", "Q"), cost)}, coords={"s": s, "Q": Q, "snr": snr, "alpha": np.arange(15.0)})
+    ds.attrs["config"] = json.dumps({"lens": asdict(PAPER_LENS), "cost_points": 101})
+    return ds
+
+
+def test_iso_cost_curves_are_located_exactly():
+    s = np.linspace(-2, 0.9, 40)
+    for level in (1e-4, 7e-4, 2e-3):
+        cs, cq, cb = iso_cost_curve(PAPER_LENS, level, s)
+        assert len(cs) > 0 and set(np.unique(cb)) <= {-1, 1}
+        c = slope_departure_cost(PAPER_LENS, torch.from_numpy(cs), torch.from_numpy(cq)).numpy()
+        np.testing.assert_allclose(c, level, rtol=1e-9)
+        assert np.all((cq >= -10) & (cq <= 1.2))
+    cs, cq, _ = iso_cost_curve(PAPER_LENS, 0.0, s)
+    assert np.all(cq == 0)
+
+
+def test_tradeoff_finds_a_known_optimum_to_sub_grid_precision():
+    s0 = 0.3137  # between grid points (step 0.05)
+    ds = synthetic_sweep(lambda S, Q: (S - s0) ** 2 + 1.0)
+    levels = np.array([0.0, 5e-5, 1e-4])
+    t = tradeoff(ds, levels=levels)
+    for lvl in levels[1:]:
+        row = t.sel(criterion="mse_r@27.6", level=lvl)
+        assert float(row["s"]) == pytest.approx(s0, abs=1e-4)
+        assert float(row["value"]) == pytest.approx(1.0, abs=1e-7)
+        assert float(row["cost"]) == pytest.approx(lvl, rel=1e-6)
+    # the "minimal cost for a given quality" view reads the same curves
+    assert min_cost_for_quality(t, "rms_w", 1.0 + 1e-6) == 0.0 or min_cost_for_quality(t, "rms_w", 1.0 + 1e-6) == 5e-5
+
+
+def test_tradeoff_prefers_lower_quality_values_along_the_curve():
+    # quality improves towards large |Q|: on each level the optimum sits at the most negative Q reachable
+    ds = synthetic_sweep(lambda S, Q: 1.0 + 0.01 * Q)
+    t = tradeoff(ds, levels=np.array([2e-4, 1e-3]))
+    for lvl in (2e-4, 1e-3):
+        cs, cq, _ = iso_cost_curve(PAPER_LENS, lvl, np.arange(-1.0, 1.0 + 1e-9, 0.002))
+        assert float(t.sel(criterion="rms_w", level=lvl)["Q"]) == pytest.approx(cq.min(), abs=1e-6)
+
+
+def test_figures_and_table_render_headless(tmp_path):
+    ds = synthetic_sweep(lambda S, Q: (S + 0.5) ** 2 + 0.01 * (Q + 3) ** 2 + 0.1)
+    ds["mse_s"] = ds["mse_s"] * 1.5
+    t = tradeoff(ds, levels=np.linspace(0, 1e-3, 6))
+    paths = all_figures(ds, t, tmp_path)
+    for p in paths:
+        assert p.exists() and p.stat().st_size > 10_000
+        assert p.with_suffix(".svg").exists()
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    csv, md, rows = table1(ds, tmp_path)
+    assert [r["design"] for r in rows] == ["RMS_W", "MSE_S", "MSE_R"]
+    assert rows[2]["mse_r_relative"] == 1.0
+    assert "relative to best" in md.read_text() and csv.read_text().count("\n") == 4
+
+
+def test_reproduce_reuses_its_outputs(tmp_path):
+    cfg = SweepConfig(lens=ThinLens(field_angles_deg=(0.0, 7.0, 14.0)), s=(-1.0, -0.5, 0.25), Q=(-4.0, 0.0, 1.0),
+                      min_size=128, oversample=1)
+    report = reproduce(tmp_path, cfg, show_progress=False)
+    text = report.read_text()
+    assert "| RMS_W optimum | s = -0.725, Q = -10 |" in text and "NOT the paper grid" in text
+    stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}
+    reproduce(tmp_path, cfg, show_progress=False)
+    assert stamps == {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}
