@@ -47,6 +47,13 @@ def mse_from_otf_quarter(H: torch.Tensor, psd_quarter: torch.Tensor, sigma2: tor
     """
     n = 2 * (H.shape[-1] - 1)
     pw = psd_quarter * _quarter_weights(n, psd_quarter.dtype, psd_quarter.device)
+    if H.requires_grad:  # differentiable path (no in-place or out= buffers)
+        H2 = H.real.square() + H.imag.square()
+        blur = ((H2 - 2 * H.real + 1) * pw).sum(dim=(-2, -1))
+        mse_s = sigma2.to(blur.dtype)[None, :] + blur[:, None]
+        H2psd = H2 * psd_quarter
+        mse_r = torch.stack([(pw / (H2psd + s2)).sum(dim=(-2, -1)) * s2 for s2 in sigma2.to(H2.dtype)], dim=-1)
+        return mse_s, mse_r
     H2 = H.real.square().add_(H.imag.square())
     E = (H2 - 2 * H.real).add_(1).mul_(pw)  # |1 - H|^2 P_x w
     blur = E.sum(dim=(-2, -1)).to(torch.float64)
