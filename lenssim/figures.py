@@ -39,7 +39,7 @@ def _landscape(ax, da: xr.DataArray, label: str, levels=None, log=False, cmap="v
     z = np.log10(da.values) if log else da.values
     im = ax.contourf(Q, s, z, levels=40, cmap=cmap)
     if levels is not None:
-        ax.contour(Q, s, z, levels=levels, colors="white", linewidths=0.6)
+        ax.contour(Q, s, z, levels=levels, colors="white", linewidths=0.6, linestyles="solid")
     ax.set_xlabel("conic constant Q")
     ax.set_ylabel("shape factor s")
     cb = ax.figure.colorbar(im, ax=ax)

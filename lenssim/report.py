@@ -15,7 +15,7 @@ import xarray as xr
 
 from .figures import all_figures, table1
 from .sweep import SweepConfig, _atomic_write_bytes, run_sweep
-from .tradeoff import PAPER_COST_LEVELS, tradeoff
+from .tradeoff import PAPER_COST_LEVELS, min_cost_for_quality, tradeoff
 
 __all__ = ["reproduce", "report_text"]
 
@@ -91,6 +91,9 @@ def report_text(ds: xr.Dataset, trade: xr.Dataset, rows: list[dict], snr: float 
         f"| a single optimal cost beyond which more cost is counterproductive (end-to-end) | yes | MSE_R along the trade-off is "
         f"smallest at C_a = {lv[int(np.nanargmin(e2e.values))]:.2e} and rises on both sides | "
         f"{'reproduced' if 0 < int(np.nanargmin(e2e.values)) < len(lv) - 1 else 'differs'} |",
+        f"| (view: minimal cost for a given quality) | - | cheapest iso-cost level whose end-to-end optimum is within 1% of "
+        f"the best MSE_R: C_a = {min_cost_for_quality(trade, f'mse_r@{ref:g}', 1.01 * float(e2e.min())):.2e}; "
+        f"within 5%: {min_cost_for_quality(trade, f'mse_r@{ref:g}', 1.05 * float(e2e.min())):.2e} | - |",
         "",
         "Figures: `fig3_cost`, `fig4_landscapes`, `fig5_tradeoff_configs`, `fig6_performance_vs_cost` (PNG and SVG).",
         "Table 1: `table1.md`, `table1.csv`. Trade-off data: `tradeoff.nc` (" + trade.attrs.get("method", "") + ").",
