@@ -1,7 +1,31 @@
 """pipeline: the camera pipeline (photo -> linear -> spatially-variant blur -> noise -> restoration).
 
-Not implemented yet (issue: camera pipeline). It will use :mod:`lenssim` for PSFs at any image
-point (:func:`lenssim.psf_at`); ``lenssim`` never imports from here.
+Implemented so far: image I/O (:mod:`pipeline.io`), sRGB <-> linear (:mod:`pipeline.colour_space`),
+Poisson noise at the paper's full-well capacities (:mod:`pipeline.noise`) and the windowed
+spatially-variant blur with its exact per-pixel reference (:mod:`pipeline.blur`). Restoration,
+quality metrics and the ``simulate`` / ``psnr-table`` commands are still to come.
+Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse.
 """
 
-__all__: list[str] = []
+from .blur import PAPER_SCHEME, WindowScheme, blur_exact, blur_windowed, tent_weights, window_centres
+from .colour_space import linear_to_srgb, srgb_to_linear
+from .io import ImageFileError, ImageInfo, read_image, write_image
+from .noise import ISO_FULL_WELL, add_poisson_noise, full_well_for_iso
+
+__all__ = [
+    "ISO_FULL_WELL",
+    "PAPER_SCHEME",
+    "ImageFileError",
+    "ImageInfo",
+    "WindowScheme",
+    "add_poisson_noise",
+    "blur_exact",
+    "blur_windowed",
+    "full_well_for_iso",
+    "linear_to_srgb",
+    "read_image",
+    "srgb_to_linear",
+    "tent_weights",
+    "window_centres",
+    "write_image",
+]

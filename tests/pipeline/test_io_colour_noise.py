@@ -1,0 +1,103 @@
+import numpy as np
+import pytest
+import torch
+
+from pipeline import ImageFileError, add_poisson_noise, full_well_for_iso, linear_to_srgb, read_image, \
+    srgb_to_linear, write_image
+
+
+def ramp(c=3, h=24, w=32):
+    y, x = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
+    return torch.stack([x, y, (x + y) / 2][:c])[None]
+
+
+@pytest.mark.parametrize("name,bits,tol", [("a.png", 8, 1 / 255), ("a.png", 16, 1 / 65535),
+                                           ("a.tif", 16, 1 / 65535), ("a.jpg", 8, 0.06), ("a.exr", "float", 1e-7)])
+def test_round_trip(tmp_path, name, bits, tol):
+    img = ramp()
+    p = write_image(tmp_path / name, img, bits=bits)
+    back, info = read_image(p)
+    assert back.shape == img.shape and back.dtype == torch.float32
+    assert (back - img).abs().max() <= tol
+    assert info.linear == (bits == "float")
+    assert not list(tmp_path.glob(".*"))  # no temporary files left
+
+
+def test_grey_and_alpha(tmp_path):
+    grey = ramp(1)
+    back, info = read_image(write_image(tmp_path / "g.png", grey, bits=16))
+    assert back.shape == (1, 1, 24, 32) and info.channels == 1
+    import OpenImageIO as oiio
+
+    rgba = np.random.default_rng(0).random((8, 8, 4)).astype(np.float32)
+    out = oiio.ImageOutput.create(str(tmp_path / "rgba.png"))
+    out.open(str(tmp_path / "rgba.png"), oiio.ImageSpec(8, 8, 4, "uint8"))
+    out.write_image(rgba)
+    out.close()
+    with pytest.warns(UserWarning, match="alpha channel dropped"):
+        back, info = read_image(tmp_path / "rgba.png")
+    assert back.shape == (1, 3, 8, 8)
+
+
+def test_unreadable_files_get_clear_errors(tmp_path):
+    with pytest.raises(ImageFileError, match="missing.png"):
+        read_image(tmp_path / "missing.png")
+    bad = tmp_path / "notes.png"
+    bad.write_text("this is not an image")
+    with pytest.raises(ImageFileError, match="notes.png"):
+        read_image(bad)
+    good = write_image(tmp_path / "t.png", ramp(h=64, w=64))
+    trunc = tmp_path / "trunc.png"
+    trunc.write_bytes(good.read_bytes()[: len(good.read_bytes()) // 2])
+    with pytest.raises(ImageFileError, match="trunc.png"):
+        read_image(trunc)
+
+
+def test_writes_never_overwrite_inputs_and_check_shapes(tmp_path):
+    src = write_image(tmp_path / "in.png", ramp())
+    before = src.read_bytes()
+    with pytest.raises(ImageFileError, match="one of the inputs"):
+        write_image(src, ramp() * 0.5, inputs=[src])
+    assert src.read_bytes() == before
+    with pytest.raises(ImageFileError, match=r"shape \(2, 3, 24, 32\)|batch of 2"):
+        write_image(tmp_path / "x.png", torch.zeros(2, 3, 24, 32))
+    with pytest.raises(ImageFileError, match="bits=12"):
+        write_image(tmp_path / "x.png", ramp(), bits=12)
+
+
+def test_srgb_round_trip_and_reference():
+    kornia = pytest.importorskip("kornia")
+    x = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    lin = srgb_to_linear(x)
+    torch.testing.assert_close(lin, kornia.color.rgb_to_linear_rgb(x), rtol=0, atol=1e-6)
+    torch.testing.assert_close(linear_to_srgb(lin), x, rtol=0, atol=1e-6)
+    assert float(srgb_to_linear(torch.tensor([0.04045]))) == pytest.approx(0.04045 / 12.92, rel=1e-5)
+    assert srgb_to_linear(x.double()).dtype == torch.float64
+    import colour.constants as cc
+
+    assert cc.DTYPE_FLOAT_DEFAULT == np.float64  # the global setting is restored
+
+
+@pytest.mark.parametrize("iso", [25, 100, 400])
+def test_poisson_noise_statistics(iso):
+    fwc = full_well_for_iso(iso)
+    level = 0.4
+    img = torch.full((1, 1, 256, 256), level, dtype=torch.float64)
+    img[..., 0, 0] = 1.0  # the maximum maps to the full well
+    noisy = add_poisson_noise(img, fwc, seed=1)[..., 1:, :]
+    # mean unchanged; variance of a Poisson count of level * fwc electrons, scaled back
+    assert float(noisy.mean()) == pytest.approx(level, rel=3e-3)
+    assert float(noisy.var()) == pytest.approx(level / fwc, rel=0.03)
+    torch.testing.assert_close(add_poisson_noise(img, fwc, seed=1)[..., 1:, :], noisy)  # reproducible
+
+
+def test_noise_errors():
+    img = torch.ones(1, 1, 4, 4)
+    with pytest.raises(ValueError, match="exactly one of generator= or seed="):
+        add_poisson_noise(img, 3200.0)
+    with pytest.raises(ValueError, match="iso=200"):
+        full_well_for_iso(200)
+    with pytest.raises(ValueError, match="full_well=0"):
+        add_poisson_noise(img, 0, seed=0)
+    with pytest.raises(ValueError, match="negative"):
+        add_poisson_noise(-img, 10.0, seed=0)
