@@ -25,7 +25,8 @@ import torch
 
 from lenssim import ThinLens, max_wavefront_slope, psf_at, wavefront_coefficients
 
-__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "tent_weights", "blur_windowed", "blur_exact"]
+__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "tent_weights", "apply_windowed", "blur_windowed",
+           "blur_exact"]
 
 
 @dataclass(frozen=True)
@@ -91,14 +92,13 @@ def _required_size(lens, s, Q, rows, cols, center, margin_px: int = 16) -> int:
     return int(math.ceil(2 * half)) + margin_px
 
 
-def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, scheme: WindowScheme = PAPER_SCHEME,
-                  optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
-    """Blur ``image`` ``(B, C, H, W)`` with the lens ``(s, Q)``'s spatially-variant PSF.
+def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, *, scheme: WindowScheme = PAPER_SCHEME,
+                   optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
+    """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
-    ``region = (r0, r1, c0, c1)`` computes only those output pixels (others are zero), using only
-    the windows whose cores touch it. ``progress(k)`` is called after each chunk of ``k`` windows.
-    ``psf_fn(rows, cols, n) -> (P, n, n)`` replaces the lens model (e.g. measured PSFs; centred,
-    unit sum); ``lens``, ``s``, ``Q`` then only set the pixel pitch.
+    ``patches`` is ``(k, B, C, window, window)`` (image rows ``y - window/2 .. y + window/2 - 1`` around each
+    centre ``y``), ``otf`` is ``(k, window, window/2 + 1)`` (``rfft2`` of the centred PSF at the centre);
+    ``op`` returns processed patches of the same shape, whose central ``core`` is kept.
     """
     _check_image(image)
     B, C, H, W = image.shape
@@ -127,8 +127,8 @@ def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, sc
         otf = torch.fft.rfft2(torch.fft.ifftshift(psfs, dim=(-2, -1)))
         patches = torch.stack([padded[:, :, y + pad - half: y + pad + half, x + pad - half: x + pad + half]
                                for y, x in zip(ys.tolist(), xs.tolist())])  # (k, B, C, win, win)
-        conv = torch.fft.irfft2(torch.fft.rfft2(patches) * otf[:, None, None], s=(win, win))
-        cores = conv[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
+        res = op(patches, otf)
+        cores = res[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
         for j, (y, x) in enumerate(zip(ys.tolist(), xs.tolist())):
             sl = (slice(y + core - core // 2, y + core + core // 2), slice(x + core - core // 2, x + core + core // 2))
             out[:, :, sl[0], sl[1]] += cores[j] * tent2
@@ -140,6 +140,24 @@ def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, sc
     result = torch.zeros_like(image)
     result[:, :, r0:r1, c0:c1] = out[:, :, r0:r1, c0:c1] / wsum[r0:r1, c0:c1]
     return result
+
+
+def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, scheme: WindowScheme = PAPER_SCHEME,
+                  optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
+    """Blur ``image`` ``(B, C, H, W)`` with the lens ``(s, Q)``'s spatially-variant PSF.
+
+    ``region = (r0, r1, c0, c1)`` computes only those output pixels (others are zero), using only
+    the windows whose cores touch it. ``progress(k)`` is called after each chunk of ``k`` windows.
+    ``psf_fn(rows, cols, n) -> (P, n, n)`` replaces the lens model (e.g. measured PSFs; centred,
+    unit sum); ``lens``, ``s``, ``Q`` then only set the pixel pitch.
+    """
+    win = scheme.window
+
+    def convolve(patches, otf):
+        return torch.fft.irfft2(torch.fft.rfft2(patches) * otf[:, None, None], s=(win, win))
+
+    return apply_windowed(image, lens, s, Q, convolve, scheme=scheme, optical_center=optical_center, region=region,
+                          chunk=chunk, progress=progress, psf_fn=psf_fn)
 
 
 def blur_exact(image: torch.Tensor, lens: ThinLens, s: float, Q: float, rows, cols, *, n: int = 512,
