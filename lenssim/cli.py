@@ -201,7 +201,8 @@ def cmd_designs(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extend=None) -> argparse.ArgumentParser:
+    """The ``lenssim`` parser; ``extend(subparsers)`` lets an upper layer (``pipeline.cli``) add commands."""
     p = argparse.ArgumentParser(prog="lenssim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"lenssim {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
@@ -247,11 +248,13 @@ def build_parser() -> argparse.ArgumentParser:
     g = sub.add_parser("designs", help="list named designs")
     g.add_argument("--designs", help="TOML file of named designs")
     g.set_defaults(func=cmd_designs)
+    if extend is not None:
+        extend(sub)
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, extend=None) -> int:
+    parser = build_parser(extend)
     args = parser.parse_args(argv)
     try:
         return args.func(args)

@@ -1,0 +1,65 @@
+"""A generated test scene (the project's built-in default input; nothing is downloaded).
+
+``resolution_scene`` draws, on a 1/f textured background, a grid of resolution targets spread
+over the whole frame so that the field dependence of the lens shows: Siemens stars, bar groups at
+several pitches (2-8 px periods), a grey step wedge, and fine random texture. Linear RGB in
+[0.02, 0.95], ``(1, 3, H, W)`` float32, deterministic for a given ``seed``.
+"""
+
+from __future__ import annotations
+
+
+import torch
+
+__all__ = ["resolution_scene", "target_tile"]
+
+
+def target_tile(size: int = 256, kind: int = 0) -> torch.Tensor:
+    """One ``size x size`` grey target (values in [0, 1]): 0 Siemens star, 1 bar groups, 2 step wedge + texture."""
+    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float32) - size / 2 + 0.5,
+                          torch.arange(size, dtype=torch.float32) - size / 2 + 0.5, indexing="ij")
+    if kind == 0:
+        theta = torch.atan2(y, x)
+        star = (torch.sin(36 * theta) > 0).float()
+        return torch.where(torch.hypot(x, y) < size * 0.47, star, torch.full_like(star, 0.5))
+    if kind == 1:  # bar groups, periods 2..16 px, vertical and horizontal
+        tile = torch.full((size, size), 0.5)
+        q, h2 = size // 4, size // 2
+        bh, bw = q - 8, h2 - 8
+        for i, period in enumerate((2, 3, 4, 6, 8, 10, 12, 16)):
+            r, c = divmod(i, 2)
+            idx = torch.arange(bw if r % 2 == 0 else bh)
+            bars = ((2 * idx // period) % 2).float()
+            block = bars[None, :].expand(bh, -1) if r % 2 == 0 else bars[:, None].expand(-1, bw)
+            tile[r * q + 4:r * q + 4 + bh, c * h2 + 4:c * h2 + 4 + bw] = block
+        return tile
+    steps = torch.linspace(0.05, 0.95, 8)  # grey wedge above, fine random texture below
+    tile = steps[torch.arange(size) * 8 // size][None, :].repeat(size, 1)
+    g = torch.Generator().manual_seed(7)
+    tile[size // 2:] = torch.rand(size - size // 2, size, generator=g)
+    return tile
+
+
+def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, tile: int = 256,
+                     spacing: int = 640) -> torch.Tensor:
+    """The default scene: linear RGB ``(1, 3, height, width)`` float32."""
+    if height < tile or width < tile:
+        raise ValueError(f"scene {height}x{width} is smaller than one {tile}-px target")
+    g = torch.Generator().manual_seed(seed)
+    lo = torch.rand(1, 3, max(2, height // 64), max(2, width // 64), generator=g)
+    bg = torch.nn.functional.interpolate(lo, size=(height, width), mode="bilinear", align_corners=False)
+    fine = torch.rand(1, 1, height // 4, width // 4, generator=g)
+    bg = 0.6 * bg + 0.25 * torch.nn.functional.interpolate(fine, size=(height, width), mode="bilinear",
+                                                           align_corners=False) + 0.05
+    img = bg
+    tiles = [target_tile(tile, k) for k in range(3)]
+    colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]])
+    k = 0
+    for r in range(spacing // 2 - tile // 2, height - tile + 1, spacing):
+        for c in range(spacing // 2 - tile // 2, width - tile + 1, spacing):
+            t = tiles[k % 3]
+            img[0, :, r:r + tile, c:c + tile] = colours[k % 3][:, None, None] * (0.05 + 0.9 * t)
+            k += 1
+    return img.clamp(0.02, 0.95).contiguous()
+
+
