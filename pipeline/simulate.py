@@ -22,7 +22,7 @@ from lenssim import PAPER_LENS, ThinLens
 from .blur import PAPER_SCHEME, WindowScheme, blur_windowed
 from .noise import add_poisson_noise
 from .quality import psnr_srgb, ssim_srgb
-from .restoration import wiener_windowed
+from .restoration import richardson_lucy_windowed, wiener_windowed
 
 __all__ = ["CropResult", "crop_at_field_angle", "simulate_crops", "simulate_frame"]
 
@@ -38,6 +38,9 @@ class CropResult:
     psnr_restored_db: float
     ssim_sensor: float
     ssim_restored: float
+    restored_rl: torch.Tensor | None = None
+    psnr_rl_db: float | None = None
+    ssim_rl: float | None = None
 
 
 def crop_at_field_angle(shape, alpha_deg: float, size: int = 256, lens: ThinLens = PAPER_LENS,
@@ -54,8 +57,12 @@ def crop_at_field_angle(shape, alpha_deg: float, size: int = 256, lens: ThinLens
 
 
 def simulate_crops(ideal: torch.Tensor, s: float, Q: float, full_well: float, boxes, *, seed: int = 0,
-                   lens: ThinLens = PAPER_LENS, scheme: WindowScheme = PAPER_SCHEME, progress=None) -> list[CropResult]:
-    """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``) at each box ``(r0, r1, c0, c1)``."""
+                   lens: ThinLens = PAPER_LENS, scheme: WindowScheme = PAPER_SCHEME, rl_iterations: int = 0,
+                   progress=None) -> list[CropResult]:
+    """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``) at each box ``(r0, r1, c0, c1)``.
+
+    ``rl_iterations > 0`` also restores with windowed Richardson-Lucy (the non-linear comparison).
+    """
     H, W = ideal.shape[-2:]
     centre = ((H - 1) / 2, (W - 1) / 2)
     margin = scheme.window // 2 + scheme.core
@@ -79,8 +86,13 @@ def simulate_crops(ideal: torch.Tensor, s: float, Q: float, full_well: float, bo
         crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(ideal.dtype)  # noqa: E731
         ci, cs_, cr = crop(sub), crop(noisy), crop(restored)
         dist = math.hypot((r0 + r1 - 1) / 2 - centre[0], (c0 + c1 - 1) / 2 - centre[1]) * lens.pixel_pitch_um * 1e-3
-        out.append(CropResult((r0, r1, c0, c1), math.degrees(math.atan(dist / lens.focal_length_mm)), ci, cs_, cr,
-                              psnr_srgb(ci, cs_), psnr_srgb(ci, cr), ssim_srgb(ci, cs_), ssim_srgb(ci, cr)))
+        res = CropResult((r0, r1, c0, c1), math.degrees(math.atan(dist / lens.focal_length_mm)), ci, cs_, cr,
+                         psnr_srgb(ci, cs_), psnr_srgb(ci, cr), ssim_srgb(ci, cs_), ssim_srgb(ci, cr))
+        if rl_iterations > 0:
+            rl = crop(richardson_lucy_windowed(noisy.clamp_min(0), lens, s, Q, iterations=rl_iterations, scheme=scheme,
+                                               optical_center=oc, region=rr, progress=progress))
+            res.restored_rl, res.psnr_rl_db, res.ssim_rl = rl, psnr_srgb(ci, rl), ssim_srgb(ci, rl)
+        out.append(res)
     return out
 
 
