@@ -53,3 +53,18 @@ def test_simulate_command_errors(tmp_path, capsys):
     assert "missing.jpg" in capsys.readouterr().err
     assert main(["simulate", "skimage:camera", "--s", "-0.5", "--Q", "-1", "--iso", "200", "--out", str(tmp_path)]) == 2
     assert "iso=200" in capsys.readouterr().err
+
+
+def test_psnr_table(tmp_path, capsys):
+    out = tmp_path / "t"
+    rc = main(["psnr-table", "skimage:camera", "--designs", "end_to_end_paper", "rms_w_paper", "--isos", "100", "25",
+               "--angles", "0", "--crop", "64", "--out", str(out)])
+    assert rc == 0
+    lines = (out / "psnr_table.csv").read_text().strip().splitlines()
+    assert lines[0].startswith("photo,design,s,Q,iso") and len(lines) == 1 + 4
+    md = (out / "psnr_table.md").read_text()
+    assert "| skimage:camera | end_to_end_paper | 25 |" in md
+    rows = [ln.split(",") for ln in lines[1:]]
+    by = {(r[1], int(r[4])): float(r[6]) for r in rows}
+    assert by[("end_to_end_paper", 25)] > by[("end_to_end_paper", 100)]  # less noise, better restoration
+    assert main(["psnr-table", "--designs", "nope", "--out", str(out)]) == 2
