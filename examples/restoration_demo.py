@@ -1,0 +1,44 @@
+"""Train-free restoration demo: adaptive local Wiener vs windowed Richardson-Lucy.
+
+    python examples/restoration_demo.py [PHOTO] [--iso 100] [--rl 20] [--out restoration_demo]
+
+Crops at 2 and 8 degrees of the photo (default: the generated scene), end-to-end design; prints
+PSNR/SSIM (sRGB) of the sensor image, the Wiener and the Richardson-Lucy restorations, and writes
+ideal | sensor | Wiener | Richardson-Lucy side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from pipeline import linear_to_srgb, write_image
+from pipeline.cli import load_photo
+from pipeline.noise import full_well_for_iso
+from pipeline.simulate import crop_at_field_angle, simulate_crops
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("photo", nargs="?")
+    ap.add_argument("--iso", type=int, default=100)
+    ap.add_argument("--rl", type=int, default=20, help="Richardson-Lucy iterations")
+    ap.add_argument("--out", default="restoration_demo")
+    args = ap.parse_args()
+    ideal, source = load_photo(args.photo)
+    boxes = [crop_at_field_angle(ideal.shape, a, 160) for a in (2.0, 8.0)]
+    res = simulate_crops(ideal, -0.775, -2.4, full_well_for_iso(args.iso), boxes, rl_iterations=args.rl)
+    rows = []
+    for r in res:
+        print(f"{source}, {r.field_deg:.1f} deg, ISO {args.iso}: sensor {r.psnr_sensor_db:.2f} dB / SSIM {r.ssim_sensor:.3f}; "
+              f"Wiener {r.psnr_restored_db:.2f} / {r.ssim_restored:.3f}; "
+              f"Richardson-Lucy ({args.rl} it.) {r.psnr_rl_db:.2f} / {r.ssim_rl:.3f}")
+        rows.append(torch.cat([r.ideal, r.sensor, r.restored, r.restored_rl], dim=-1))
+    path = write_image(Path(args.out) / "wiener_vs_rl.png", linear_to_srgb(torch.cat(rows, dim=-2).clamp(0, 1)))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
