@@ -78,6 +78,11 @@ def cmd_simulate(args) -> int:
     fwc = full_well_for_iso(args.iso)
     t0 = time.perf_counter()
     ideal, source = load_photo(args.photo)
+    if args.denoise:
+        from .denoise import gentle_denoise
+
+        ideal = gentle_denoise(ideal, args.denoise)
+        source += f" (gently denoised, strength {args.denoise:g})"
     out = Path(args.out)
     inputs = [args.photo] if args.photo and not args.photo.startswith("skimage:") else []
     size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
@@ -159,6 +164,8 @@ def _extend(sub) -> None:
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 4.0, 8.0, 12.0], help="crop field angles (deg)")
     p.add_argument("--crop", type=int, default=256, help="crop size (px)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
+    p.add_argument("--denoise", type=float, default=0.0, metavar="STRENGTH",
+                   help="gently denoise the photo first (wavelet, strength in (0, 2]; off by default, as a paper option)")
     p.add_argument("--rl", type=int, default=0, metavar="N",
                    help="also restore with N iterations of windowed Richardson-Lucy (non-linear comparison; slow)")
     p.add_argument("--out", required=True, help="output folder")

@@ -101,3 +101,21 @@ def test_noise_errors():
         add_poisson_noise(img, 0, seed=0)
     with pytest.raises(ValueError, match="negative"):
         add_poisson_noise(-img, 10.0, seed=0)
+
+
+def test_gentle_denoise_removes_noise_and_keeps_edges():
+    from pipeline.denoise import gentle_denoise
+
+    g = torch.Generator().manual_seed(0)
+    clean = torch.zeros(1, 1, 128, 128, dtype=torch.float64)
+    clean[..., :, 64:] = 0.6  # a sharp edge
+    clean = clean + 0.2
+    noisy = clean + 0.02 * torch.randn(clean.shape, generator=g, dtype=torch.float64)
+    den = gentle_denoise(noisy, strength=1.0)
+    err = lambda x: float(((x - clean) ** 2).mean())  # noqa: E731
+    assert err(den) < 0.5 * err(noisy)
+    # the edge stays sharp: the step across columns 63 -> 64 keeps most of its height
+    step = float((den[..., 64] - den[..., 63]).mean())
+    assert step > 0.8 * 0.6
+    with pytest.raises(ValueError, match="strength=0"):
+        gentle_denoise(noisy, strength=0)

@@ -33,11 +33,11 @@ def test_crops_sit_at_the_requested_field_angle():
 def test_simulate_command_writes_images_and_metrics(tmp_path, capsys):
     out = tmp_path / "sim"
     rc = main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--iso", "400", "--angles", "0",
-               "--crop", "64", "--seed", "2", "--rl", "3", "--out", str(out)])
+               "--crop", "64", "--seed", "2", "--rl", "3", "--denoise", "0.5", "--out", str(out)])
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     c = m["crops"][0]
-    assert m["iso"] == 400 and m["full_well_electrons"] == 800
+    assert m["iso"] == 400 and m["full_well_electrons"] == 800 and "denoised" in m["source"]
     assert c["psnr_restored_db"] > c["psnr_sensor_db"]
     assert c["psnr_richardson_lucy_db"] > 0 and 0 < c["ssim_richardson_lucy"] <= 1
     for kind in ("ideal", "sensor", "restored", "restored_rl"):
