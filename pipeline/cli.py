@@ -154,6 +154,19 @@ def cmd_psnr_table(args) -> int:
     return 0
 
 
+def cmd_fig8(args) -> int:
+    from .figure8 import figure8
+
+    ideal, source = load_photo(args.photo)
+    t0 = time.perf_counter()
+    png, table = figure8(ideal, args.out, angles=tuple(args.angles), crop=args.crop, seed=args.seed)
+    tmp = Path(args.out) / ".fig8_psnr.json.tmp"
+    tmp.write_text(json.dumps({"source": source, "tiles": table}, indent=2))
+    tmp.replace(Path(args.out) / "fig8_psnr.json")
+    print(f"wrote {png} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
 def _extend(sub) -> None:
     p = sub.add_parser("simulate", help="photo -> sensor image -> restored image, at crops across the field")
     p.add_argument("photo", nargs="?", help="image file (JPEG/PNG/TIFF/EXR) or skimage:NAME; default: generated scene")
@@ -170,6 +183,14 @@ def _extend(sub) -> None:
                    help="also restore with N iterations of windowed Richardson-Lucy (non-linear comparison; slow)")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=cmd_simulate)
+
+    f = sub.add_parser("fig8", help="Fig. 8-style mosaic: two designs x three ISOs at crops across the field")
+    f.add_argument("photo", nargs="?", help="image file or skimage:NAME; default: the generated scene")
+    f.add_argument("--angles", type=float, nargs="+", default=[1.3, 2.1, 7.1, 3.4, 4.8, 8.8])
+    f.add_argument("--crop", type=int, default=128)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--out", required=True)
+    f.set_defaults(func=cmd_fig8)
 
     t = sub.add_parser("psnr-table", help="PSNR of restored images: photos x designs x ISOs (CSV + Markdown)")
     t.add_argument("photos", nargs="*", help="image files or skimage:NAME; default: the generated scene")

@@ -38,6 +38,7 @@ class CropResult:
     psnr_restored_db: float
     ssim_sensor: float
     ssim_restored: float
+    blurred: torch.Tensor | None = None  # noise-free sensor image
     restored_rl: torch.Tensor | None = None
     psnr_rl_db: float | None = None
     ssim_rl: float | None = None
@@ -87,7 +88,7 @@ def simulate_crops(ideal: torch.Tensor, s: float, Q: float, full_well: float, bo
         ci, cs_, cr = crop(sub), crop(noisy), crop(restored)
         dist = math.hypot((r0 + r1 - 1) / 2 - centre[0], (c0 + c1 - 1) / 2 - centre[1]) * lens.pixel_pitch_um * 1e-3
         res = CropResult((r0, r1, c0, c1), math.degrees(math.atan(dist / lens.focal_length_mm)), ci, cs_, cr,
-                         psnr_srgb(ci, cs_), psnr_srgb(ci, cr), ssim_srgb(ci, cs_), ssim_srgb(ci, cr))
+                         psnr_srgb(ci, cs_), psnr_srgb(ci, cr), ssim_srgb(ci, cs_), ssim_srgb(ci, cr), blurred=crop(blurred))
         if rl_iterations > 0:
             rl = crop(richardson_lucy_windowed(noisy.clamp_min(0), lens, s, Q, iterations=rl_iterations, scheme=scheme,
                                                optical_center=oc, region=rr, progress=progress))

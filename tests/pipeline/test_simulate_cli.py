@@ -68,3 +68,12 @@ def test_psnr_table(tmp_path, capsys):
     by = {(r[1], int(r[4])): float(r[6]) for r in rows}
     assert by[("end_to_end_paper", 25)] > by[("end_to_end_paper", 100)]  # less noise, better restoration
     assert main(["psnr-table", "--designs", "nope", "--out", str(out)]) == 2
+
+
+def test_fig8_mosaic(tmp_path):
+    out = tmp_path / "f8"
+    assert main(["fig8", "skimage:camera", "--angles", "0", "--crop", "48", "--out", str(out)]) == 0
+    png = out / "fig8_mosaic.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (out / "fig8_mosaic.svg").exists()
+    tiles = json.loads((out / "fig8_psnr.json").read_text())["tiles"]
+    assert {(t["design"], t["iso"]) for t in tiles} == {("rms_w", 25), ("e2e", 400), ("e2e", 100), ("e2e", 25)}
