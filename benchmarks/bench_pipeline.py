@@ -80,7 +80,7 @@ def main() -> int:
     box = crop_at_field_angle(ideal.shape, args.angle, args.region)
     margin = PAPER_SCHEME.window // 2 + PAPER_SCHEME.core
     R0, R1, C0, C1 = max(box[0] - 2 * margin, 0), min(box[1] + 2 * margin, H), max(box[2] - 2 * margin, 0), min(box[3] + 2 * margin, W)
-    sub = ideal[..., R0:R1, C0:C1].double()
+    sub = ideal[..., R0:R1, C0:C1].float()
     center = ((H - 1) / 2 - R0, (W - 1) / 2 - C0)
     reg = (box[0] - R0, box[1] - R0, box[2] - C0, box[3] - C0)
     count = [0]

@@ -160,13 +160,32 @@ def pupil_amplitude(lens: ThinLens, n: int, *, pixel_pitch_um: float | None = No
     return amp.to(dtype=dtype, device=device), (x / R).to(dtype=dtype, device=device)
 
 
+@lru_cache(maxsize=8)
+def _pupil_box_cached(radius: float, supersample: int):
+    """Anti-aliased pupil on its bounding box only: coordinates ``-m..m`` samples, ``m = ceil(R + 0.71)``."""
+    m = int(math.ceil(radius + 0.7072))
+    x = torch.arange(-m, m + 1, dtype=torch.float64)
+    return _coverage(x, x, radius, supersample), x / radius
+
+
 def _field(lens, coeffs, n, azimuth_rad, pixel_pitch_um, dtype, device):
-    """Complex pupil field ``(B, n, n)`` in DFT order for coefficients ``(B, 4)``."""
-    amp, rho = pupil_amplitude(lens, n, pixel_pitch_um=pixel_pitch_um, dtype=dtype, device=device)
+    """Complex pupil field ``(B, 2m+1, 2m+1)`` on the pupil's bounding box, coefficients ``(B, 4)``.
+
+    Only the box is evaluated (the rest of the ``n x n`` grid is zero); :func:`_intensity`
+    zero-pads it. Placing the box at index 0 instead of centring it on the DFT origin multiplies
+    the image-plane amplitude by a linear phase, which ``|.|^2`` removes.
+    """
+    R = pupil_radius_samples(lens, n, pixel_pitch_um)
+    if R > n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    amp, rho = _pupil_box_cached(float(R), 8)
+    amp, rho = amp.to(dtype=dtype, device=device), rho.to(dtype=dtype, device=device)
+    coeffs = coeffs.to(dtype)
     ry, rx = rho[:, None], rho[None, :]  # rows = y, cols = x
     if azimuth_rad is None:
-        W = wavefront(coeffs, ry.expand(n, n), rx.expand(n, n))
+        W = wavefront(coeffs, ry.expand_as(amp), rx.expand_as(amp))
     else:  # rotate the pupil to each image point's azimuth, one PSF per coefficient row
+        azimuth_rad = azimuth_rad.to(dtype)
         c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]
         rho_r, rho_t = rx * c + ry * s, -rx * s + ry * c
         r2 = rho_r**2 + rho_t**2
@@ -175,26 +194,33 @@ def _field(lens, coeffs, n, azimuth_rad, pixel_pitch_um, dtype, device):
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 
+def _intensity(field: torch.Tensor, n: int) -> torch.Tensor:
+    """``|DFT_n(field)|^2`` ``(B, n, n)`` of a box field zero-padded to ``n x n``."""
+    a = torch.fft.fft2(field, s=(n, n))
+    return a.real.square() + a.imag.square()
+
+
 def _batch_coeffs(coeffs: torch.Tensor) -> tuple[torch.Tensor, tuple]:
     _check_coeffs(coeffs)
     return coeffs.reshape(-1, 4), coeffs.shape[:-1]
 
 
 def psf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, pixel_pitch_um: float | None = None,
-        centered: bool = True) -> torch.Tensor:
+        centered: bool = True, dtype: torch.dtype | None = None) -> torch.Tensor:
     """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, 4)`` in waves.
 
     ``azimuth_deg`` ``(*)`` gives, per PSF, the direction (deg, from +x towards +y) of the image
     point seen from the optical axis; the pupil coordinates are rotated exactly (no resampling).
     ``None`` puts the field along +y (rows). With ``centered`` the paraxial image point is at
-    ``[n // 2, n // 2]``, else at ``[0, 0]``. Complex dtype follows ``coeffs`` (complex64 for float32).
+    ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
+    ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak).
     """
     flat, lead = _batch_coeffs(coeffs)
     az = None
     if azimuth_deg is not None:
         az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
-    field = _field(lens, flat, int(n), az, pixel_pitch_um, flat.dtype, flat.device)
-    p = torch.fft.fft2(field).abs().square()
+    field = _field(lens, flat, int(n), az, pixel_pitch_um, dtype or flat.dtype, flat.device)
+    p = _intensity(field, int(n))
     p = p / p.sum(dim=(-2, -1), keepdim=True)
     if centered:
         p = torch.fft.fftshift(p, dim=(-2, -1))
@@ -202,17 +228,21 @@ def psf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, pixel
 
 
 def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitch_um: float | None = None,
-           centered: bool = True):
+           centered: bool = True, dtype: torch.dtype | None = None):
     """PSFs at image points ``(x_mm, y_mm)`` (mm from the optical axis, image-plane axes).
 
     The field angle is ``atan(r / f)``, ``r = hypot(x, y)``, and the pupil is rotated to the point's
     azimuth, so the coma flare lies along the radial direction of ``(x, y)``. ``s``, ``Q``, ``x_mm``,
     ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n`` defaults to :func:`fft_size`
-    with the metrics' ``fill = 0.5`` (at least 128).
+    with the metrics' ``fill = 0.5`` (at least 128). ``dtype``: as in :func:`psf`.
     """
     from .aberrations import wavefront_coefficients
 
-    s, Q, x, y = torch.broadcast_tensors(*(as_tensor(v) for v in (s, Q, x_mm, y_mm)))
+    given = [v for v in (s, Q, x_mm, y_mm) if isinstance(v, torch.Tensor) and v.is_floating_point()]
+    common = given[0].dtype if given else torch.get_default_dtype()
+    for v in given[1:]:
+        common = torch.promote_types(common, v.dtype)  # Python numbers follow the tensors' precision
+    s, Q, x, y = torch.broadcast_tensors(*(as_tensor(v, dtype=common) for v in (s, Q, x_mm, y_mm)))
     lens.check_design(s, Q)
     alpha = lens.field_angle_deg(x, y)
     if (alpha >= 90).any():
@@ -221,7 +251,7 @@ def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitc
     azimuth = torch.rad2deg(torch.atan2(y, x)).flatten()
     if n is None:
         n = int(fft_size(lens, coeffs, fill=0.5, min_size=128, pixel_pitch_um=pixel_pitch_um).max())
-    out = psf(lens, coeffs, n, azimuth_deg=azimuth, pixel_pitch_um=pixel_pitch_um, centered=centered)
+    out = psf(lens, coeffs, n, azimuth_deg=azimuth, pixel_pitch_um=pixel_pitch_um, centered=centered, dtype=dtype)
     return out.reshape(s.shape + (n, n)), n
 
 
@@ -237,7 +267,7 @@ def otf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
     if azimuth_deg is not None:
         az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
     field = _field(lens, flat, int(n), az, pixel_pitch_um, flat.dtype, flat.device)
-    H = torch.fft.fft2(torch.fft.fft2(field).abs().square())
+    H = torch.fft.fft2(_intensity(field, int(n)))
     amp, _ = pupil_amplitude(lens, n, pixel_pitch_um=pixel_pitch_um, dtype=flat.dtype, device=flat.device)
     return _area_normalise(H, amp).reshape(lead + (n, n))
 

@@ -25,8 +25,8 @@ import torch
 
 from lenssim import ThinLens, max_wavefront_slope, psf_at, wavefront_coefficients
 
-__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "tent_weights", "apply_windowed", "blur_windowed",
-           "blur_exact"]
+__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "tent_weights", "core_irfft2", "apply_windowed",
+           "blur_windowed", "blur_exact"]
 
 
 @dataclass(frozen=True)
@@ -72,12 +72,13 @@ def _pad(image: torch.Tensor, p: int) -> torch.Tensor:
     return torch.nn.functional.pad(image, (p, p, p, p), mode=mode)
 
 
-def _psfs_at_pixels(lens, s, Q, rows, cols, center, n):
-    """PSFs ``(P, n, n)`` (centred) at pixel positions ``(rows, cols)`` of the array."""
+def _psfs_at_pixels(lens, s, Q, rows, cols, center, n, *, centered: bool = True, dtype=None, device=None):
+    """PSFs ``(P, n, n)`` at pixel positions ``(rows, cols)`` of the array (``dtype``: see :func:`lenssim.psf`)."""
     pitch_mm = lens.pixel_pitch_um * 1e-3
-    y_mm = (rows.to(torch.float64) - center[0]) * pitch_mm
-    x_mm = (cols.to(torch.float64) - center[1]) * pitch_mm
-    p, _ = psf_at(lens, torch.full_like(y_mm, s), torch.full_like(y_mm, Q), x_mm, y_mm, n=n)
+    y_mm = (rows.to(dtype=torch.float64, device=device) - center[0]) * pitch_mm
+    x_mm = (cols.to(dtype=torch.float64, device=device) - center[1]) * pitch_mm
+    p, _ = psf_at(lens, torch.full_like(y_mm, s), torch.full_like(y_mm, Q), x_mm, y_mm, n=n, centered=centered,
+                  dtype=dtype)
     return p
 
 
@@ -92,13 +93,26 @@ def _required_size(lens, s, Q, rows, cols, center, margin_px: int = 16) -> int:
     return int(math.ceil(2 * half)) + margin_px
 
 
+def core_irfft2(spectrum: torch.Tensor, window: int, core: int) -> torch.Tensor:
+    """The central ``core x core`` of ``irfft2(spectrum, s=(window, window))``, ``(*, core, core)``.
+
+    Pruned inverse: the row transform runs on all columns but only the ``core`` rows that are kept go
+    through the column transform (~3x faster than the full inverse for the paper's 512 / 64).
+    """
+    lo = window // 2 - core // 2
+    rows = torch.fft.ifft(spectrum, dim=-2)[..., lo:lo + core, :]
+    return torch.fft.irfft(rows, n=window, dim=-1)[..., lo:lo + core]
+
+
 def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, *, scheme: WindowScheme = PAPER_SCHEME,
                    optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
     """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
     ``patches`` is ``(k, B, C, window, window)`` (image rows ``y - window/2 .. y + window/2 - 1`` around each
     centre ``y``), ``otf`` is ``(k, window, window/2 + 1)`` (``rfft2`` of the centred PSF at the centre);
-    ``op`` returns processed patches of the same shape, whose central ``core`` is kept.
+    ``op`` returns either processed patches of the same shape (real), whose central ``core`` is kept, or
+    their spectra (complex, ``rfft2`` layout), of which only the core is inverse transformed
+    (:func:`core_irfft2`).
     """
     _check_image(image)
     B, C, H, W = image.shape
@@ -122,13 +136,19 @@ def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, 
     tent2 = tent[:, None] * tent[None, :]
     for k in range(0, Y.numel(), chunk):
         ys, xs = Y[k:k + chunk], X[k:k + chunk]
-        psfs = (psf_fn(ys, xs, win) if psf_fn is not None else _psfs_at_pixels(lens, s, Q, ys, xs, center, win))
-        psfs = psfs.to(dtype=image.dtype, device=image.device)
-        otf = torch.fft.rfft2(torch.fft.ifftshift(psfs, dim=(-2, -1)))
+        if psf_fn is not None:
+            psfs = torch.fft.ifftshift(psf_fn(ys, xs, win).to(dtype=image.dtype, device=image.device), dim=(-2, -1))
+        else:  # the model's PSF with its centre at [0, 0], computed in the image's precision
+            psfs = _psfs_at_pixels(lens, s, Q, ys, xs, center, win, centered=False, dtype=image.dtype,
+                                   device=image.device)
+        otf = torch.fft.rfft2(psfs)
         patches = torch.stack([padded[:, :, y + pad - half: y + pad + half, x + pad - half: x + pad + half]
                                for y, x in zip(ys.tolist(), xs.tolist())])  # (k, B, C, win, win)
         res = op(patches, otf)
-        cores = res[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
+        if res.is_complex():
+            cores = core_irfft2(res, win, core)
+        else:
+            cores = res[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
         for j, (y, x) in enumerate(zip(ys.tolist(), xs.tolist())):
             sl = (slice(y + core - core // 2, y + core + core // 2), slice(x + core - core // 2, x + core + core // 2))
             out[:, :, sl[0], sl[1]] += cores[j] * tent2
@@ -151,10 +171,8 @@ def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, sc
     ``psf_fn(rows, cols, n) -> (P, n, n)`` replaces the lens model (e.g. measured PSFs; centred,
     unit sum); ``lens``, ``s``, ``Q`` then only set the pixel pitch.
     """
-    win = scheme.window
-
     def convolve(patches, otf):
-        return torch.fft.irfft2(torch.fft.rfft2(patches) * otf[:, None, None], s=(win, win))
+        return torch.fft.rfft2(patches) * otf[:, None, None]
 
     return apply_windowed(image, lens, s, Q, convolve, scheme=scheme, optical_center=optical_center, region=region,
                           chunk=chunk, progress=progress, psf_fn=psf_fn)

@@ -45,6 +45,9 @@ def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, 
     P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
     P = P / P.mean()
     inv_e = 0.0 if math.isinf(electrons_per_unit) else 1.0 / electrons_per_unit
+    w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
+    w[0] = w[-1] = 1
+    tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
 
     def restore(patches, otf):
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
@@ -52,15 +55,19 @@ def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, 
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
         noise = mu.clamp_min(0) * inv_e + read_noise_var
         H = otf[:, None, None]  # (k, 1, 1, win, win/2+1)
-        H2 = H.real.square() + H.imag.square()
+        HP = (H.real.square() + H.imag.square()) * P
         # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
-        w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
-        w[0] = 1
-        w[-1] = 1
-        gain = (H2 * P * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
+        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
         sx = (var_y - noise).clamp_min(floor) / gain
-        G = H.conj() * sx * P / (H2 * sx * P + noise)
-        return torch.fft.irfft2(G * torch.fft.rfft2(patches - mu), s=(win, win)) + mu
+        # G = conj(H) sx P / (|H|^2 sx P + noise) = conj(H) P / (|H|^2 P + noise / sx), built in place
+        G = HP + noise / sx
+        torch.div(P, G.clamp_min_(tiny), out=G)
+        out = torch.fft.rfft2(patches)
+        dc = mu[..., 0, 0] * (win * win)  # the local mean's DC term: filter y - mu, then add mu back
+        out[..., 0, 0] -= dc
+        out.mul_(H.conj()).mul_(G)
+        out[..., 0, 0] += dc
+        return out  # spectrum: apply_windowed inverse transforms only the core
 
     return apply_windowed(observed, lens, s, Q, restore, scheme=scheme, optical_center=optical_center, region=region,
                           chunk=chunk, progress=progress, psf_fn=psf_fn)
