@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .files import atomic_write
+
 __all__ = ["fig3_cost", "fig4_landscapes", "fig5_tradeoff_configs", "fig6_performance_vs_cost", "table1",
            "all_figures"]
 
@@ -27,9 +29,7 @@ def _save(fig, out_dir: Path, name: str) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / f"{name}.png"
     for path in (png, out_dir / f"{name}.svg"):
-        tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-        fig.savefig(tmp, dpi=130)
-        tmp.replace(path)
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=130))
     _plt().close(fig)
     return png
 

@@ -14,7 +14,8 @@ import numpy as np
 import xarray as xr
 
 from .figures import all_figures, table1
-from .sweep import SweepConfig, _atomic_write_bytes, run_sweep
+from .files import atomic_write, atomic_write_text
+from .sweep import SweepConfig, run_sweep
 from .tradeoff import PAPER_COST_LEVELS, min_cost_for_quality, tradeoff
 
 __all__ = ["reproduce", "report_text"]
@@ -28,7 +29,7 @@ def _load_or_compute_tradeoff(ds: xr.Dataset, path: Path) -> xr.Dataset:
                 return old.load()
     trade = tradeoff(ds, levels=PAPER_COST_LEVELS)
     trade.attrs["sweep_digest"] = digest
-    _atomic_write_bytes(path, lambda tmp: trade.to_netcdf(tmp, engine="scipy"))
+    atomic_write(path, lambda tmp: trade.to_netcdf(tmp, engine="scipy"))
     return trade
 
 
@@ -109,5 +110,5 @@ def reproduce(out_dir: str | os.PathLike, cfg: SweepConfig, *, device: str = "au
     all_figures(ds, trade, out)
     _, _, rows = table1(ds, out, trade.attrs.get("reference_snr_db", 27.6))
     text = report_text(ds, trade, rows, trade.attrs.get("reference_snr_db", 27.6))
-    _atomic_write_bytes(out / "report.md", lambda tmp: Path(tmp).write_text(text))
+    atomic_write_text(out / "report.md", text)
     return out / "report.md"

@@ -15,7 +15,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ import torch
 import xarray as xr
 
 from . import __version__
+from .files import atomic_write
 from .image_model import PAPER_RHO0, PAPER_SNR_DB
 from .lens import ThinLens
 from .metrics import DEFAULT_FILL, DEFAULT_MIN_SIZE, DEFAULT_OVERSAMPLE, evaluate
@@ -126,18 +126,6 @@ def select_device(name: str = "auto") -> torch.device:
     return dev
 
 
-def _atomic_write_bytes(path: Path, writer) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        writer(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
 _CHUNK_KEYS = ("rms_w", "rms_w_alpha", "rms_w_piston_removed", "mse_s", "mse_r", "mse_s_alpha", "mse_r_alpha",
                "cost", "fft_size")
 
@@ -207,7 +195,7 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         if json.loads(meta.read_text()).get("digest") != cfg.digest():
             raise FileExistsError(f"{str(part)!r} holds chunks of a different config; remove it or choose another --out")
     else:
-        _atomic_write_bytes(meta, lambda p: Path(p).write_text(json.dumps({"digest": cfg.digest(), "config": cfg.to_dict()})))
+        atomic_write(meta, lambda p: Path(p).write_text(json.dumps({"digest": cfg.digest(), "config": cfg.to_dict()})))
     s_vals = cfg.s_values
     per_chunk = len(cfg.Q_values) * len(cfg.lens.field_angles_deg)
     paths = [part / f"chunk_{i:05d}.npz" for i in range(len(s_vals))]
@@ -226,7 +214,7 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         def write(tmp, chunk=chunk):
             with open(tmp, "wb") as fh:
                 np.savez(fh, **chunk)
-        _atomic_write_bytes(p, write)
+        atomic_write(p, write)
         computed += 1
     bar.close()
     chunks = []
@@ -234,7 +222,7 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         with np.load(p) as z:
             chunks.append({k: z[k] for k in _CHUNK_KEYS})
     ds = _dataset(cfg, chunks)
-    _atomic_write_bytes(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+    atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
     if not keep_chunks:
         shutil.rmtree(part)
     return ds

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import torch
 
+from lenssim.files import atomic_write
+
 from .colour_space import linear_to_srgb
 from .noise import full_well_for_iso
 from .simulate import crop_at_field_angle, simulate_crops
@@ -29,8 +31,9 @@ def figure8(ideal: torch.Tensor, out_dir, *, rms_w=(-0.725, -10.0), e2e=(-0.775,
 
     boxes = [crop_at_field_angle(ideal.shape, a, crop) for a in angles]
     runs = {("rms_w", 25): simulate_crops(ideal, *rms_w, full_well_for_iso(25), boxes, seed=seed)}
-    for iso in (400, 100, 25):
-        runs[("e2e", iso)] = simulate_crops(ideal, *e2e, full_well_for_iso(iso), boxes, seed=seed)
+    isos = (400, 100, 25)
+    per_iso = simulate_crops(ideal, *e2e, [full_well_for_iso(i) for i in isos], boxes, seed=seed)  # one blur
+    runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
     cols = [("ideal", lambda i: runs[("e2e", 25)][i].ideal, None),
             ("RMS_W: sensor (no noise)", lambda i: runs[("rms_w", 25)][i].blurred, None),
             ("RMS_W: restored, ISO 25", lambda i: runs[("rms_w", 25)][i].restored, ("rms_w", 25)),
@@ -61,8 +64,6 @@ def figure8(ideal: torch.Tensor, out_dir, *, rms_w=(-0.725, -10.0), e2e=(-0.775,
     out.mkdir(parents=True, exist_ok=True)
     png = out / "fig8_mosaic.png"
     for path in (png, out / "fig8_mosaic.svg"):
-        tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-        fig.savefig(tmp, dpi=150)
-        tmp.replace(path)
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=150))
     plt.close(fig)
     return png, table

@@ -13,13 +13,14 @@ file, and a path that is one of the inputs is refused.
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from lenssim.files import atomic_write
 
 __all__ = ["ImageFileError", "ImageInfo", "read_image", "write_image"]
 
@@ -94,10 +95,8 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
     if bits != "float":
         arr = np.clip(arr, 0.0, 1.0)
     arr = np.ascontiguousarray(arr)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=p.suffix, dir=p.parent)
-    os.close(fd)
-    try:
+
+    def writer(tmp: str) -> None:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
             raise ImageFileError(f"cannot write {str(p)!r}: {oiio.geterror() or 'unknown file extension'}")
@@ -107,8 +106,5 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
         out.close()
         if not ok:
             raise ImageFileError(f"cannot write {str(p)!r}: {msg}")
-        os.replace(tmp, p)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return p
+
+    return atomic_write(p, writer)

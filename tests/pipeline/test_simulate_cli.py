@@ -5,9 +5,11 @@ import pytest
 import torch
 
 from lenssim import PAPER_LENS
+from pipeline.blur import WindowScheme
 from pipeline.cli import main
+from pipeline.io import read_image
 from pipeline.scene import resolution_scene, target_tile
-from pipeline.simulate import crop_at_field_angle
+from pipeline.simulate import crop_at_field_angle, crops_from_frame, simulate_crops, simulate_frame
 
 
 def test_scene_is_deterministic_and_in_range():
@@ -77,3 +79,52 @@ def test_fig8_mosaic(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (out / "fig8_mosaic.svg").exists()
     tiles = json.loads((out / "fig8_psnr.json").read_text())["tiles"]
     assert {(t["design"], t["iso"]) for t in tiles} == {("rms_w", 25), ("e2e", 400), ("e2e", 100), ("e2e", 25)}
+
+
+def test_crops_at_several_iso_share_one_blur_and_equal_separate_runs():
+    ideal = resolution_scene(600, 900, seed=2)
+    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48)]
+    both = simulate_crops(ideal, -0.775, -2.4, [800.0, 12800.0], boxes, seed=4)
+    for fwc, res in zip((800.0, 12800.0), both):
+        alone = simulate_crops(ideal, -0.775, -2.4, fwc, boxes, seed=4)[0]
+        assert torch.equal(res[0].restored, alone.restored) and res[0].psnr_sensor_db == alone.psnr_sensor_db
+    assert both[1][0].psnr_restored_db > both[0][0].psnr_restored_db  # ISO 25 beats ISO 400
+    with pytest.raises(ValueError, match="full_well=-1.0"):
+        simulate_crops(ideal, -0.775, -2.4, [-1.0], boxes)
+
+
+def test_full_frame_resumes_from_its_checkpoint(tmp_path):
+    ideal = resolution_scene(600, 900, seed=3)[..., :300, :400]
+    scheme = WindowScheme(256, 32, 64)
+    first = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    assert not first.resumed and (tmp_path / "sensor_linear.exr").exists()
+    again = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    assert again.resumed and "blur" not in again.seconds
+    assert torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
+    other = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)
+    assert not other.resumed and not torch.equal(other.sensor, first.sensor)  # another seed: recomputed
+    # crops cut from the frame are the frame's pixels, at their own field angle
+    box = crop_at_field_angle(ideal.shape, 0.3, 64)
+    c = crops_from_frame(ideal, first, [box])[0]
+    assert torch.equal(c.restored, first.restored[..., box[0]:box[1], box[2]:box[3]])
+    assert c.field_deg == pytest.approx(0.3, abs=0.02) and c.psnr_restored_db > c.psnr_sensor_db
+
+
+def test_simulate_full_frame_command(tmp_path, capsys):
+    out = tmp_path / "ff"
+    rc = main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-frame", "--exr", "--bits", "16",
+               "--angles", "0", "0.4", "--crop", "64", "--out", str(out)])
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    f = m["full_frame"]
+    assert f["shape_c_h_w"] == [1, 512, 512] and f["windows_per_pass"] == 17 * 17 and not f["resumed"]
+    assert f["psnr_restored_db"] > f["psnr_sensor_db"] and f["ssim_restored"] > f["ssim_sensor"]
+    sensor, info = read_image(out / "sensor.png")
+    assert sensor.shape == (1, 1, 512, 512) and info.file_format == "uint16"
+    lin, info = read_image(out / "restored_linear.exr")
+    assert info.linear and lin.shape == (1, 1, 512, 512)
+    assert not (out / ".checkpoint").exists()  # removed once the run is complete
+    assert [c["requested_deg"] for c in m["crops"]] == [0, 0.4]
+    assert "whole frame: PSNR sensor" in capsys.readouterr().out
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-frame", "--rl", "2",
+                 "--out", str(out)]) == 2
