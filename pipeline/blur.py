@@ -105,7 +105,7 @@ def core_irfft2(spectrum: torch.Tensor, window: int, core: int) -> torch.Tensor:
 
 
 def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, *, scheme: WindowScheme = PAPER_SCHEME,
-                   optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
+                   optical_center=None, region=None, chunk: int | None = None, progress=None, psf_fn=None) -> torch.Tensor:
     """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
     ``patches`` is ``(k, B, C, window, window)`` (image rows ``y - window/2 .. y + window/2 - 1`` around each
@@ -128,6 +128,8 @@ def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, 
     if need + core > win:
         raise ValueError(f"the PSF spans {need} px but window={win} leaves room for only {win - core} beside the "
                          f"{core}-px core: use a larger window")
+    if chunk is None:  # windows per batch: enough to fill a GPU, few enough for a CPU's caches
+        chunk = 32 if image.device.type == "cuda" else 8
     pad = half + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
@@ -163,11 +165,12 @@ def apply_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, op, 
 
 
 def blur_windowed(image: torch.Tensor, lens: ThinLens, s: float, Q: float, *, scheme: WindowScheme = PAPER_SCHEME,
-                  optical_center=None, region=None, chunk: int = 8, progress=None, psf_fn=None) -> torch.Tensor:
+                  optical_center=None, region=None, chunk: int | None = None, progress=None, psf_fn=None) -> torch.Tensor:
     """Blur ``image`` ``(B, C, H, W)`` with the lens ``(s, Q)``'s spatially-variant PSF.
 
     ``region = (r0, r1, c0, c1)`` computes only those output pixels (others are zero), using only
-    the windows whose cores touch it. ``progress(k)`` is called after each chunk of ``k`` windows.
+    the windows whose cores touch it. ``progress(k)`` is called after each chunk of ``k`` windows
+    (``chunk``: default 8 on a CPU, 32 on a GPU). Runs on ``image``'s device and in its dtype.
     ``psf_fn(rows, cols, n) -> (P, n, n)`` replaces the lens model (e.g. measured PSFs; centred,
     unit sum); ``lens``, ``s``, ``Q`` then only set the pixel pitch.
     """

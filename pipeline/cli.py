@@ -25,6 +25,7 @@ import torch
 
 from lenssim.cli import _designs, main as _lenssim_main
 from lenssim.files import atomic_write_text
+from lenssim.sweep import select_device
 
 from .io import ImageFileError, read_image, write_image
 
@@ -79,6 +80,7 @@ def cmd_simulate(args) -> int:
     fwc = full_well_for_iso(args.iso)
     t0 = time.perf_counter()
     ideal, source = load_photo(args.photo)
+    ideal = ideal.to(select_device(args.device))
     if args.denoise:
         from .denoise import gentle_denoise
 
@@ -171,6 +173,7 @@ def cmd_psnr_table(args) -> int:
     t0 = time.perf_counter()
     for photo in photos:
         ideal, source = load_photo(photo)
+        ideal = ideal.to(select_device(args.device))
         size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
         boxes = [crop_at_field_angle(ideal.shape, a, size) for a in args.angles]
         for name in args.designs:
@@ -201,6 +204,7 @@ def cmd_fig8(args) -> int:
     from .figure8 import figure8
 
     ideal, source = load_photo(args.photo)
+    ideal = ideal.to(select_device(args.device))
     t0 = time.perf_counter()
     png, table = figure8(ideal, args.out, angles=tuple(args.angles), crop=args.crop, seed=args.seed)
     atomic_write_text(Path(args.out) / "fig8_psnr.json", json.dumps({"source": source, "tiles": table}, indent=2))
@@ -227,6 +231,7 @@ def _extend(sub) -> None:
                         "2 CPU cores; resumes after an interruption) instead of crops only")
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="--full-frame PNG bit depth (sRGB)")
     p.add_argument("--exr", action="store_true", help="--full-frame: also write linear float EXRs")
+    p.add_argument("--device", default="auto", help="auto (GPU if present), cpu, cuda")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=cmd_simulate)
 
@@ -235,6 +240,7 @@ def _extend(sub) -> None:
     f.add_argument("--angles", type=float, nargs="+", default=[1.3, 2.1, 7.1, 3.4, 4.8, 8.8])
     f.add_argument("--crop", type=int, default=128)
     f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--device", default="auto", help="auto (GPU if present), cpu, cuda")
     f.add_argument("--out", required=True)
     f.set_defaults(func=cmd_fig8)
 
@@ -245,6 +251,7 @@ def _extend(sub) -> None:
     t.add_argument("--angles", type=float, nargs="+", default=[1.0, 5.0, 9.0])
     t.add_argument("--crop", type=int, default=192)
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--device", default="auto", help="auto (GPU if present), cpu, cuda")
     t.add_argument("--out", required=True)
     t.set_defaults(func=cmd_psnr_table)
 

@@ -48,7 +48,7 @@ def figure8(ideal: torch.Tensor, out_dir, *, rms_w=(-0.725, -10.0), e2e=(-0.775,
         for j, (title, get, key) in enumerate(cols):
             ax = axes[i, j]
             img = linear_to_srgb(get(i).clamp(0, 1))[0]
-            ax.imshow(img.permute(1, 2, 0).squeeze(-1).numpy(), cmap="gray" if img.shape[0] == 1 else None,
+            ax.imshow(img.permute(1, 2, 0).squeeze(-1).cpu().numpy(), cmap="gray" if img.shape[0] == 1 else None,
                       vmin=0, vmax=1, interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])

@@ -20,7 +20,9 @@ def _prep(ref: torch.Tensor, test: torch.Tensor, crop):
     if crop is not None:
         r0, r1, c0, c1 = crop
         ref, test = ref[..., r0:r1, c0:c1], test[..., r0:r1, c0:c1]
-    enc = lambda t: linear_to_srgb(t.clamp(0, 1))[0].permute(1, 2, 0).double().cpu().numpy()  # noqa: E731
+    # float32 (the precision of the encoded values): scikit-image then works in float32; a 24 MP
+    # SSIM + PSNR peaks at 3.0 GB instead of 4.7 GB (and takes 25 s instead of 34 s) here
+    enc = lambda t: linear_to_srgb(t.clamp(0, 1))[0].permute(1, 2, 0).float().cpu().numpy()  # noqa: E731
     return enc(ref), enc(test)
 
 

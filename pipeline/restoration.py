@@ -31,7 +31,7 @@ __all__ = ["wiener_windowed", "richardson_lucy_windowed"]
 
 def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, *, electrons_per_unit: float,
                     read_noise_var: float = 0.0, rho0: float = PAPER_RHO0, stats: int = 128,
-                    scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int = 8,
+                    scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, psf_fn=None, floor: float = 1e-10) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the lens ``(s, Q)`` with Poisson noise.
 

@@ -2,14 +2,19 @@
 
 ``resolution_scene`` draws, on a 1/f textured background, a grid of resolution targets spread
 over the whole frame so that the field dependence of the lens shows: Siemens stars, bar groups at
-several pitches (2-8 px periods), a grey step wedge, and fine random texture. Linear RGB in
+several pitches (2-16 px periods), a grey step wedge, and fine random texture. In addition,
+Siemens stars (0, 4, 8, 12 degrees) and bar groups (2, 6, 10 degrees) are centred on the frame
+diagonal at those field angles of the paper's lens (at 6000 x 4000; the 12-degree tile sits in
+the corner), where :func:`pipeline.simulate.crop_at_field_angle` puts its crops by default. Linear RGB in
 [0.02, 0.95], ``(1, 3, H, W)`` float32, deterministic for a given ``seed``.
 """
 
 from __future__ import annotations
-
+import math
 
 import torch
+
+from lenssim import PAPER_LENS, ThinLens
 
 __all__ = ["resolution_scene", "target_tile"]
 
@@ -40,9 +45,25 @@ def target_tile(size: int = 256, kind: int = 0) -> torch.Tensor:
     return tile
 
 
+def _diagonal_positions(height: int, width: int, tile: int, lens: ThinLens, step_deg: float = 2.0):
+    """Top-left corners and kinds of the tiles centred on the diagonal every ``step_deg`` degrees of field."""
+    az = math.atan2(height, width)
+    out, a = [], 0.0
+    while True:
+        r_px = lens.focal_length_mm * math.tan(math.radians(a)) / (lens.pixel_pitch_um * 1e-3)
+        cy, cx = (height - 1) / 2 + r_px * math.sin(az), (width - 1) / 2 + r_px * math.cos(az)
+        # kept inside the frame exactly as crop_at_field_angle keeps its crops
+        r0 = min(max(int(round(cy - tile / 2)), 0), height - tile)
+        c0 = min(max(int(round(cx - tile / 2)), 0), width - tile)
+        if out and (r0, c0) == out[-1][:2] or r_px > math.hypot(height, width) / 2:
+            return out
+        out.append((r0, c0, 0 if round(a / step_deg) % 2 == 0 else 1))
+        a += step_deg
+
+
 def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, tile: int = 256,
-                     spacing: int = 640) -> torch.Tensor:
-    """The default scene: linear RGB ``(1, 3, height, width)`` float32."""
+                     spacing: int = 640, lens: ThinLens = PAPER_LENS) -> torch.Tensor:
+    """The default scene: linear RGB ``(1, 3, height, width)`` float32 (``lens`` places the diagonal targets)."""
     if height < tile or width < tile:
         raise ValueError(f"scene {height}x{width} is smaller than one {tile}-px target")
     g = torch.Generator().manual_seed(seed)
@@ -54,12 +75,14 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
     img = bg
     tiles = [target_tile(tile, k) for k in range(3)]
     colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]])
+    diagonal = _diagonal_positions(height, width, tile, lens)
+    clear = lambda r, c: all(abs(r - dr) >= tile + 8 or abs(c - dc) >= tile + 8 for dr, dc, _ in diagonal)  # noqa: E731
     k = 0
     for r in range(spacing // 2 - tile // 2, height - tile + 1, spacing):
         for c in range(spacing // 2 - tile // 2, width - tile + 1, spacing):
-            t = tiles[k % 3]
-            img[0, :, r:r + tile, c:c + tile] = colours[k % 3][:, None, None] * (0.05 + 0.9 * t)
+            if clear(r, c):  # grid tiles give way to the diagonal ones
+                img[0, :, r:r + tile, c:c + tile] = colours[k % 3][:, None, None] * (0.05 + 0.9 * tiles[k % 3])
             k += 1
+    for r, c, kind in diagonal:
+        img[0, :, r:r + tile, c:c + tile] = colours[kind][:, None, None] * (0.05 + 0.9 * tiles[kind])
     return img.clamp(0.02, 0.95).contiguous()
-
-

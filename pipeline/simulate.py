@@ -98,7 +98,7 @@ def simulate_crops(ideal: torch.Tensor, s: float, Q: float, full_well, boxes, *,
         field = math.degrees(math.atan(dist / lens.focal_length_mm))
         for i, fwc in enumerate(wells):
             e = fwc / peak
-            g = torch.Generator().manual_seed(seed + k)
+            g = torch.Generator(device=blurred.device).manual_seed(seed + k)
             noisy = blurred.clone()
             reg = (slice(br[0], br[1]), slice(br[2], br[3]))
             counts = torch.poisson((blurred[..., reg[0], reg[1]] * e).clamp_min(0), generator=g)
@@ -165,7 +165,7 @@ def simulate_frame(ideal: torch.Tensor, s: float, Q: float, full_well: float, *,
                 if tuple(sensor.shape) == tuple(ideal.shape):
                     if progress is not None:
                         progress(_window_count(ideal.shape, scheme))
-                    return _restore_frame(sensor.to(dtype), ideal, s, Q, stamp["electrons_per_unit"], lens, scheme,
+                    return _restore_frame(sensor.to(device=ideal.device, dtype=dtype), ideal, s, Q, stamp["electrons_per_unit"], lens, scheme,
                                           progress, seconds, resumed=True)
     t0 = time.perf_counter()
     blurred = blur_windowed(ideal.to(dtype), lens, s, Q, scheme=scheme, progress=progress)

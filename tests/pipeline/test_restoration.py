@@ -59,8 +59,8 @@ def test_quality_metrics_against_closed_forms():
     from pipeline.colour_space import linear_to_srgb
 
     mse = float(((linear_to_srgb(noisy) - linear_to_srgb(x)) ** 2).mean())
-    assert psnr_srgb(x, noisy) == pytest.approx(10 * math.log10(1 / mse), rel=1e-9)
-    assert abs(ssim_srgb(x, x) - 1) < 1e-12
+    assert psnr_srgb(x, noisy) == pytest.approx(10 * math.log10(1 / mse), rel=1e-7)
+    assert abs(ssim_srgb(x, x) - 1) < 1e-6
     with pytest.raises(ValueError, match="expected two equal"):
         psnr_srgb(x, x[..., :32])
 

@@ -128,3 +128,13 @@ def test_simulate_full_frame_command(tmp_path, capsys):
     assert "whole frame: PSNR sensor" in capsys.readouterr().out
     assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-frame", "--rl", "2",
                  "--out", str(out)]) == 2
+
+
+def test_default_crops_land_on_the_diagonal_targets():
+    scene = resolution_scene()
+    star, bars = target_tile(256, 0), target_tile(256, 1)
+    for a, t in ((0.0, star), (4.0, star), (12.0, star), (6.0, bars)):
+        r0, r1, c0, c1 = crop_at_field_angle(scene.shape, a, 256)
+        grey = scene[0, 0, r0:r1, c0:c1]  # the white-lit channel: 0.05 + 0.9 * target
+        err = float((grey - (0.05 + 0.9 * t).clamp(0.02, 0.95)).abs().mean())
+        assert err < 0.02, (a, err)  # within a pixel or two of the target's centre
