@@ -17,6 +17,7 @@ writes ``psnr_table.csv`` and ``psnr_table.md`` (mean over the crops).
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -264,5 +265,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
+def entry() -> None:
+    """The ``lenssim`` console script: :func:`main`, then exit without interpreter teardown.
+
+    colour-science imports OpenImageIO, and with torch also loaded the interpreter's teardown runs
+    in an order where OpenImageIO's nanobind bindings report their module-level objects as
+    "leaked" (a page of messages after every pipeline command, exit status still 0). Every output
+    is complete and closed when ``main`` returns (atomic writes), so the script flushes its streams
+    and leaves directly. ``main`` itself (tests, Python callers) is unaffected.
+    """
+    rc = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

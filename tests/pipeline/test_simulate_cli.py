@@ -138,3 +138,18 @@ def test_default_crops_land_on_the_diagonal_targets():
         grey = scene[0, 0, r0:r1, c0:c1]  # the white-lit channel: 0.05 + 0.9 * target
         err = float((grey - (0.05 + 0.9 * t).clamp(0.02, 0.95)).abs().mean())
         assert err < 0.02, (a, err)  # within a pixel or two of the target's centre
+
+
+def test_console_script_exits_cleanly(tmp_path):
+    """The installed entry point: exit status of main, complete outputs, no teardown noise on stderr."""
+    import subprocess
+    import sys
+
+    run = lambda *a: subprocess.run([sys.executable, "-m", "pipeline.cli", *a], capture_output=True, text=True)  # noqa: E731
+    ok = run("simulate", "skimage:camera", "--design", "end_to_end_paper", "--angles", "0", "--crop", "48",
+             "--out", str(tmp_path / "c"))
+    assert ok.returncode == 0 and "PSNR sensor -> restored" in ok.stdout
+    assert json.loads((tmp_path / "c" / "metrics.json").read_text())["crops"]
+    assert "leaked" not in ok.stderr
+    bad = run("simulate", "skimage:nothing", "--design", "end_to_end_paper", "--out", str(tmp_path / "d"))
+    assert bad.returncode == 2 and "nothing" in bad.stderr
