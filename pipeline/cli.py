@@ -2,11 +2,12 @@
 
 This module sits on top of both packages (``lenssim`` never imports ``pipeline``)::
 
-    lenssim simulate [PHOTO|skimage:NAME] (--design NAME | --s S --Q Q) [--iso 100] [--angles 0 4 8 12]
-                     [--crop 256] [--seed 0] --out DIR
+    lenssim simulate [PHOTO|skimage:NAME] (--design NAME | --s S --Q Q) [--iso 100 | --full-well E]
+                     [--angles 0 4 8 12] [--crop 256] [--seed 0] [--scheme 512 32 64] [--full-frame] --out DIR
 
 writes, for crops centred at the given field angles (along the frame diagonal), the ideal, sensor
-and restored images (8-bit sRGB PNG), a mosaic, and ``metrics.json`` (PSNR/SSIM in sRGB).
+and restored images (8-bit sRGB PNG), a mosaic, and ``metrics.json`` (PSNR/SSIM in sRGB); with
+``--full-frame`` also the whole sensor and restored frames and whole-frame metrics (resumable).
 Without PHOTO the built-in generated 6000 x 4000 scene is used. ::
 
     lenssim psnr-table [PHOTO ...] [--designs A B] [--isos 400 100 25] --out DIR
@@ -78,7 +79,15 @@ def cmd_simulate(args) -> int:
         s, Q = args.s, args.Q
     else:
         raise ValueError("give --design NAME, or both --s and --Q")
-    fwc = full_well_for_iso(args.iso)
+    from .blur import WindowScheme
+
+    if args.full_well is not None:
+        if not args.full_well > 0:
+            raise ValueError(f"--full-well {args.full_well!r} is not allowed: must be > 0 electrons")
+        fwc, args.iso = float(args.full_well), None
+    else:
+        fwc = full_well_for_iso(args.iso)
+    scheme = WindowScheme(*args.scheme)
     t0 = time.perf_counter()
     ideal, source = load_photo(args.photo)
     ideal = ideal.to(select_device(args.device))
@@ -91,11 +100,12 @@ def cmd_simulate(args) -> int:
     inputs = [args.photo] if args.photo and not args.photo.startswith("skimage:") else []
     size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
     boxes = [crop_at_field_angle(ideal.shape, a, size) for a in args.angles]
-    report = {"source": source, "s": s, "Q": Q, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed}
+    report = {"source": source, "s": s, "Q": Q, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
+              "scheme_window_stride_core": list(args.scheme)}
     if args.full_frame:
-        results = _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report)
+        results = _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report, scheme)
     else:
-        results = simulate_crops(ideal, s, Q, fwc, boxes, seed=args.seed, rl_iterations=args.rl)
+        results = simulate_crops(ideal, s, Q, fwc, boxes, seed=args.seed, rl_iterations=args.rl, scheme=scheme)
     report["crops"] = []
     for a, r in zip(args.angles, results):
         tag = f"crop_{a:g}deg"
@@ -107,7 +117,7 @@ def cmd_simulate(args) -> int:
                                 "psnr_richardson_lucy_db": r.psnr_rl_db, "ssim_richardson_lucy": r.ssim_rl})
     write_image(out / "mosaic.png", linear_to_srgb(_mosaic(results).clamp(0, 1)), inputs=inputs)
     atomic_write_text(out / "metrics.json", json.dumps(report, indent=2))
-    print(f"{source}, s = {s:g}, Q = {Q:g}, ISO {args.iso} ({fwc:g} e-):")
+    print(f"{source}, s = {s:g}, Q = {Q:g}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
     print("  field [deg]   PSNR sensor -> restored [dB]   SSIM sensor -> restored")
     for c in report["crops"]:
         rl = (f"   (Richardson-Lucy: {c['psnr_richardson_lucy_db']:.2f} dB, SSIM {c['ssim_richardson_lucy']:.3f})"
@@ -118,13 +128,13 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report):
+def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report, scheme):
     """``simulate --full-frame``: the whole frame (resumable), whole-frame metrics, crops cut from it."""
     import shutil
 
     from tqdm import tqdm
 
-    from .blur import PAPER_SCHEME, window_centres
+    from .blur import window_centres
     from .colour_space import linear_to_srgb
     from .quality import psnr_srgb, ssim_srgb
     from .simulate import crops_from_frame, simulate_frame
@@ -133,10 +143,11 @@ def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report):
         raise ValueError("--rl is not available with --full-frame (Richardson-Lucy on 24 MP is hours on a CPU); "
                          "use it on crops")
     H, W = ideal.shape[-2:]
-    n = len(window_centres(H, PAPER_SCHEME.stride)) * len(window_centres(W, PAPER_SCHEME.stride))
+    n = len(window_centres(H, scheme.stride)) * len(window_centres(W, scheme.stride))
     checkpoint = out / ".checkpoint"
     with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
-        frame = simulate_frame(ideal, s, Q, fwc, seed=args.seed, progress=bar.update, checkpoint=checkpoint)
+        frame = simulate_frame(ideal, s, Q, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
+                               checkpoint=checkpoint)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     t0 = time.perf_counter()
@@ -220,6 +231,9 @@ def _extend(sub) -> None:
     p.add_argument("--s", type=float)
     p.add_argument("--Q", type=float)
     p.add_argument("--iso", type=int, default=100, help="25, 100 or 400 (full well 12800, 3200, 800 e-)")
+    p.add_argument("--full-well", type=float, metavar="E", help="any full-well capacity (electrons) instead of --iso")
+    p.add_argument("--scheme", type=int, nargs=3, default=[512, 32, 64], metavar=("WINDOW", "STRIDE", "CORE"),
+                   help="local-convolution windows (px): window, stride, blended core (paper: 512 32 64)")
     p.add_argument("--angles", type=float, nargs="+", default=[0.0, 4.0, 8.0, 12.0], help="crop field angles (deg)")
     p.add_argument("--crop", type=int, default=256, help="crop size (px)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")

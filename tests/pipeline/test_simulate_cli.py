@@ -153,3 +153,17 @@ def test_console_script_exits_cleanly(tmp_path):
     assert "leaked" not in ok.stderr
     bad = run("simulate", "skimage:nothing", "--design", "end_to_end_paper", "--out", str(tmp_path / "d"))
     assert bad.returncode == 2 and "nothing" in bad.stderr
+
+
+def test_simulate_any_full_well_and_window_scheme(tmp_path, capsys):
+    out = tmp_path / "fw"
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-well", "1600",
+                 "--scheme", "256", "32", "64", "--angles", "0", "--crop", "48", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["full_well_electrons"] == 1600 and m["iso"] is None and m["scheme_window_stride_core"] == [256, 32, 64]
+    assert "(1600 e- full well)" in capsys.readouterr().out
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-well", "0", "--out", str(out)]) == 2
+    assert "--full-well 0.0" in capsys.readouterr().err
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--scheme", "511", "32", "64",
+                 "--out", str(out)]) == 2
+    assert "window=511" in capsys.readouterr().err
