@@ -1,24 +1,33 @@
 """pipeline: the camera pipeline (photo -> linear -> spatially-variant blur -> noise -> restoration).
 
-Implemented so far: image I/O (:mod:`pipeline.io`), sRGB <-> linear (:mod:`pipeline.colour_space`),
-Poisson noise at the paper's full-well capacities (:mod:`pipeline.noise`), the windowed
-spatially-variant blur with its exact per-pixel reference (:mod:`pipeline.blur`), adaptive local
-Wiener restoration (:mod:`pipeline.restoration`) and PSNR/SSIM in sRGB (:mod:`pipeline.quality`).
-Still to come: the generated default scene, the ``simulate`` / ``psnr-table`` commands, a
-non-linear comparison restorer and the 24 MP benchmark.
+Modules: image I/O (:mod:`pipeline.io`), sRGB <-> linear (:mod:`pipeline.colour_space`), optional
+gentle denoising of the input (:mod:`pipeline.denoise`), the generated default scene
+(:mod:`pipeline.scene`), Poisson noise at the paper's full-well capacities (:mod:`pipeline.noise`),
+the windowed spatially-variant blur with its exact per-pixel reference (:mod:`pipeline.blur`),
+adaptive local Wiener and windowed Richardson-Lucy restoration (:mod:`pipeline.restoration`),
+PSNR/SSIM in sRGB (:mod:`pipeline.quality`), PSNR over the field (:mod:`pipeline.field_map`), the
+simulation of crops and whole frames (:mod:`pipeline.simulate`), the Fig. 8 mosaic
+(:mod:`pipeline.figure8`) and the command line (:mod:`pipeline.cli`).
 Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse.
 """
 
-from .blur import PAPER_SCHEME, apply_windowed, WindowScheme, blur_exact, blur_windowed, tent_weights, window_centres
+from .blur import (PAPER_SCHEME, WindowScheme, apply_windowed, blur_exact, blur_windowed, core_irfft2, tent_weights,
+                   window_centres)
 from .colour_space import linear_to_srgb, srgb_to_linear
+from .denoise import gentle_denoise
+from .field_map import field_psnr, plot_field_psnr
 from .io import ImageFileError, ImageInfo, read_image, write_image
 from .noise import ISO_FULL_WELL, add_poisson_noise, full_well_for_iso
-from .quality import psnr_srgb, ssim_srgb
-from .restoration import wiener_windowed
+from .quality import psnr_map_srgb, psnr_srgb, ssim_srgb
+from .restoration import richardson_lucy_windowed, wiener_windowed
+from .scene import resolution_scene
+from .simulate import CropResult, FrameResult, crop_at_field_angle, crops_from_frame, simulate_crops, simulate_frame
 
 __all__ = [
     "ISO_FULL_WELL",
     "PAPER_SCHEME",
+    "CropResult",
+    "FrameResult",
     "ImageFileError",
     "ImageInfo",
     "WindowScheme",
@@ -26,10 +35,21 @@ __all__ = [
     "apply_windowed",
     "blur_exact",
     "blur_windowed",
+    "core_irfft2",
+    "crop_at_field_angle",
+    "crops_from_frame",
+    "field_psnr",
     "full_well_for_iso",
+    "gentle_denoise",
     "linear_to_srgb",
+    "plot_field_psnr",
+    "psnr_map_srgb",
     "psnr_srgb",
     "read_image",
+    "resolution_scene",
+    "richardson_lucy_windowed",
+    "simulate_crops",
+    "simulate_frame",
     "srgb_to_linear",
     "ssim_srgb",
     "tent_weights",

@@ -18,6 +18,7 @@ writes ``psnr_table.csv`` and ``psnr_table.md`` (mean over the crops).
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -136,6 +137,7 @@ def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report, scheme):
 
     from .blur import window_centres
     from .colour_space import linear_to_srgb
+    from .field_map import field_psnr, plot_field_psnr
     from .quality import psnr_srgb, ssim_srgb
     from .simulate import crops_from_frame, simulate_frame
 
@@ -163,6 +165,10 @@ def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report, scheme):
         "psnr_sensor_db": psnr_srgb(ideal, frame.sensor), "psnr_restored_db": psnr_srgb(ideal, frame.restored),
         "ssim_sensor": ssim_srgb(ideal, frame.sensor), "ssim_restored": ssim_srgb(ideal, frame.restored),
         "resumed": frame.resumed}
+    maps = field_psnr(ideal, frame.sensor, frame.restored, tile=256)
+    plot_field_psnr(maps, out / "field_psnr.png", title=f"{report['source']}: s = {s:g}, Q = {Q:g}, {fwc:g} e- full well")
+    report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
+        k: [[round(x, 3) if math.isfinite(x) else None for x in row] for row in v.tolist()] for k, v in maps.items()}
     frame.seconds["metrics"] = time.perf_counter() - t0
     report["full_frame"]["seconds"] = {k: round(v, 2) for k, v in frame.seconds.items()}
     shutil.rmtree(checkpoint, ignore_errors=True)  # done: the checkpoint is no longer needed

@@ -7,11 +7,12 @@ PSNR and SSIM from scikit-image (``data_range = 1``), over the whole frame or a 
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from .colour_space import linear_to_srgb
 
-__all__ = ["psnr_srgb", "ssim_srgb"]
+__all__ = ["psnr_srgb", "ssim_srgb", "psnr_map_srgb"]
 
 
 def _prep(ref: torch.Tensor, test: torch.Tensor, crop):
@@ -45,3 +46,21 @@ def ssim_srgb(ref: torch.Tensor, test: torch.Tensor, crop=None) -> float:
         float(structural_similarity(a[..., 0], b[..., 0], data_range=1.0))
 
 
+
+
+def psnr_map_srgb(ref: torch.Tensor, test: torch.Tensor, tile: int = 256) -> torch.Tensor:
+    """PSNR (dB) of ``test`` against ``ref`` in sRGB per ``tile`` x ``tile`` block, ``(rows, cols)`` float64.
+
+    Blocks start at the top-left corner; a remainder narrower than ``tile`` at the right or bottom
+    edge is left out. Each entry equals :func:`psnr_srgb` on that block (``inf`` where identical).
+    """
+    if not (isinstance(tile, int) and tile >= 1):
+        raise ValueError(f"tile={tile!r} is not allowed: a positive number of pixels")
+    a, b = _prep(ref, test, None)
+    H, W = a.shape[0] // tile * tile, a.shape[1] // tile * tile
+    if H == 0 or W == 0:
+        raise ValueError(f"image {a.shape[0]}x{a.shape[1]} is smaller than one {tile}-px tile")
+    err = (a[:H, :W].astype("float64") - b[:H, :W]) ** 2
+    mse = err.reshape(H // tile, tile, W // tile, tile, -1).mean(axis=(1, 3, 4))
+    with np.errstate(divide="ignore"):
+        return torch.from_numpy(10 * np.log10(1.0 / mse))

@@ -111,3 +111,18 @@ def test_wiener_in_float32_matches_float64():
     # no noise at all with blur: the inverse-filter limit stays finite where |H| = 0
     assert torch.isfinite(wiener_windowed(y.float(), PAPER_LENS, *E2E, electrons_per_unit=math.inf, scheme=SCHEME,
                                           optical_center=center)).all()
+
+
+def test_psnr_map_equals_psnr_per_tile():
+    from pipeline.quality import psnr_map_srgb
+
+    x = scene(192, 160)
+    g = torch.Generator().manual_seed(5)
+    y = (x + 0.02 * torch.randn(x.shape, generator=g, dtype=x.dtype)).clamp(0, 1)
+    m = psnr_map_srgb(x, y, 64)
+    assert m.shape == (3, 2)  # the 32-px remainder at the right is left out
+    for i, j in ((0, 0), (2, 1)):
+        assert float(m[i, j]) == pytest.approx(psnr_srgb(x, y, (64 * i, 64 * i + 64, 64 * j, 64 * j + 64)), rel=1e-6)
+    assert torch.isinf(psnr_map_srgb(x, x, 64)).all()
+    with pytest.raises(ValueError, match="smaller than one 256-px tile"):
+        psnr_map_srgb(x, y, 256)

@@ -124,6 +124,10 @@ def test_simulate_full_frame_command(tmp_path, capsys):
     lin, info = read_image(out / "restored_linear.exr")
     assert info.linear and lin.shape == (1, 1, 512, 512)
     assert not (out / ".checkpoint").exists()  # removed once the run is complete
+    tiles = f["field_psnr_256px_tiles"]
+    assert len(tiles["restored_db"]) == 2 and len(tiles["restored_db"][0]) == 2  # 512 px / 256 px tiles
+    assert tiles["field_deg"][0][0] == pytest.approx(tiles["field_deg"][1][1])  # symmetric about the centre
+    assert (out / "field_psnr.png").read_bytes()[:4] == b"\x89PNG" and (out / "field_psnr.svg").exists()
     assert [c["requested_deg"] for c in m["crops"]] == [0, 0.4]
     assert "whole frame: PSNR sensor" in capsys.readouterr().out
     assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-frame", "--rl", "2",
