@@ -28,7 +28,7 @@ import torch
 
 from lenssim import PAPER_LENS
 from pipeline import add_poisson_noise
-from pipeline.blur import PAPER_SCHEME, _psfs_at_pixels, blur_windowed, tent_weights, window_centres
+from pipeline.blur import PAPER_SCHEME, _psfs_at_pixels, blur_windowed, tent_weights, window_centres, window_count
 from pipeline.cli import load_photo
 from pipeline.quality import psnr_srgb
 from pipeline.restoration import wiener_windowed
@@ -149,10 +149,10 @@ def full_frame(photo, device: torch.device) -> None:
         ideal, source = stage("read + linearise", rows, lambda: load_photo(photo))
         ideal = ideal.to(device)
         H, W = ideal.shape[-2:]
-        n = len(window_centres(H, 32)) * len(window_centres(W, 32))
+        n = window_count(ideal.shape)
         blurred = stage(f"blur ({n} windows)", rows, lambda: blur_windowed(ideal, PAPER_LENS, S, Q))
         e = FULL_WELL / float(blurred.amax())
-        noisy = stage("Poisson noise", rows, lambda: add_poisson_noise(blurred.clamp_min(0), FULL_WELL, seed=0))
+        noisy = stage("Poisson noise", rows, lambda b=blurred: add_poisson_noise(b.clamp_min(0), FULL_WELL, seed=0))
         del blurred
         restored = stage(f"adaptive Wiener ({n} windows)", rows,
                          lambda: wiener_windowed(noisy, PAPER_LENS, S, Q, electrons_per_unit=e))

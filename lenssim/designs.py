@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 __all__ = ["Design", "load_designs", "BUILTIN_DESIGNS"]

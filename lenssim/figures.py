@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .files import atomic_write
+from .files import atomic_write, atomic_write_text
 
 __all__ = ["fig3_cost", "fig4_landscapes", "fig5_tradeoff_configs", "fig6_performance_vs_cost", "table1",
            "all_figures"]
@@ -144,9 +144,9 @@ def table1(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> tuple[Path, Path
     out_dir.mkdir(parents=True, exist_ok=True)
     csv = out_dir / "table1.csv"
     md = out_dir / "table1.md"
-    csv.write_text("design,s,Q,mse_r,mse_r_relative,cost_Ca\n" + "".join(
+    atomic_write_text(csv, "design,s,Q,mse_r,mse_r_relative,cost_Ca\n" + "".join(
         f"{r['design']},{r['s']:g},{r['Q']:g},{r['mse_r']:.6g},{r['mse_r_relative']:.4f},{r['cost_Ca']:.4e}\n" for r in rows))
-    md.write_text(f"| design (optimises) | s | Q | MSE_R at {snr:g} dB | relative to best | C_a |\n|---|---|---|---|---|---|\n"
+    atomic_write_text(md, f"| design (optimises) | s | Q | MSE_R at {snr:g} dB | relative to best | C_a |\n|---|---|---|---|---|---|\n"
                   + "".join(f"| {r['design']} | {r['s']:g} | {r['Q']:g} | {r['mse_r']:.5f} | {r['mse_r_relative']:.3f} | "
                             f"{r['cost_Ca']:.3e} |\n" for r in rows))
     return csv, md, rows

@@ -97,6 +97,14 @@ def pupil_radius_samples(lens: ThinLens, n: int, pixel_pitch_um: float | None = 
     return n * _pitch_um(lens, pixel_pitch_um) / (2 * lens.wavelength_um * lens.f_number)
 
 
+def _unaliased_pupil_radius(lens: ThinLens, n: int, pixel_pitch_um: float | None) -> float:
+    """:func:`pupil_radius_samples`, refused where it exceeds ``n / 4`` (the OTF would alias)."""
+    R = pupil_radius_samples(lens, n, pixel_pitch_um)
+    if R > n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    return R
+
+
 def fft_size(lens: ThinLens, coeffs: torch.Tensor, *, fill: float = 0.7, margin_px: int = 16,
              min_size: int = 64, pixel_pitch_um: float | None = None) -> torch.Tensor:
     """FFT size ``N`` for each coefficient set ``(*, 4)``; returns an int64 tensor ``(*)``.
@@ -153,9 +161,7 @@ def pupil_amplitude(lens: ThinLens, n: int, *, pixel_pitch_um: float | None = No
     Returns ``(amp, rho)``: ``amp`` ``(n, n)`` with the pupil centre at index ``[0, 0]`` (DFT
     order) and ``rho`` ``(n,)``, the normalised pupil coordinate of each index.
     """
-    R = pupil_radius_samples(lens, n, pixel_pitch_um)
-    if R > n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
     amp, x = _pupil_cached(int(n), float(R), int(supersample))
     return amp.to(dtype=dtype, device=device), (x / R).to(dtype=dtype, device=device)
 
@@ -175,9 +181,7 @@ def _field(lens, coeffs, n, azimuth_rad, pixel_pitch_um, dtype, device):
     zero-pads it. Placing the box at index 0 instead of centring it on the DFT origin multiplies
     the image-plane amplitude by a linear phase, which ``|.|^2`` removes.
     """
-    R = pupil_radius_samples(lens, n, pixel_pitch_um)
-    if R > n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
     amp, rho = _pupil_box_cached(float(R), 8)
     amp, rho = amp.to(dtype=dtype, device=device), rho.to(dtype=dtype, device=device)
     coeffs = coeffs.to(dtype)
@@ -333,9 +337,7 @@ def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um:
         raise ValueError(f"coeffs has shape {tuple(coeffs.shape)}: otf_quarter expects (B, 4)")
     if n % 2:
         raise ValueError(f"n={n} is not allowed: must be even")
-    R = pupil_radius_samples(lens, n, pixel_pitch_um)
-    if R > n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
     dtype, device = coeffs.dtype, coeffs.device
     a, basis, area = _quarter_basis_cached(int(n), float(R), 8)
     a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)

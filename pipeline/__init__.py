@@ -12,7 +12,7 @@ Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse.
 """
 
 from .blur import (PAPER_SCHEME, WindowScheme, apply_windowed, blur_exact, blur_windowed, core_irfft2, tent_weights,
-                   window_centres)
+                   window_centres, window_count)
 from .colour_space import linear_to_srgb, srgb_to_linear
 from .denoise import gentle_denoise
 from .field_map import field_psnr, plot_field_psnr
@@ -54,6 +54,7 @@ __all__ = [
     "ssim_srgb",
     "tent_weights",
     "window_centres",
+    "window_count",
     "wiener_windowed",
     "write_image",
 ]

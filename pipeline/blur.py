@@ -25,7 +25,7 @@ import torch
 
 from lenssim import ThinLens, max_wavefront_slope, psf_at, wavefront_coefficients
 
-__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "tent_weights", "core_irfft2", "apply_windowed",
+__all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "window_count", "tent_weights", "core_irfft2", "apply_windowed",
            "blur_windowed", "blur_exact"]
 
 
@@ -52,6 +52,12 @@ PAPER_SCHEME = WindowScheme()
 def window_centres(length: int, stride: int) -> torch.Tensor:
     """Centres ``0, stride, 2 stride, ...`` up to the first one at or beyond ``length - 1``."""
     return torch.arange(0, (length - 1) + stride, stride)[: int(math.ceil((length - 1) / stride)) + 1]
+
+
+def window_count(shape, scheme: WindowScheme | None = None) -> int:
+    """Number of windows over an image of ``shape`` ``(..., H, W)`` (one pass of :func:`apply_windowed`)."""
+    stride = (scheme or PAPER_SCHEME).stride
+    return len(window_centres(shape[-2], stride)) * len(window_centres(shape[-1], stride))
 
 
 def tent_weights(core: int, dtype=torch.float64) -> torch.Tensor:

@@ -135,41 +135,48 @@ def _full_frame(ideal, s, Q, fwc, args, out, inputs, boxes, report, scheme):
 
     from tqdm import tqdm
 
-    from .blur import window_centres
-    from .colour_space import linear_to_srgb
-    from .field_map import field_psnr, plot_field_psnr
-    from .quality import psnr_srgb, ssim_srgb
+    from .blur import window_count
+    from .field_map import plot_field_psnr, tile_field_angles
+    from .quality import encode_srgb, scores_encoded
     from .simulate import crops_from_frame, simulate_frame
 
     if args.rl:
         raise ValueError("--rl is not available with --full-frame (Richardson-Lucy on 24 MP is hours on a CPU); "
                          "use it on crops")
-    H, W = ideal.shape[-2:]
-    n = len(window_centres(H, scheme.stride)) * len(window_centres(W, scheme.stride))
+    n = window_count(ideal.shape, scheme)
     checkpoint = out / ".checkpoint"
     with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
         frame = simulate_frame(ideal, s, Q, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
                                checkpoint=checkpoint)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
-    t0 = time.perf_counter()
+    # each image is sRGB-encoded once, for its PNG and for all its scores
+    frame.seconds["write"], frame.seconds["metrics"] = 0.0, 0.0
+    ref = encode_srgb(ideal)
+    scores = {}
     for kind in ("sensor", "restored"):
+        t0 = time.perf_counter()
         img = getattr(frame, kind)
-        write_image(out / f"{kind}.png", linear_to_srgb(img.clamp(0, 1)), bits=args.bits, inputs=inputs)
+        enc = encode_srgb(img)
+        write_image(out / f"{kind}.png", torch.from_numpy(enc).permute(2, 0, 1), bits=args.bits, inputs=inputs)
         if args.exr:
             write_image(out / f"{kind}_linear.exr", img, bits="float", inputs=inputs)
-    frame.seconds["write"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        scores[kind] = scores_encoded(ref, enc, tile=256)
+        frame.seconds["write"] += t1 - t0
+        frame.seconds["metrics"] += time.perf_counter() - t1
     t0 = time.perf_counter()
     report["full_frame"] = {
         "shape_c_h_w": list(ideal.shape[1:]), "windows_per_pass": n, "electrons_per_unit": frame.electrons_per_unit,
-        "psnr_sensor_db": psnr_srgb(ideal, frame.sensor), "psnr_restored_db": psnr_srgb(ideal, frame.restored),
-        "ssim_sensor": ssim_srgb(ideal, frame.sensor), "ssim_restored": ssim_srgb(ideal, frame.restored),
+        "psnr_sensor_db": scores["sensor"]["psnr_db"], "psnr_restored_db": scores["restored"]["psnr_db"],
+        "ssim_sensor": scores["sensor"]["ssim"], "ssim_restored": scores["restored"]["ssim"],
         "resumed": frame.resumed}
-    maps = field_psnr(ideal, frame.sensor, frame.restored, tile=256)
+    maps = {"sensor_db": scores["sensor"]["psnr_map_db"], "restored_db": scores["restored"]["psnr_map_db"],
+            "field_deg": tile_field_angles(ideal.shape, 256)}
     plot_field_psnr(maps, out / "field_psnr.png", title=f"{report['source']}: s = {s:g}, Q = {Q:g}, {fwc:g} e- full well")
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
         k: [[round(x, 3) if math.isfinite(x) else None for x in row] for row in v.tolist()] for k, v in maps.items()}
-    frame.seconds["metrics"] = time.perf_counter() - t0
+    frame.seconds["metrics"] += time.perf_counter() - t0
     report["full_frame"]["seconds"] = {k: round(v, 2) for k, v in frame.seconds.items()}
     shutil.rmtree(checkpoint, ignore_errors=True)  # done: the checkpoint is no longer needed
     f = report["full_frame"]

@@ -17,21 +17,33 @@ import torch
 from lenssim import PAPER_LENS, ThinLens
 from lenssim.files import atomic_write
 
-from .quality import psnr_map_srgb
+from .quality import encode_srgb, scores_encoded
 
-__all__ = ["field_psnr", "plot_field_psnr"]
+__all__ = ["tile_field_angles", "field_psnr", "plot_field_psnr"]
+
+
+def tile_field_angles(shape, tile: int = 256, lens: ThinLens = PAPER_LENS) -> torch.Tensor:
+    """Field angle (deg) of each ``tile`` x ``tile`` block's centre, ``(rows, cols)`` float64, for ``shape`` ``(..., H, W)``.
+
+    Blocks as in :func:`pipeline.quality.psnr_map_srgb`; optical axis at the frame centre.
+    """
+    H, W = shape[-2:]
+    cy = torch.arange(H // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (H - 1) / 2
+    cx = torch.arange(W // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (W - 1) / 2
+    r_mm = torch.hypot(cy[:, None], cx[None, :]) * lens.pixel_pitch_um * 1e-3
+    return torch.rad2deg(torch.atan(r_mm / lens.focal_length_mm))
 
 
 def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor, *, tile: int = 256,
                lens: ThinLens = PAPER_LENS) -> dict:
     """``{"sensor_db", "restored_db", "field_deg"}``: ``(rows, cols)`` float64 tensors, one entry per tile."""
-    m_s, m_r = psnr_map_srgb(ideal, sensor, tile), psnr_map_srgb(ideal, restored, tile)
-    H, W = ideal.shape[-2:]
-    rows, cols = m_s.shape
-    cy = torch.arange(rows, dtype=torch.float64) * tile + (tile - 1) / 2 - (H - 1) / 2
-    cx = torch.arange(cols, dtype=torch.float64) * tile + (tile - 1) / 2 - (W - 1) / 2
-    r_mm = torch.hypot(cy[:, None], cx[None, :]) * lens.pixel_pitch_um * 1e-3
-    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": torch.rad2deg(torch.atan(r_mm / lens.focal_length_mm))}
+    for name, t in (("sensor", sensor), ("restored", restored)):
+        if t.shape != ideal.shape or ideal.ndim != 4 or ideal.shape[0] != 1:
+            raise ValueError(f"{name} has shape {tuple(t.shape)}, ideal {tuple(ideal.shape)}: expected equal (1, C, H, W)")
+    ref = encode_srgb(ideal)  # once for both comparisons
+    m_s = scores_encoded(ref, encode_srgb(sensor), tile=tile, ssim=False)["psnr_map_db"]
+    m_r = scores_encoded(ref, encode_srgb(restored), tile=tile, ssim=False)["psnr_map_db"]
+    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, lens)}
 
 
 def plot_field_psnr(maps: dict, path, *, title: str = "") -> Path:

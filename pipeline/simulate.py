@@ -24,7 +24,7 @@ import torch
 from lenssim import PAPER_LENS, ThinLens
 from lenssim.files import atomic_write_text
 
-from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_centres
+from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count
 from .noise import add_poisson_noise
 from .quality import psnr_srgb, ssim_srgb
 from .restoration import richardson_lucy_windowed, wiener_windowed
@@ -164,7 +164,7 @@ def simulate_frame(ideal: torch.Tensor, s: float, Q: float, full_well: float, *,
                 sensor, _ = read_image(sensor_path)
                 if tuple(sensor.shape) == tuple(ideal.shape):
                     if progress is not None:
-                        progress(_window_count(ideal.shape, scheme))
+                        progress(window_count(ideal.shape, scheme))
                     return _restore_frame(sensor.to(device=ideal.device, dtype=dtype), ideal, s, Q, stamp["electrons_per_unit"], lens, scheme,
                                           progress, seconds, resumed=True)
     t0 = time.perf_counter()
@@ -192,10 +192,6 @@ def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, lens: ThinL
         out.append(CropResult((r0, r1, c0, c1), math.degrees(math.atan(dist / lens.focal_length_mm)), ci, cs_, cr,
                               psnr_srgb(ci, cs_), psnr_srgb(ci, cr), ssim_srgb(ci, cs_), ssim_srgb(ci, cr)))
     return out
-
-
-def _window_count(shape, scheme: WindowScheme) -> int:
-    return len(window_centres(shape[-2], scheme.stride)) * len(window_centres(shape[-1], scheme.stride))
 
 
 def _restore_frame(noisy, ideal, s, Q, e, lens, scheme, progress, seconds, resumed) -> FrameResult:

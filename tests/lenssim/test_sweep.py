@@ -3,7 +3,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import xarray as xr
 
 from lenssim import PAPER_LENS, ThinLens, evaluate
 from lenssim.cli import find_optimum, main

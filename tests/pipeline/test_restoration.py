@@ -126,3 +126,17 @@ def test_psnr_map_equals_psnr_per_tile():
     assert torch.isinf(psnr_map_srgb(x, x, 64)).all()
     with pytest.raises(ValueError, match="smaller than one 256-px tile"):
         psnr_map_srgb(x, y, 256)
+
+
+def test_scores_of_encoded_frames_equal_the_per_call_metrics():
+    from pipeline.quality import encode_srgb, psnr_map_srgb, scores_encoded
+
+    x = scene(128, 128)
+    g = torch.Generator().manual_seed(6)
+    y = (x + 0.03 * torch.randn(x.shape, generator=g, dtype=x.dtype)).clamp(0, 1)
+    sc = scores_encoded(encode_srgb(x), encode_srgb(y), tile=64)
+    assert sc["psnr_db"] == psnr_srgb(x, y) and sc["ssim"] == ssim_srgb(x, y)
+    assert torch.equal(sc["psnr_map_db"], psnr_map_srgb(x, y, 64))
+    assert "ssim" not in scores_encoded(encode_srgb(x), encode_srgb(y), ssim=False)
+    with pytest.raises(ValueError, match="expected two equal"):
+        scores_encoded(encode_srgb(x), encode_srgb(y[..., :64]))
