@@ -1,0 +1,152 @@
+"""Regression pins: the project's numbers before the architecture refactor (issue 8), kept to 1e-9.
+
+``pins.json`` beside this file was written by :func:`compute_pins` from the code as it stood before
+the refactor (commit "Pin today's numbers"). The test recomputes every value through today's
+public API and compares. Metrics and optima (float64 accumulations) must agree to 1e-9 relative;
+the float32 image pipeline to 1e-6 relative of each statistic (its kernels run in float32).
+
+Regenerate (only when a number is meant to change, with the reason in the commit):
+``python tests/test_regression_pins.py --write``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+PINS = Path(__file__).with_name("pins.json")
+
+PAPER_DESIGNS = {"rms_w_paper": (-0.725, -10.0), "end_to_end_paper": (-0.775, -2.4), "mse_s_grid": (-0.2, -10.0)}
+
+TINY = """
+[lens]
+field_angles_deg = [0, 5, 10, 14]
+[grid]
+s = [-1.0, -0.5, 0.125]
+Q = [-6.0, 0.0, 1.5]
+snr_db = [21.6, 27.6, 33.6]
+[numerics]
+min_size = 128
+"""
+
+
+def _stats(t: torch.Tensor) -> list[float]:
+    """Sum, sum of squares, max and a few samples: enough to catch any change of an image or a PSF."""
+    t = t.detach().double().cpu()
+    flat = t.flatten()
+    idx = torch.linspace(0, flat.numel() - 1, 7).long()
+    return [float(t.sum()), float((t * t).sum()), float(t.max())] + [float(v) for v in flat[idx]]
+
+
+def _evaluate_pins():
+    from lenssim import PAPER_LENS, evaluate
+
+    out = {}
+    for name, (s, Q) in PAPER_DESIGNS.items():
+        r = evaluate(PAPER_LENS, s, Q)
+        out[name] = {k: r[k].double().flatten().tolist() for k in
+                     ("rms_w", "rms_w_piston_removed", "rms_w_alpha", "mse_s", "mse_r", "mse_r_alpha", "cost", "fft_size")}
+    return out
+
+
+def _sweep_pins(tmp: Path):
+    from lenssim.cli import find_optimum
+    from lenssim.figures import table1
+    from lenssim.sweep import load_config, run_sweep
+    from lenssim.tradeoff import tradeoff
+
+    cfg_path = tmp / "tiny.toml"
+    cfg_path.write_text(TINY)
+    ds = run_sweep(load_config(cfg_path), tmp / "tiny.nc", show_progress=False)
+    optima = {}
+    for crit in ("rms_w", "mse_s", "mse_r", "cost"):
+        for snr in (21.6, 27.6, 33.6):
+            r = find_optimum(ds, crit, snr)
+            optima[f"{crit}@{snr:g}"] = [r["s"], r["Q"], r["value"]]
+    _, _, rows = table1(ds, tmp / "t1", 27.6)
+    trade = tradeoff(ds, levels=np.linspace(0, 1e-3, 4), ds_step=0.01)
+    return {
+        "mse_r": ds["mse_r"].values.flatten().tolist(),
+        "cost": ds["cost"].values.flatten().tolist(),
+        "optima": optima,
+        "table1": [[r["s"], r["Q"], r["mse_r"], r["mse_r_relative"], r["cost_Ca"]] for r in rows],
+        "tradeoff": {k: trade[k].values.flatten().tolist() for k in ("s", "Q", "value", "cost", "mse_r_ref")},
+    }
+
+
+def _psf_pins():
+    from lenssim import PAPER_LENS, otf_quarter, psf_at, wavefront_coefficients
+
+    x = torch.tensor([0.0, 1.2, -3.0], dtype=torch.float64)
+    y = torch.tensor([0.0, -2.0, 4.5], dtype=torch.float64)
+    p, n = psf_at(PAPER_LENS, -0.775, -2.4, x, y, n=256)
+    c = wavefront_coefficients(PAPER_LENS, -0.775, -2.4, (3.0, 9.0))
+    H = otf_quarter(PAPER_LENS, c, 256, oversample=2)
+    return {"psf_at": [_stats(q) for q in p], "otf_quarter": [_stats(h.abs()) for h in H]}
+
+
+def _pipeline_pins():
+    from lenssim import PAPER_LENS
+    from pipeline import WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
+
+    g = torch.Generator().manual_seed(3)
+    img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
+    scheme = WindowScheme(256, 32, 64)
+    oc = (-500.0, -700.0)  # optical centre far outside: the array sits at ~2.9 deg of field
+    blurred = blur_windowed(img, PAPER_LENS, -0.775, -2.4, scheme=scheme, optical_center=oc)
+    restored = wiener_windowed(blurred, PAPER_LENS, -0.775, -2.4, electrons_per_unit=3200.0, scheme=scheme,
+                               optical_center=oc)
+    big = resolution_scene(600, 800, tile=128, spacing=256)
+    res = simulate_crops(big, -0.725, -10.0, [3200.0, 800.0], [(100, 164, 200, 264), (400, 464, 600, 664)],
+                         seed=5, scheme=scheme)
+    crops = [[r.psnr_sensor_db, r.psnr_restored_db, r.ssim_sensor, r.ssim_restored, r.field_deg]
+             for per in res for r in per]
+    return {"blur": _stats(blurred), "wiener": _stats(restored), "crops": crops}
+
+
+def compute_pins(tmp: Path) -> dict:
+    return {"evaluate": _evaluate_pins(), "sweep": _sweep_pins(tmp), "psf": _psf_pins(), "pipeline": _pipeline_pins()}
+
+
+def _compare(new, old, path, rtol):
+    if isinstance(old, dict):
+        assert set(new) == set(old), f"{path}: keys {sorted(new)} != {sorted(old)}"
+        for k in old:
+            _compare(new[k], old[k], f"{path}.{k}", rtol)
+    elif isinstance(old, list):
+        assert len(new) == len(old), f"{path}: length {len(new)} != {len(old)}"
+        for i, (a, b) in enumerate(zip(new, old)):
+            _compare(a, b, f"{path}[{i}]", rtol)
+    else:
+        if isinstance(old, float) and math.isnan(old):
+            assert math.isnan(new), f"{path}: {new} != NaN"
+            return
+        assert new == pytest.approx(old, rel=rtol, abs=1e-300), f"{path}: {new!r} != pinned {old!r}"
+
+
+@pytest.fixture(scope="module")
+def pins_now(tmp_path_factory):
+    return compute_pins(tmp_path_factory.mktemp("pins"))
+
+
+@pytest.mark.parametrize("part,rtol", [("evaluate", 1e-9), ("sweep", 1e-9), ("psf", 1e-9), ("pipeline", 1e-6)])
+def test_numbers_unchanged_since_the_pins(pins_now, part, rtol):
+    old = json.loads(PINS.read_text())
+    _compare(pins_now[part], old[part], part, rtol)
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] == ["--write"]:
+        import tempfile
+
+        sys.path.remove(str(Path(__file__).parent))  # tests/lenssim would shadow the lenssim package
+
+        with tempfile.TemporaryDirectory() as d:
+            PINS.write_text(json.dumps(compute_pins(Path(d)), indent=1) + "\n")
+        print(f"wrote {PINS}")
