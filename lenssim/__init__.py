@@ -4,12 +4,19 @@ Implements "Integrated analysis of industrial limitations and image quality: an 
 design approach", Optics Express 31(10), 16897 (2023): a thin lens with a spherical front and a
 conic back surface, third-order aberrations over the field, PSF/OTF banks by Fourier optics,
 the asphere's RMS slope-departure cost and the expected-MSE design criteria.
+
+The objects a designer names: :class:`Lens`, :class:`Sensor`, :class:`Spectrum` (together a
+:class:`Camera`), a :class:`Design` (named free parameters, :data:`PARAMETERS`), the criteria
+(:data:`CRITERIA`), the numerical settings (:class:`Numerics`) and PSF providers
+(:class:`LensPSF`, :class:`FunctionPSF`) for the image pipeline. The paper's values live in
+:mod:`lenssim.paper`. See docs/architecture.md.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 from .aberrations import (
     COEFFICIENT_NAMES,
+    TERMS,
     field_rms_wavefront,
     rms_wavefront,
     seidel_sums,
@@ -17,42 +24,83 @@ from .aberrations import (
     wavefront_coefficients,
     wavefront_gradient,
 )
+from .camera import Camera
+from .checks import check_shape
 from .cost import best_fit_sphere_curvature, slope_departure_cost, slope_departure_cost_third_order
-from .designs import Design, load_designs
-from .image_model import PAPER_RHO0, PAPER_SNR_DB, image_psd, noise_variance, psd_continuous
-from .lens import PAPER_LENS, LensError, ThinLens
-from .metrics import evaluate, mse_bank, mse_from_otf_quarter
-from .psf_bank import fft_size, max_wavefront_slope, otf, otf_quarter, psf, psf_at, pupil_amplitude
+from .criteria import CRITERIA, Criterion, validate_criterion
+from .design import PARAMETERS, Design, Parameter, load_designs, parameter_name
+from .geometry import FieldGeometry, frame_center
+from .glass import ConstantGlass
+from .image_model import image_psd, noise_variance, psd_continuous
+from .lens import Lens, LensError, ThinLens
+from .metrics import evaluate, otf_criteria_bank
+from .numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
+from .paper import (PAPER_CAMERA, PAPER_DESIGNS, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM,
+                    REFERENCE_SNR_DB)
+from .psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
+                       pupil_amplitude, spectral_coefficients)
+from .psf_provider import FunctionPSF, LensPSF, PSFProvider
+from .sensor import Sensor
+from .spectrum import Spectrum
+from .torch_utils import select_device
 
 __all__ = [
     "__version__",
+    "CRITERIA",
     "COEFFICIENT_NAMES",
+    "Camera",
+    "ConstantGlass",
+    "Criterion",
+    "DEFAULT_NUMERICS",
     "Design",
+    "FAST_NUMERICS",
+    "FieldGeometry",
+    "FunctionPSF",
+    "Lens",
     "LensError",
+    "LensPSF",
+    "Numerics",
+    "PAPER_CAMERA",
+    "PAPER_DESIGNS",
     "PAPER_LENS",
     "PAPER_RHO0",
+    "PAPER_SENSOR",
     "PAPER_SNR_DB",
+    "PAPER_SPECTRUM",
+    "PARAMETERS",
+    "PSFProvider",
+    "Parameter",
+    "REFERENCE_SNR_DB",
+    "Sensor",
+    "Spectrum",
+    "TERMS",
     "ThinLens",
     "best_fit_sphere_curvature",
+    "check_shape",
     "evaluate",
     "fft_size",
     "field_rms_wavefront",
+    "frame_center",
     "image_psd",
     "load_designs",
     "max_wavefront_slope",
-    "mse_bank",
-    "mse_from_otf_quarter",
     "noise_variance",
     "otf",
+    "otf_criteria_bank",
     "otf_quarter",
+    "otf_quarter_spectrum",
+    "parameter_name",
     "psd_continuous",
     "psf",
     "psf_at",
     "pupil_amplitude",
     "rms_wavefront",
     "seidel_sums",
+    "select_device",
     "slope_departure_cost",
     "slope_departure_cost_third_order",
+    "spectral_coefficients",
+    "validate_criterion",
     "wavefront",
     "wavefront_coefficients",
     "wavefront_gradient",

@@ -4,152 +4,217 @@ Implements Eq. (2) of the paper with the thin-lens Seidel sums of Welford (*Aber
 Optical Systems*, thin-lens chapter), stop at the lens, ``H = y tan(alpha)``, ``K = 1/f``::
 
     S_I   = (y^4 K^3 / 4) [ (n/(n-1))^2 + (n+2)/(n(n-1)^2) s^2 + 4(n+1)/(n(n-1)) s p + (3n+2)/n p^2 ]
-            + (1 - n) Q c2^3 y^4                      (conic term of the posterior surface)
+            + sum over surfaces of (n' - n) kappa c^3 y^4       (conic terms; the paper: the back surface)
     S_II  = +(y^2 K^2 H / 2) [ (n+1)/(n(n-1)) s + (2n+1)/n p ]
     S_III = H^2 K,   S_IV = H^2 K / n,   S_V = 0
 
     W(rho, theta) = S_I/8 rho^4 + S_II/2 rho^3 cos(theta) + S_III/2 rho^2 cos^2(theta)
                     + (S_III + S_IV)/4 rho^2
 
-``rho`` is the normalised pupil radius and ``theta`` is measured from the meridional direction,
-which points from the optical axis towards the image point. With that orientation ``S_II`` has
-the sign above, which is the sign of Welford's surface-by-surface sum and of an exact ray trace;
-NOTES.md prints ``-(...)``, which is the same aberration with the meridional axis pointing away
-from the image point (the paper's ``h(alpha) = -f tan(alpha)``). Every metric is unchanged by
-that flip; the direction of the coma flare in a PSF is not. ``W`` follows Welford's sign
-(positive ``S_I`` = under-corrected), for which the transverse ray aberration in the paraxial
-image plane is ``eps = -(f / y) grad_rho W`` (checked against an exact ray trace in the tests).
+At the stop (chief-ray height 0) a conic surface adds to ``S_I`` only. ``rho`` is the normalised
+pupil radius and ``theta`` is measured from the meridional direction, which points from the
+optical axis towards the image point. With that orientation ``S_II`` has the sign above, which is
+the sign of Welford's surface-by-surface sum and of an exact ray trace; NOTES.md prints ``-(...)``,
+which is the same aberration with the meridional axis pointing away from the image point (the
+paper's ``h(alpha) = -f tan(alpha)``). Every metric is unchanged by that flip; the direction of
+the coma flare in a PSF is not. ``W`` follows Welford's sign (positive ``S_I`` = under-corrected),
+for which the transverse ray aberration in the paraxial image plane is ``eps = -(f / y) grad_rho W``.
 
-The four coefficients ``(W040, W131, W222, W220)`` are returned in waves.
+The wavefront is a sum of the pupil monomials of :data:`TERMS` (``rho^2a rho_r^b``, with ``rho_r =
+rho cos(theta)``) times coefficients in waves; everything that evaluates, differentiates or
+integrates ``W`` reads that table, so a new term is a new row there and its coefficient in
+:func:`wavefront_coefficients`.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import torch
 
-from .lens import ThinLens, as_tensor
+from .checks import check_shape
+from .design import Design
+from .lens import Lens
+from .torch_utils import as_tensor
 
 __all__ = [
+    "Term",
+    "TERMS",
     "COEFFICIENT_NAMES",
+    "N_TERMS",
     "seidel_sums",
     "wavefront_coefficients",
+    "pupil_monomials",
     "wavefront",
     "wavefront_gradient",
     "rms_wavefront",
     "field_rms_wavefront",
 ]
 
-COEFFICIENT_NAMES = ("W040", "W131", "W222", "W220")
+
+@dataclass(frozen=True)
+class Term:
+    """Pupil monomial ``(rho_r^2 + rho_t^2)^a rho_r^b`` (= ``rho^(2a+b) cos^b(theta)``) named ``name``."""
+
+    name: str
+    a: int
+    b: int
+
+    def __call__(self, r2: torch.Tensor, rho_r: torch.Tensor) -> torch.Tensor:
+        if self.b == 0:
+            return r2**self.a
+        if self.a == 0:
+            return rho_r**self.b
+        return r2**self.a * rho_r**self.b
 
 
-def _broadcast(s, Q, alpha_deg, dtype=None, device=None):
-    ref = next((t for t in (s, Q, alpha_deg) if isinstance(t, torch.Tensor)), None)
-    if dtype is None:
-        dtype = ref.dtype if (ref is not None and ref.is_floating_point()) else torch.get_default_dtype()
-    device = device if device is not None else (ref.device if ref is not None else None)
-    return (as_tensor(v, dtype=dtype, device=device) for v in (s, Q, alpha_deg))
+TERMS = (Term("W040", 2, 0), Term("W131", 1, 1), Term("W222", 0, 2), Term("W220", 1, 0))
+"""Spherical aberration, coma, astigmatism, field curvature (+ half the astigmatism): Eq. (2)."""
+COEFFICIENT_NAMES = tuple(t.name for t in TERMS)
+N_TERMS = len(TERMS)
 
 
-def _seidel_elementwise(lens: ThinLens, s, Q, alpha):
+def _check_coeffs(coeffs) -> None:
+    check_shape(coeffs, f"* {N_TERMS}", f"coeffs ({', '.join(COEFFICIENT_NAMES)} in waves)")
+
+
+def _design_and_angles(design: Design, alpha_deg):
+    ref = next((t for t in design.values.values()), None)
+    if isinstance(alpha_deg, torch.Tensor) and alpha_deg.is_floating_point():
+        ref = alpha_deg if ref is None else ref
+    dtype = ref.dtype if ref is not None else torch.get_default_dtype()
+    device = ref.device if ref is not None else None
+    return design.to(dtype=dtype, device=device), as_tensor(alpha_deg, dtype=dtype, device=device)
+
+
+def _seidel(lens: Lens, design: Design, alpha):
     n, y, p = lens.refractive_index, lens.pupil_radius_mm, lens.position_factor
     K = 1.0 / lens.focal_length_mm
-    _, c2 = lens.curvatures(s)
+    s = design["s"]
     H = y * torch.tan(torch.deg2rad(alpha))
     bracket = (n / (n - 1)) ** 2 + (n + 2) / (n * (n - 1) ** 2) * s**2 \
         + 4 * (n + 1) / (n * (n - 1)) * s * p + (3 * n + 2) / n * p**2
-    S1 = y**4 * K**3 / 4 * bracket + (1 - n) * Q * c2**3 * y**4
+    S1 = y**4 * K**3 / 4 * bracket
+    n_before = 1.0
+    for surf in lens.surfaces(design):  # conic contributions (zero for spheres)
+        if surf.aspheric:
+            S1 = S1 + (surf.n_after - n_before) * surf.conic * surf.curvature**3 * y**4
+        n_before = surf.n_after
     S2 = (y**2 * K**2 * H / 2) * ((n + 1) / (n * (n - 1)) * s + (2 * n + 1) / n * p)
     S3 = H**2 * K
     S4 = H**2 * K / n
     return torch.stack(torch.broadcast_tensors(S1, S2, S3, S4), dim=-1)
 
 
-def seidel_sums(lens: ThinLens, s, Q, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
+def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
     """Seidel sums ``(S_I, S_II, S_III, S_IV)`` in mm.
 
     Parameters
     ----------
-    lens : ThinLens
-    s, Q : tensor-like, broadcastable, shape ``(*)``
-        Shape factor and conic constant of the posterior surface (dimensionless).
+    lens : Lens
+    design : Design, parameters broadcasting to shape ``(*)``
     alpha_deg : tensor-like, shape ``(A,)``, optional
         Field angles in degrees; defaults to ``lens.field_angles_deg``.
     elementwise : bool
-        If True, ``alpha_deg`` broadcasts with ``s`` and ``Q`` (one angle per design, e.g. one per
+        If True, ``alpha_deg`` broadcasts with the design (one angle per design, e.g. one per
         image point) instead of adding a field axis.
 
     Returns
     -------
-    Tensor of shape ``(*, A, 4)`` (``(*, 4)`` if elementwise) in mm, dtype/device following ``s``/``Q``.
+    Tensor of shape ``(*, A, 4)`` (``(*, 4)`` if elementwise) in mm, dtype/device following the design.
     """
     if alpha_deg is None:
         alpha_deg = lens.field_angles_deg
-    s, Q, alpha = _broadcast(s, Q, alpha_deg)
+    design, alpha = _design_and_angles(design, alpha_deg)
     if elementwise:
-        return _seidel_elementwise(lens, s, Q, alpha)
-    return _seidel_elementwise(lens, s.unsqueeze(-1), Q.unsqueeze(-1), alpha)
+        return _seidel(lens, design, alpha)
+    return _seidel(lens, design.unsqueeze(-1), alpha)
 
 
-def wavefront_coefficients(lens: ThinLens, s, Q, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
-    """Wavefront coefficients ``(W040, W131, W222, W220)`` in waves.
+def wavefront_coefficients(lens: Lens, design: Design, alpha_deg=None, *, wavelength_um: float,
+                           elementwise: bool = False) -> torch.Tensor:
+    """Wavefront coefficients of :data:`TERMS` in waves at ``wavelength_um``.
 
     ``W = W040 rho^4 + W131 rho^3 cos(theta) + W222 rho^2 cos^2(theta) + W220 rho^2`` (Eq. 2 of
     the paper; ``W131`` includes the field height, so the coefficients are per field angle).
 
-    Returns a tensor of shape ``(*, A, 4)``, or ``(*, 4)`` if elementwise (see :func:`seidel_sums`).
+    Returns a tensor of shape ``(*, A, T)``, or ``(*, T)`` if elementwise (see :func:`seidel_sums`).
     """
-    S = seidel_sums(lens, s, Q, alpha_deg, elementwise=elementwise) / lens.wavelength_mm
+    S = seidel_sums(lens, design, alpha_deg, elementwise=elementwise) / (wavelength_um * 1e-3)
     S1, S2, S3, S4 = S.unbind(-1)
     return torch.stack([S1 / 8, S2 / 2, S3 / 2, (S3 + S4) / 4], dim=-1)
 
 
-def _check_coeffs(coeffs: torch.Tensor) -> None:
-    if not isinstance(coeffs, torch.Tensor) or coeffs.ndim < 1 or coeffs.shape[-1] != 4:
-        shape = tuple(coeffs.shape) if isinstance(coeffs, torch.Tensor) else type(coeffs).__name__
-        raise ValueError(f"coeffs has shape {shape}: expected a tensor of shape (*, 4) "
-                         "holding (W040, W131, W222, W220) in waves")
+def pupil_monomials(rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:
+    """The monomials of :data:`TERMS` at pupil points, stacked: ``(T, *P)`` for points of shape ``P``."""
+    r2 = rho_r**2 + rho_t**2
+    return torch.stack(torch.broadcast_tensors(*(t(r2, rho_r) for t in TERMS)))
 
 
 def wavefront(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:
     """Evaluate ``W`` (waves) at normalised pupil points.
 
     ``rho_r`` is the pupil coordinate along the meridional (radial-field) direction and ``rho_t``
-    the one across it, both normalised to the pupil radius. ``coeffs`` ``(*, 4)`` broadcasts
+    the one across it, both normalised to the pupil radius. ``coeffs`` ``(*, T)`` broadcasts
     against the point arrays: the result has shape ``(*, *P)`` for points of shape ``P``.
     """
     _check_coeffs(coeffs)
-    r2 = rho_r**2 + rho_t**2
-    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * rho_r.ndim + (4,))
-    return c[..., 0] * r2**2 + c[..., 1] * r2 * rho_r + c[..., 2] * rho_r**2 + c[..., 3] * r2
+    m = pupil_monomials(rho_r, rho_t)
+    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * (m.ndim - 1) + (N_TERMS,))
+    return sum(c[..., k] * m[k] for k in range(N_TERMS))
 
 
 def wavefront_gradient(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor):
-    """Gradient ``(dW/drho_r, dW/drho_t)`` in waves per unit normalised pupil radius."""
+    """Gradient ``(dW/drho_r, dW/drho_t)`` in waves per unit normalised pupil radius.
+
+    ``d/drho_r [r2^a rho_r^b] = 2a r2^(a-1) rho_r^(b+1) + b r2^a rho_r^(b-1)``,
+    ``d/drho_t [r2^a rho_r^b] = 2a r2^(a-1) rho_r^b rho_t``.
+    """
     _check_coeffs(coeffs)
     r2 = rho_r**2 + rho_t**2
-    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * rho_r.ndim + (4,))
-    a, b, cc, d = (c[..., i] for i in range(4))
-    g_r = 4 * a * r2 * rho_r + b * (r2 + 2 * rho_r**2) + 2 * cc * rho_r + 2 * d * rho_r
-    g_t = 4 * a * r2 * rho_t + b * 2 * rho_r * rho_t + 2 * d * rho_t
+    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * rho_r.ndim + (N_TERMS,))
+    g_r = g_t = 0
+    for k, t in enumerate(TERMS):
+        ck = c[..., k]
+        if t.a:
+            common = 2 * t.a * r2 ** (t.a - 1) * rho_r**t.b
+            g_r = g_r + ck * common * rho_r
+            g_t = g_t + ck * common * rho_t
+        if t.b:
+            g_r = g_r + ck * t.b * r2**t.a * rho_r ** (t.b - 1)
     return g_r, g_t
+
+
+def _disc_mean(a: int, b: int) -> float:
+    """Mean of ``rho^(2a+b) cos^b(theta)`` over the unit disc: ``2 / (2a + b + 2) (b-1)!!/b!!`` (0 for odd b)."""
+    if b % 2:
+        return 0.0
+    ratio = math.prod(range(b - 1, 0, -2)) / math.prod(range(b, 0, -2)) if b else 1.0
+    return 2.0 / (2 * a + b + 2) * ratio
+
+
+_MOMENTS = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in TERMS] for ti in TERMS], dtype=torch.float64)
+_MEANS = torch.tensor([_disc_mean(t.a, t.b) for t in TERMS], dtype=torch.float64)
 
 
 def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:
     """RMS of ``W`` over the unit pupil disc (waves), closed form.
 
-    With ``a, b, c, d = W040, W131, W222, W220``::
+    ``<W^2> = c^T M c`` with ``M_ij`` the disc mean of the product of monomials ``i`` and ``j``
+    (:func:`_disc_mean`); for the paper's four terms ``a, b, c, d = W040, W131, W222, W220``::
 
         <W^2> = a^2/5 + a c/4 + a d/2 + b^2/8 + c^2/8 + c d/3 + d^2/3
         <W>   = a/3 + c/4 + d/2
 
     The paper's ``RMS_w`` is ``sqrt(<W^2>)`` (no piston removal); ``piston_removed=True`` gives
-    the standard deviation ``sqrt(<W^2> - <W>^2)``. Input ``(*, 4)``, output ``(*)``.
+    the standard deviation ``sqrt(<W^2> - <W>^2)``. Input ``(*, T)``, output ``(*)``.
     """
     _check_coeffs(coeffs)
-    a, b, c, d = coeffs.unbind(-1)
-    m2 = a * a / 5 + a * c / 4 + a * d / 2 + b * b / 8 + c * c / 8 + c * d / 3 + d * d / 3
+    M = _MOMENTS.to(dtype=coeffs.dtype, device=coeffs.device)
+    m2 = torch.einsum("...i,ij,...j->...", coeffs, M, coeffs)
     if piston_removed:
-        m1 = a / 3 + c / 4 + d / 2
+        m1 = coeffs @ _MEANS.to(dtype=coeffs.dtype, device=coeffs.device)
         m2 = m2 - m1 * m1
     return torch.sqrt(torch.clamp(m2, min=0))
 
@@ -157,6 +222,6 @@ def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False) -> torch.T
 def field_rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:
     """The paper's ``RMS_W = sqrt(<RMS_w(alpha)^2>_alpha)`` (waves), uniform over the field angles.
 
-    Input ``(*, A, 4)``, output ``(*)``.
+    Input ``(*, A, T)``, output ``(*)``.
     """
     return torch.sqrt((rms_wavefront(coeffs, piston_removed) ** 2).mean(dim=-1))

@@ -1,6 +1,9 @@
-"""Industrial cost of the asphere: RMS slope departure from the best-fitting sphere (Eq. 3).
+"""Industrial cost of the aspheres: RMS slope departure from the best-fitting sphere (Eq. 3).
 
-The posterior conic of curvature ``c = c2`` and conic constant ``Q`` has the exact profile
+The cost of a design is the sum of the costs of its aspheric surfaces (those whose conic constant
+is a free design parameter, :meth:`lenssim.lens.Lens.surfaces`): each asphere is polished and
+tested on its own, so their costs add. The paper's lens has one, the back surface. The
+posterior conic of curvature ``c = c2`` and conic constant ``Q`` has the exact profile
 ``z(r) = c r^2 / (1 + sqrt(1 - (1 + Q) c^2 r^2))`` and slope ``z'(r) = c r / sqrt(1 - (1 + Q) c^2 r^2)``
 (``tan(alpha_i)`` in the paper's Fig. 2). A sphere of curvature ``k`` has slope
 ``k r / sqrt(1 - k^2 r^2)`` (``tan(beta_i)``). At ``n`` equally spaced radii
@@ -19,12 +22,15 @@ from __future__ import annotations
 
 import torch
 
-from .lens import ThinLens, as_tensor
+from .design import Design
+from .lens import Lens
+from .numerics import DEFAULT_NUMERICS
+from .torch_utils import as_tensor
 
-__all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature",
+__all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
            "slope_departure_cost", "slope_departure_cost_third_order"]
 
-DEFAULT_COST_POINTS = 101
+DEFAULT_COST_POINTS = DEFAULT_NUMERICS.cost_points
 
 
 def conic_slope(r_mm, c, Q):
@@ -61,24 +67,41 @@ def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_PO
     return k
 
 
-def slope_departure_cost(lens: ThinLens, s, Q, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
-    """``C_a`` (slope units) of the posterior conic for designs ``(s, Q)`` broadcast to ``(*)``.
+def surface_cost(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
+    """``C_a`` (slope units) of one conic surface of curvature ``c`` (1/mm) and conic ``Q`` over radius ``y_mm``."""
+    k = best_fit_sphere_curvature(c, Q, y_mm, n_points)
+    r = _radii(y_mm, n_points, c)
+    dep = conic_slope(r, c[..., None], Q[..., None]) - sphere_slope(r, k[..., None])
+    return torch.sqrt((dep**2).mean(-1))
 
-    Computed in float64 whatever the input dtype, returned in the input's floating dtype.
+
+def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
+    """``C_a`` (slope units) of a design (parameters broadcast to ``(*)``): the sum over its aspheres.
+
+    Computed in float64 whatever the input dtype, returned in the design's floating dtype.
     """
-    s_t, Q_t = as_tensor(s), as_tensor(Q)
-    out_dtype = torch.promote_types(s_t.dtype, Q_t.dtype)
-    s64, Q64 = torch.broadcast_tensors(s_t.to(torch.float64), Q_t.to(torch.float64))
-    lens.check_design(s64, Q64)
-    _, c = lens.curvatures(s64)
-    y = lens.pupil_radius_mm
-    k = best_fit_sphere_curvature(c, Q64, y, n_points)
-    r = _radii(y, n_points, c)
-    dep = conic_slope(r, c[..., None], Q64[..., None]) - sphere_slope(r, k[..., None])
-    return torch.sqrt((dep**2).mean(-1)).to(out_dtype)
+    out_dtype = None
+    for v in design.values.values():
+        out_dtype = v.dtype if out_dtype is None else torch.promote_types(out_dtype, v.dtype)
+    d64 = design.to(torch.float64).broadcast()
+    lens.check_design(d64)
+    total = None
+    for surf in lens.surfaces(d64):
+        if surf.aspheric:
+            c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64),
+                                           as_tensor(surf.conic, dtype=torch.float64))
+            cost = surface_cost(c, Q, lens.pupil_radius_mm, n_points)
+            total = cost if total is None else total + cost
+    if total is None:
+        total = torch.zeros(d64.shape, dtype=torch.float64)
+    return total.to(out_dtype or torch.float64)
 
 
-def slope_departure_cost_third_order(lens: ThinLens, s, Q) -> torch.Tensor:
-    """Continuous third-order estimate ``|Q| |c2|^3 y^3 / sqrt(175)`` of :func:`slope_departure_cost`."""
-    _, c = lens.curvatures(as_tensor(s))
-    return as_tensor(Q, like=c).abs() * c.abs() ** 3 * lens.pupil_radius_mm**3 / 175**0.5
+def slope_departure_cost_third_order(lens: Lens, design: Design) -> torch.Tensor:
+    """Continuous third-order estimate ``sum |Q| |c|^3 y^3 / sqrt(175)`` of :func:`slope_departure_cost`."""
+    total = 0
+    for surf in lens.surfaces(design):
+        if surf.aspheric:
+            c = as_tensor(surf.curvature)
+            total = total + as_tensor(surf.conic, like=c).abs() * c.abs() ** 3 * lens.pupil_radius_mm**3 / 175**0.5
+    return total

@@ -5,8 +5,10 @@ is the cost ``C_a`` (the best-fit-sphere Gauss-Newton iterations are unrolled). 
 quality gradient is projected on the subspace orthogonal to the cost gradient, a backtracking
 step is taken along it, and the point is pulled back onto ``C_a = level`` by Newton steps along
 the cost gradient. FFT sizes are fixed per field angle at the start (piecewise-constant in the
-design, so they carry no gradient). Coordinates are scaled by the paper's grid steps
-(0.025 in s, 0.1 in Q) so both parameters move comparably.
+design, so they carry no gradient). The optimisation vector ``x`` holds the design parameters
+named in ``names`` (default the paper's ``s``, ``Q_back``); coordinates are scaled by each
+parameter's typical step (:data:`lenssim.design.PARAMETERS`: the paper's grid steps, 0.025 in s,
+0.1 in Q) so all parameters move comparably.
 """
 
 from __future__ import annotations
@@ -15,54 +17,76 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .aberrations import wavefront_coefficients
+from .camera import Camera
 from .cost import slope_departure_cost
+from .criteria import quarter_weights, validate_criterion
+from .design import PARAMETERS, Design, parameter_name
 from .image_model import image_psd_quarter, noise_variance
-from .lens import ThinLens
-from .metrics import DEFAULT_FILL, DEFAULT_MIN_SIZE, mse_from_otf_quarter
-from .psf_bank import fft_size, otf_quarter
+from .numerics import DEFAULT_NUMERICS, Numerics
+from .paper import REFERENCE_SNR_DB
+from .psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
 
-__all__ = ["DifferentiableMSE", "IsoCostResult", "optimise_on_iso_cost"]
+__all__ = ["DifferentiableCriterion", "DifferentiableMSE", "IsoCostResult", "optimise_on_iso_cost"]
 
-SCALE = torch.tensor([0.025, 0.1], dtype=torch.float64)  # grid steps of s and Q
+PAPER_NAMES = ("s", "Q_back")
 
 
-class DifferentiableMSE:
-    """``MSE_R`` (or ``MSE_S``) field average at one SNR as a differentiable function of ``x = (s, Q)``."""
+def _scale(names) -> torch.Tensor:
+    return torch.tensor([PARAMETERS[n].step for n in names], dtype=torch.float64)
 
-    def __init__(self, lens: ThinLens, snr_db: float = 27.6, criterion: str = "mse_r", *, fill: float = DEFAULT_FILL,
-                 min_size: int = DEFAULT_MIN_SIZE, oversample: int = 1, dtype=torch.float64):
-        if criterion not in ("mse_r", "mse_s"):
-            raise ValueError(f"criterion={criterion!r} is not allowed: 'mse_r' or 'mse_s'")
-        self.lens, self.criterion, self.fill, self.min_size, self.oversample, self.dtype = \
-            lens, criterion, fill, min_size, oversample, dtype
+
+class DifferentiableCriterion:
+    """An OTF criterion of :mod:`lenssim.criteria` (field average at one SNR) as a differentiable
+    function of ``x``, the values of the design parameters ``names``."""
+
+    def __init__(self, camera: Camera, snr_db: float = REFERENCE_SNR_DB, criterion: str = "mse_r", *,
+                 names=PAPER_NAMES, numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64):
+        crit = validate_criterion(criterion)
+        if crit.from_otf is None:
+            raise ValueError(f"criterion={criterion!r} is not allowed: an OTF criterion "
+                             "(the design criteria have their own closed forms)")
+        self.camera, self.criterion, self.numerics, self.dtype = camera, crit, numerics, dtype
+        self.names = tuple(parameter_name(n) for n in names)
         self.sigma2 = noise_variance([snr_db]).to(dtype)
         self.sizes: list[int] | None = None
         self.evaluations = 0
 
+    @property
+    def lens(self):
+        return self.camera.lens
+
+    def design(self, x: torch.Tensor) -> Design:
+        return Design(dict(zip(self.names, x.unbind(0))))
+
     def fix_sizes(self, x: torch.Tensor) -> None:
         """Choose the FFT size per field angle at design ``x`` (with a 25% margin for the way ahead)."""
-        c = wavefront_coefficients(self.lens, x[0].detach(), x[1].detach()).to(torch.float64)
-        self.sizes = [int(v) for v in fft_size(self.lens, c * 1.25, fill=self.fill, min_size=self.min_size)]
+        c = spectral_coefficients(self.camera, self.design(x.detach())).to(torch.float64)
+        self.sizes = [int(v) for v in fft_size(self.camera, c * 1.25, self.numerics)]
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         if self.sizes is None:
             self.fix_sizes(x)
         self.evaluations += 1
-        coeffs = wavefront_coefficients(self.lens, x[0], x[1]).to(self.dtype)  # (A, 4)
+        coeffs = spectral_coefficients(self.camera, self.design(x)).to(self.dtype)  # (A, K, T)
+        over = self.numerics.oversample
         total = 0
         for a, n in enumerate(self.sizes):
-            m = n * self.oversample
-            H = otf_quarter(self.lens, coeffs[a:a + 1], n, oversample=self.oversample)
-            ms, mr = mse_from_otf_quarter(H, image_psd_quarter(m, dtype=self.dtype), self.sigma2)
-            total = total + (mr if self.criterion == "mse_r" else ms)[0, 0]
+            m = n * over
+            H = otf_quarter_spectrum(self.camera, coeffs[a:a + 1], n, oversample=over, numerics=self.numerics)
+            psd = image_psd_quarter(m, dtype=self.dtype)
+            v = self.criterion.from_otf(H, H.real.square() + H.imag.square(), psd, psd * quarter_weights(m, psd.dtype, psd.device),
+                                        self.sigma2)
+            total = total + v[0, 0]
         return total / len(self.sizes)
+
+
+DifferentiableMSE = DifferentiableCriterion
+"""Former name of :class:`DifferentiableCriterion`."""
 
 
 @dataclass
 class IsoCostResult:
-    s: float
-    Q: float
+    design: dict
     value: float
     cost: float
     level: float
@@ -71,15 +95,15 @@ class IsoCostResult:
     history: list = field(default_factory=list)
 
 
-def _cost(lens, x, points):
-    return slope_departure_cost(lens, x[0], x[1], points)
+def _cost(quality, x, points):
+    return slope_departure_cost(quality.lens, quality.design(x), points)
 
 
-def _project_to_level(lens, x, level, points, iters=6):
+def _project_to_level(quality, x, level, points, iters=6):
     """Newton steps along the cost gradient back onto ``C_a = level``."""
     for _ in range(iters):
         xx = x.detach().requires_grad_(True)
-        c = _cost(lens, xx, points)
+        c = _cost(quality, xx, points)
         (g,) = torch.autograd.grad(c, xx)
         err = c.item() - level
         if abs(err) <= 1e-10 * max(level, 1e-12):
@@ -88,20 +112,26 @@ def _project_to_level(lens, x, level, points, iters=6):
     return x.detach()
 
 
-def optimise_on_iso_cost(lens: ThinLens, quality: DifferentiableMSE, x0, level: float, *, steps: int = 30,
-                         step0: float = 2.0, tol: float = 1e-7, cost_points: int = 101,
-                         Q_bounds=(-10.0, 1.2), s_bounds=(-2.0, 1.025)) -> IsoCostResult:
-    """Minimise ``quality`` along ``C_a = level`` from ``x0 = (s, Q)`` by projected gradient descent.
+def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, steps: int = 30,
+                         step0: float = 2.0, tol: float = 1e-7, cost_points: int = DEFAULT_NUMERICS.cost_points,
+                         bounds=None) -> IsoCostResult:
+    """Minimise ``quality`` along ``C_a = level`` from ``x0`` (values of ``quality.names``) by projected
+    gradient descent.
 
     ``step0`` is the first trial step in grid steps; steps are halved until the quality decreases.
     Stops when the tangential gradient (per grid step) is below ``tol`` relative to the value, or
-    after ``steps`` accepted steps. Designs are kept inside the bounds (the paper's |Q| <= 10).
+    after ``steps`` accepted steps. Designs are kept inside ``bounds`` ``{name: (lo, hi)}`` (default:
+    the paper's grid, |Q| <= 10).
     """
+    from .paper import PAPER_GRID
+
+    SCALE = _scale(quality.names)
+    bounds = {**{k: v[:2] for k, v in PAPER_GRID.items()}, **(bounds or {})}
     x = torch.as_tensor(x0, dtype=torch.float64).clone()
-    x = _project_to_level(lens, x, level, cost_points)
+    x = _project_to_level(quality, x, level, cost_points)
     quality.fix_sizes(x)
-    lo = torch.tensor([s_bounds[0], Q_bounds[0]], dtype=torch.float64)
-    hi = torch.tensor([s_bounds[1], Q_bounds[1]], dtype=torch.float64)
+    lo = torch.tensor([bounds.get(n, (-float("inf"), 0))[0] for n in quality.names], dtype=torch.float64)
+    hi = torch.tensor([bounds.get(n, (0, float("inf")))[1] for n in quality.names], dtype=torch.float64)
     step = step0
     history = []
     it = 0
@@ -110,7 +140,7 @@ def optimise_on_iso_cost(lens: ThinLens, quality: DifferentiableMSE, x0, level: 
         q = quality(xx)
         (gq,) = torch.autograd.grad(q, xx)
         xc = x.clone().requires_grad_(True)
-        (gc,) = torch.autograd.grad(_cost(lens, xc, cost_points), xc)
+        (gc,) = torch.autograd.grad(_cost(quality, xc, cost_points), xc)
         gq_u, gc_u = gq * SCALE, gc * SCALE  # gradients per grid step
         nrm = gc_u / gc_u.norm()
         tangent = gq_u - gq_u.dot(nrm) * nrm
@@ -122,7 +152,7 @@ def optimise_on_iso_cost(lens: ThinLens, quality: DifferentiableMSE, x0, level: 
         accepted = False
         while step >= 1e-3:
             trial = torch.maximum(torch.minimum(x + step * direction, hi), lo)
-            trial = _project_to_level(lens, trial, level, cost_points)
+            trial = _project_to_level(quality, trial, level, cost_points)
             trial = torch.maximum(torch.minimum(trial, hi), lo)
             with torch.no_grad():
                 qt = quality(trial)
@@ -135,5 +165,5 @@ def optimise_on_iso_cost(lens: ThinLens, quality: DifferentiableMSE, x0, level: 
             break
     with torch.no_grad():
         v = float(quality(x))
-    return IsoCostResult(float(x[0]), float(x[1]), v, _cost(lens, x, cost_points).item(), level, it,
-                         quality.evaluations, history)
+    return IsoCostResult(dict(zip(quality.names, (float(t) for t in x))), v, _cost(quality, x, cost_points).item(),
+                         level, it, quality.evaluations, history)

@@ -10,7 +10,11 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .design import PARAMETERS
 from .files import atomic_write, atomic_write_text
+from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
+from .sweep import design_dims
+from .tradeoff import find_optimum
 
 __all__ = ["fig3_cost", "fig4_landscapes", "fig5_tradeoff_configs", "fig6_performance_vs_cost", "table1",
            "all_figures"]
@@ -34,14 +38,28 @@ def _save(fig, out_dir: Path, name: str) -> Path:
     return png
 
 
+def _axes_label(name: str) -> str:
+    return f"{PARAMETERS[name].description} {name}"
+
+
+def _yx(da: xr.DataArray):
+    """The two design dimensions of a landscape: (y axis, x axis) = (first, second) sweep dimension."""
+    dims = [d for d in da.dims if d in PARAMETERS]
+    if len(dims) != 2:
+        raise ValueError(f"a landscape needs two design dimensions; got {list(da.dims)}")
+    return dims[0], dims[1]
+
+
 def _landscape(ax, da: xr.DataArray, label: str, levels=None, log=False, cmap="viridis"):
-    Q, s = da["Q"].values, da["s"].values
+    dy, dx = _yx(da)
+    da = da.transpose(dy, dx)
+    Q, s = da[dx].values, da[dy].values
     z = np.log10(da.values) if log else da.values
     im = ax.contourf(Q, s, z, levels=40, cmap=cmap)
     if levels is not None:
         ax.contour(Q, s, z, levels=levels, colors="white", linewidths=0.6, linestyles="solid")
-    ax.set_xlabel("conic constant Q")
-    ax.set_ylabel("shape factor s")
+    ax.set_xlabel(_axes_label(dx))
+    ax.set_ylabel(_axes_label(dy))
     cb = ax.figure.colorbar(im, ax=ax)
     cb.set_label(("log10 " if log else "") + label)
     return im
@@ -51,18 +69,20 @@ def fig3_cost(ds: xr.Dataset, out_dir: Path, levels=None) -> Path:
     """C_a over (Q, s) with iso-cost contours; the zero-cost contour (Q = 0 or s = 1) in red."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 5), constrained_layout=True)
-    levels = np.linspace(0, 2e-3, 30)[1:] if levels is None else levels
+    levels = PAPER_COST_LEVELS[1:] if levels is None else levels
+    dy, dx = design_dims(ds)
     _landscape(ax, ds["cost"], "C_a (RMS slope departure)", cmap="magma")
-    ax.contour(ds["Q"].values, ds["s"].values, ds["cost"].values, levels=levels, colors="white", linewidths=0.5)
-    ax.axvline(0, color="red", lw=1.2, label="C_a = 0: Q = 0 or s = 1")
-    if ds["s"].values[-1] >= 1:
+    cost = ds["cost"].transpose(dy, dx)
+    ax.contour(ds[dx].values, ds[dy].values, cost.values, levels=levels, colors="white", linewidths=0.5)
+    ax.axvline(0, color="red", lw=1.2, label=f"C_a = 0: {dx} = 0 or {dy} = 1")
+    if ds[dy].values[-1] >= 1:
         ax.axhline(1, color="red", lw=1.2)
     ax.legend(loc="lower left", fontsize=8)
     ax.set_title("Fig. 3: industrial cost C_a (white: iso-cost levels 0..2e-3)")
     return _save(fig, out_dir, "fig3_cost")
 
 
-def fig4_landscapes(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> Path:
+def fig4_landscapes(ds: xr.Dataset, out_dir: Path, snr: float = REFERENCE_SNR_DB) -> Path:
     """RMS_W, MSE_S and MSE_R (at ``snr`` dB) over (Q, s) with contours."""
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.8), constrained_layout=True)
@@ -70,8 +90,10 @@ def fig4_landscapes(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> Path:
                                       (ds["mse_s"].sel(snr=snr, method="nearest"), f"MSE_S at {snr:g} dB"),
                                       (ds["mse_r"].sel(snr=snr, method="nearest"), f"MSE_R at {snr:g} dB")]):
         _landscape(ax, da, label, levels=12, log=label.startswith("MSE"))
+        dy, dx = _yx(da)
+        da = da.transpose(dy, dx)
         i, j = np.unravel_index(int(np.argmin(da.values)), da.shape)
-        ax.plot(da["Q"].values[j], da["s"].values[i], "o", mfc="none", mec="red", ms=10, mew=2)
+        ax.plot(da[dx].values[j], da[dy].values[i], "o", mfc="none", mec="red", ms=10, mew=2)
         ax.set_title(label + " (red circle: grid optimum)")
     fig.suptitle("Fig. 4: quality landscapes")
     return _save(fig, out_dir, "fig4_landscapes")
@@ -81,7 +103,8 @@ def fig5_tradeoff_configs(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path, poly
     """Optimal trade-off configurations over the cost contours, with fitted polynomials."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 6), constrained_layout=True)
-    ax.contour(ds["Q"].values, ds["s"].values, ds["cost"].values, levels=trade["level"].values[1:],
+    dy, dx = design_dims(ds)
+    ax.contour(ds[dx].values, ds[dy].values, ds["cost"].transpose(dy, dx).values, levels=trade["level"].values[1:],
                cmap="Greys", linewidths=0.6)
     snrs = [float(v) for v in ds["snr"].values]
     styles = [("mse_s@%g" % snrs[len(snrs) // 2], "x", "red", "MSE_S")]
@@ -90,18 +113,18 @@ def fig5_tradeoff_configs(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path, poly
         styles.append((f"mse_r@{snr:g}", m, col, f"MSE_R, {word} SNR ({snr:g} dB)"))
     for crit, m, col, label in styles:
         t = trade.sel(criterion=crit)
-        s, Q = t["s"].values[1:], t["Q"].values[1:]
+        s, Q = t[dy].values[1:], t[dx].values[1:]
         ok = np.isfinite(s)
         ax.plot(Q[ok], s[ok], m, color=col, mfc="none" if m != "x" else col, label=label)
         if ok.sum() > poly_degree + 1:
             p = np.polyfit(Q[ok], s[ok], poly_degree)
             qq = np.linspace(Q[ok].min(), Q[ok].max(), 200)
             ax.plot(qq, np.polyval(p, qq), ":", color=col, lw=1)
-        da = ds[crit.split("@")[0]].sel(snr=float(crit.split("@")[1]))
+        da = ds[crit.split("@")[0]].sel(snr=float(crit.split("@")[1])).transpose(dy, dx)
         i, j = np.unravel_index(int(np.argmin(da.values)), da.shape)
-        ax.plot(da["Q"].values[j], da["s"].values[i], "o", ms=16, mfc="none", mec=col, mew=1.5)
-    ax.set_xlabel("conic constant Q")
-    ax.set_ylabel("shape factor s")
+        ax.plot(da[dx].values[j], da[dy].values[i], "o", ms=16, mfc="none", mec=col, mew=1.5)
+    ax.set_xlabel(_axes_label(dx))
+    ax.set_ylabel(_axes_label(dy))
     ax.set_title("Fig. 5: optimal cost-performance configurations (circles: absolute optima)")
     ax.legend(fontsize=8, loc="best")
     return _save(fig, out_dir, "fig5_tradeoff_configs")
@@ -110,7 +133,7 @@ def fig5_tradeoff_configs(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path, poly
 def fig6_performance_vs_cost(trade: xr.Dataset, out_dir: Path) -> Path:
     """RMS_W / MSE_S and the expected MSE after restoration against C_a, sequential vs end-to-end."""
     plt = _plt()
-    ref = trade.attrs.get("reference_snr_db", 27.6)
+    ref = trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
     e2e = trade.sel(criterion=f"mse_r@{ref:g}")
     for ax, crit, label in ((axes[0], "rms_w", "RMS_W [waves]"), (axes[1], f"mse_s@{ref:g}", f"MSE_S at {ref:g} dB")):
@@ -130,30 +153,41 @@ def fig6_performance_vs_cost(trade: xr.Dataset, out_dir: Path) -> Path:
     return _save(fig, out_dir, "fig6_performance_vs_cost")
 
 
-def table1(ds: xr.Dataset, out_dir: Path, snr: float = 27.6) -> tuple[Path, Path, list[dict]]:
-    """Table 1: for the designs optimising RMS_W, MSE_S, MSE_R, the relative MSE_R and C_a (CSV + Markdown)."""
-    from .cli import find_optimum
+TABLE1_CRITERIA = ("rms_w", "mse_s", "mse_r")
 
+
+def table1(ds: xr.Dataset, out_dir: Path, snr: float = REFERENCE_SNR_DB) -> tuple[Path, Path, list[dict]]:
+    """Table 1: for the designs optimising RMS_W, MSE_S, MSE_R, the relative MSE_R and C_a (CSV + Markdown).
+
+    Each row: ``design`` (the criterion's label), ``parameters`` ``{name: value}``, ``mse_r``,
+    ``mse_r_relative``, ``cost_Ca``.
+    """
+    from .criteria import CRITERIA
+
+    dims = design_dims(ds)
     rows = []
     best = find_optimum(ds, "mse_r", snr)["value"]
-    for crit in ("rms_w", "mse_s", "mse_r"):
+    for crit in TABLE1_CRITERIA:
         r = find_optimum(ds, crit, snr)
         mr = r["mse_r"][f"{snr:g}"]
-        rows.append({"design": crit.upper(), "s": r["s"], "Q": r["Q"], "mse_r": mr, "mse_r_relative": mr / best,
+        rows.append({"design": CRITERIA[crit].label, "parameters": r["design"], "mse_r": mr, "mse_r_relative": mr / best,
                      "cost_Ca": r["cost_Ca"]})
     out_dir.mkdir(parents=True, exist_ok=True)
     csv = out_dir / "table1.csv"
     md = out_dir / "table1.md"
-    atomic_write_text(csv, "design,s,Q,mse_r,mse_r_relative,cost_Ca\n" + "".join(
-        f"{r['design']},{r['s']:g},{r['Q']:g},{r['mse_r']:.6g},{r['mse_r_relative']:.4f},{r['cost_Ca']:.4e}\n" for r in rows))
-    atomic_write_text(md, f"| design (optimises) | s | Q | MSE_R at {snr:g} dB | relative to best | C_a |\n|---|---|---|---|---|---|\n"
-                  + "".join(f"| {r['design']} | {r['s']:g} | {r['Q']:g} | {r['mse_r']:.5f} | {r['mse_r_relative']:.3f} | "
-                            f"{r['cost_Ca']:.3e} |\n" for r in rows))
+    params = lambda r, sep: sep.join(f"{r['parameters'][d]:g}" for d in dims)  # noqa: E731
+    atomic_write_text(csv, f"design,{','.join(dims)},mse_r,mse_r_relative,cost_Ca\n" + "".join(
+        f"{r['design']},{params(r, ',')},{r['mse_r']:.6g},{r['mse_r_relative']:.4f},{r['cost_Ca']:.4e}\n"
+        for r in rows))
+    atomic_write_text(md, f"| design (optimises) | {' | '.join(dims)} | MSE_R at {snr:g} dB | relative to best | C_a |\n"
+                      f"|---|{'---|' * len(dims)}---|---|---|\n"
+                      + "".join(f"| {r['design']} | {params(r, ' | ')} | {r['mse_r']:.5f} | {r['mse_r_relative']:.3f} | "
+                                f"{r['cost_Ca']:.3e} |\n" for r in rows))
     return csv, md, rows
 
 
 def all_figures(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path) -> list[Path]:
     out_dir = Path(out_dir)
-    ref = trade.attrs.get("reference_snr_db", 27.6)
+    ref = trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB)
     return [fig3_cost(ds, out_dir), fig4_landscapes(ds, out_dir, ref), fig5_tradeoff_configs(ds, trade, out_dir),
             fig6_performance_vs_cost(trade, out_dir)]

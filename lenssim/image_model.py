@@ -23,10 +23,11 @@ from functools import lru_cache
 
 import torch
 
-__all__ = ["PAPER_RHO0", "PAPER_SNR_DB", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
+from .paper import PAPER_RHO0
 
-PAPER_RHO0 = 0.97
-PAPER_SNR_DB = (21.6, 27.6, 33.6)  # ISO 400 (low light), ISO 100 (expected), ISO 25 (high light)
+__all__ = ["PSD_MODELS", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
+
+PSD_MODELS = ("discrete", "continuous")
 
 
 def _check_rho0(rho0: float) -> float:
@@ -73,8 +74,8 @@ def image_psd_quarter(n: int, rho0: float = PAPER_RHO0, *, model: str = "discret
 
     The spectrum is even in both axes, so this quarter carries all of it (used by the metrics).
     """
-    if model not in ("discrete", "continuous"):
-        raise ValueError(f"model={model!r} is not allowed: 'discrete' or 'continuous'")
+    if model not in PSD_MODELS:
+        raise ValueError(f"model={model!r} is not allowed: one of {', '.join(PSD_MODELS)}")
     if not (isinstance(n, int) and n >= 2 and n % 2 == 0):
         raise ValueError(f"n={n!r} is not allowed: an even integer >= 2")
     return _psd_quarter_cached(n, _check_rho0(rho0), model).to(dtype=dtype, device=device)

@@ -1,15 +1,16 @@
-"""Thin singlet with a spherical anterior and a conic posterior surface.
+"""The thin singlet: a spherical front surface and a conic back surface, stop at the lens.
 
-The lens of the paper (Optics Express 31(10) 16897, 2023, Section 2.1 and 3.1):
-focal length ``f``, stop at the lens with pupil radius ``y``, refractive index ``n``
-at wavelength ``lambda``, object at infinity (position factor ``p = -1``).
+The lens of the paper (Optics Express 31(10) 16897, 2023, Section 2.1 and 3.1): focal length
+``f``, stop at the lens with pupil radius ``y``, a glass of refractive index ``n``, object at
+infinity (position factor ``p = -1``), field angles 0..14 degrees. The free parameters of a
+design (:class:`lenssim.design.Design`) set the surfaces (:meth:`Lens.surfaces`).
 
 Conventions (Welford, *Aberrations of Optical Systems*, thin-lens chapter):
 
 * shape factor ``s = (c1 + c2) / (c1 - c2)`` (Welford's bending ``X``),
 * position factor ``p = 1 - 2 f / t`` (Welford's conjugate ``Y``; ``t`` lens-to-image distance),
 * curvatures ``c1 = (s + 1) / (2 f (n - 1))`` and ``c2 = (s - 1) / (2 f (n - 1))`` in 1/mm,
-* the posterior surface has conic constant ``Q`` (``Q = 0`` sphere, ``-1`` paraboloid).
+* the back surface has conic constant ``Q_back`` (``0`` sphere, ``-1`` paraboloid).
 """
 
 from __future__ import annotations
@@ -19,23 +20,16 @@ from dataclasses import dataclass, field, fields
 
 import torch
 
-__all__ = ["LensError", "ThinLens", "PAPER_LENS", "as_tensor"]
+from .design import Design
+from .glass import ConstantGlass, as_glass
+from .paraxial import Surface
+from .torch_utils import as_tensor
+
+__all__ = ["LensError", "Lens", "ThinLens", "as_tensor"]
 
 
 class LensError(ValueError):
     """A lens or design parameter outside its physical range."""
-
-
-def as_tensor(x, *, like: torch.Tensor | None = None, dtype=None, device=None) -> torch.Tensor:
-    """Convert ``x`` to a floating tensor, following ``like`` (dtype, device) when given."""
-    if like is not None:
-        dtype = dtype or like.dtype
-        device = device or like.device
-    if isinstance(x, torch.Tensor):
-        if not x.is_floating_point():
-            x = x.to(torch.get_default_dtype())
-        return x.to(dtype=dtype or x.dtype, device=device or x.device)
-    return torch.as_tensor(x, dtype=dtype or torch.get_default_dtype(), device=device)
 
 
 def _check(name: str, value: float, ok: bool, allowed: str) -> None:
@@ -44,8 +38,8 @@ def _check(name: str, value: float, ok: bool, allowed: str) -> None:
 
 
 @dataclass(frozen=True)
-class ThinLens:
-    """System parameters shared by every design of the sweep.
+class Lens:
+    """The physical singlet shared by every design of a sweep.
 
     Parameters
     ----------
@@ -53,10 +47,8 @@ class ThinLens:
         Paraxial focal length ``f`` in mm, > 0.
     pupil_radius_mm : float
         Entrance-pupil (= lens aperture, stop at the lens) radius ``y`` in mm, 0 < y < f.
-    refractive_index : float
-        Refractive index ``n`` of the glass at ``wavelength_um``, > 1.
-    wavelength_um : float
-        Wavelength in micrometres, > 0.
+    glass : glass object or float
+        The glass (:mod:`lenssim.glass`); a number is a constant refractive index (> 1).
     position_factor : float
         ``p = 1 - 2 f / t``; -1 for an object at infinity. Must be < 1 (real image).
     field_angles_deg : tuple of float
@@ -65,29 +57,32 @@ class ThinLens:
 
     focal_length_mm: float = 25.0
     pupil_radius_mm: float = 2.0
-    refractive_index: float = 1.5
-    wavelength_um: float = 0.5
+    glass: ConstantGlass = field(default_factory=ConstantGlass)
     position_factor: float = -1.0
     field_angles_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(a) for a in range(15)))
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "glass", as_glass(self.glass))
+        except ValueError as exc:
+            raise LensError(str(exc)) from None
         for f_ in fields(self):
             v = getattr(self, f_.name)
+            if f_.name == "glass":
+                continue
             if f_.name == "field_angles_deg":
                 try:
                     v = tuple(float(a) for a in v)
-                except TypeError as exc:
+                except (TypeError, ValueError) as exc:
                     raise LensError(f"field_angles_deg={v!r} is not allowed: a sequence of angles in degrees") from exc
                 object.__setattr__(self, "field_angles_deg", v)
                 continue
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise LensError(f"{f_.name}={v!r} is not allowed: a finite number")
             object.__setattr__(self, f_.name, float(v))
         _check("focal_length_mm", self.focal_length_mm, self.focal_length_mm > 0, "must be > 0 mm")
         _check("pupil_radius_mm", self.pupil_radius_mm, 0 < self.pupil_radius_mm < self.focal_length_mm,
                f"must be in (0, focal_length_mm={self.focal_length_mm}) mm")
-        _check("refractive_index", self.refractive_index, self.refractive_index > 1, "must be > 1")
-        _check("wavelength_um", self.wavelength_um, self.wavelength_um > 0, "must be > 0 um")
         _check("position_factor", self.position_factor, self.position_factor < 1,
                "must be < 1 (p = 1 - 2f/t with a real image at t > 0)")
         if len(self.field_angles_deg) == 0:
@@ -95,10 +90,30 @@ class ThinLens:
         for a in self.field_angles_deg:
             _check("field angle (deg)", a, math.isfinite(a) and 0 <= a < 90, "must be in [0, 90) degrees")
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "Lens":
+        """From a config table: ``refractive_index`` (a constant glass) is accepted for ``glass``."""
+        d = dict(d)
+        if "refractive_index" in d:
+            if "glass" in d:
+                raise LensError("give either glass or refractive_index, not both")
+            d["glass"] = ConstantGlass(d.pop("refractive_index"))
+        allowed = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - allowed)
+        if bad:
+            raise LensError(f"unknown lens key(s) {bad}; allowed: {sorted(allowed | {'refractive_index'})}")
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return {"focal_length_mm": self.focal_length_mm, "pupil_radius_mm": self.pupil_radius_mm,
+                "refractive_index": self.refractive_index, "position_factor": self.position_factor,
+                "field_angles_deg": list(self.field_angles_deg)}
+
     # ---- derived quantities -------------------------------------------------------------
     @property
-    def wavelength_mm(self) -> float:
-        return self.wavelength_um * 1e-3
+    def refractive_index(self) -> float:
+        """Refractive index of the glass that sets the curvatures (a constant glass's only index)."""
+        return self.glass.refractive_index
 
     @property
     def f_number(self) -> float:
@@ -110,59 +125,60 @@ class ThinLens:
         """Lens-to-image distance ``t = 2 f / (1 - p)`` in mm."""
         return 2 * self.focal_length_mm / (1 - self.position_factor)
 
-    @property
-    def pixel_pitch_um(self) -> float:
-        """Nyquist pixel pitch ``lambda f# / 2`` in um (1.5625 um for the paper's lens)."""
-        return self.wavelength_um * self.f_number / 2
+    def nyquist_pitch_um(self, wavelength_um: float) -> float:
+        """The pixel pitch ``lambda f# / 2`` (um) at which the OTF's cut-off is the Nyquist frequency."""
+        return wavelength_um * self.f_number / 2
 
     def curvatures(self, s):
         """Surface curvatures ``(c1, c2)`` in 1/mm for shape factor(s) ``s``."""
         k = 2 * self.focal_length_mm * (self.refractive_index - 1)
         return (s + 1) / k, (s - 1) / k
 
+    def surfaces(self, design: Design) -> list[Surface]:
+        """The two surfaces (zero separation) for ``design``: a spherical front, the conic back.
+
+        A surface whose conic constant is a free design parameter is ``aspheric``; its curvature
+        and conic are tensors broadcasting like the design.
+        """
+        c1, c2 = self.curvatures(design["s"])
+        n = self.refractive_index
+        return [Surface(c1, 0.0, n, 0.0, aspheric=False),
+                Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back")]
+
     def field_angles(self, *, dtype=None, device=None) -> torch.Tensor:
         """Field angles as a tensor of shape ``(A,)`` in degrees."""
         return torch.tensor(self.field_angles_deg, dtype=dtype or torch.get_default_dtype(), device=device)
 
-    def image_height_mm(self, alpha_deg):
-        """Paraxial image height ``f tan(alpha)`` in mm (magnitude; the image is inverted)."""
-        alpha = as_tensor(alpha_deg)
-        return self.focal_length_mm * torch.tan(torch.deg2rad(alpha))
+    def check_design(self, design: Design) -> None:
+        """Raise :class:`LensError` if a design is not a physical lens.
 
-    def field_angle_deg(self, x_mm, y_mm):
-        """Field angle (deg) of the image point ``(x, y)`` (mm from the optical axis)."""
-        r = torch.hypot(as_tensor(x_mm), as_tensor(y_mm))
-        return torch.rad2deg(torch.atan(r / self.focal_length_mm))
-
-    def check_design(self, s, Q) -> None:
-        """Raise :class:`LensError` if a design ``(s, Q)`` is not a physical lens.
-
-        The shape factor must be finite; the conic must be defined over the whole aperture,
-        ``(1 + Q) c2^2 y^2 < 1``; the spherical front must not be a hemisphere smaller than
-        the aperture, ``c1^2 y^2 < 1``.
+        Every parameter must be finite, and every surface (curvature ``c``, conic ``kappa``) must
+        be defined over the whole aperture: ``(1 + kappa) c^2 y^2 < 1`` (for the spherical front,
+        not a hemisphere smaller than the aperture).
         """
-        s_t = as_tensor(s, dtype=torch.float64)
-        q_t = as_tensor(Q, dtype=torch.float64)
-        for name, t in (("s", s_t), ("Q", q_t)):
+        design = design.to(torch.float64)
+        for name, t in design.values.items():
             bad = ~torch.isfinite(t)
             if bad.any():
                 raise LensError(f"{name}={t[bad].flatten()[0].item()!r} is not allowed: a finite number")
-        c1, c2 = self.curvatures(s_t)
         y2 = self.pupil_radius_mm**2
-        arg = torch.broadcast_to(1 - (1 + q_t) * c2**2 * y2, torch.broadcast_shapes(s_t.shape, q_t.shape))
-        if (arg <= 0).any():
-            i = int(torch.nonzero((arg <= 0).flatten())[0])
-            sb = torch.broadcast_to(s_t, arg.shape).flatten()[i].item()
-            qb = torch.broadcast_to(q_t, arg.shape).flatten()[i].item()
-            lim = 1 / (self.curvatures(sb)[1] ** 2 * y2) - 1
-            raise LensError(
-                f"Q={qb!r} with s={sb!r} is not allowed: the conic back surface is undefined over the "
-                f"{self.pupil_radius_mm} mm aperture; Q must be < {lim:.6g} for this s"
-            )
-        if (c1**2 * y2 >= 1).any():
-            sb = s_t.flatten()[int(torch.nonzero((c1**2 * y2 >= 1).flatten())[0])].item()
-            raise LensError(f"s={sb!r} is not allowed: the front sphere is smaller than the aperture")
+        shape = design.shape
+        for i, surf in enumerate(self.surfaces(design)):
+            c = torch.as_tensor(surf.curvature, dtype=torch.float64)
+            kappa = torch.as_tensor(surf.conic, dtype=torch.float64)
+            arg = torch.broadcast_to(1 - (1 + kappa) * c**2 * y2, torch.broadcast_shapes(shape, c.shape, kappa.shape))
+            if (arg <= 0).any():
+                j = int(torch.nonzero((arg <= 0).flatten())[0])
+                at = {k: torch.broadcast_to(v, arg.shape).flatten()[j].item() for k, v in design.values.items()}
+                where = ", ".join(f"{k}={v!r}" for k, v in at.items())
+                if surf.conic_name is None:
+                    raise LensError(f"{where} is not allowed: surface {i + 1} (spherical) is smaller than the "
+                                    f"{self.pupil_radius_mm} mm aperture")
+                cj = torch.broadcast_to(c, arg.shape).flatten()[j].item()
+                lim = 1 / (cj**2 * y2) - 1
+                raise LensError(f"{where} is not allowed: the conic surface {i + 1} is undefined over the "
+                                f"{self.pupil_radius_mm} mm aperture; {surf.conic_name} must be < {lim:.6g} here")
 
 
-PAPER_LENS = ThinLens()
-"""The paper's lens: f = 25 mm, y = 2 mm, n = 1.5, lambda = 0.5 um, p = -1, alpha = 0..14 deg."""
+ThinLens = Lens
+"""Former name of :class:`Lens` (kept as an alias)."""

@@ -24,9 +24,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .lens import ThinLens
-
-__all__ = ["Surface", "seidel_surface_sums", "thin_lens_surfaces"]
+__all__ = ["Surface", "seidel_surface_sums"]
 
 
 @dataclass(frozen=True)
@@ -34,19 +32,17 @@ class Surface:
     """A refracting surface.
 
     curvature : 1/mm; conic : conic constant kappa (0 = sphere);
-    n_after : refractive index after the surface; thickness_after_mm : distance to the next one.
+    n_after : refractive index after the surface; thickness_after_mm : distance to the next one;
+    aspheric : the conic is a free design parameter (named ``conic_name``): counted by the
+    industrial cost (:mod:`lenssim.cost`).
     """
 
     curvature: float | torch.Tensor
     conic: float | torch.Tensor = 0.0
     n_after: float = 1.0
     thickness_after_mm: float = 0.0
-
-
-def thin_lens_surfaces(lens: ThinLens, s, Q) -> list[Surface]:
-    """The paper's lens as two surfaces of zero separation (glass index ``lens.refractive_index``)."""
-    c1, c2 = lens.curvatures(s)
-    return [Surface(c1, 0.0, lens.refractive_index, 0.0), Surface(c2, Q, 1.0, 0.0)]
+    aspheric: bool = False
+    conic_name: str | None = None
 
 
 def seidel_surface_sums(surfaces, h, u, hbar, ubar, n_object: float = 1.0) -> torch.Tensor:

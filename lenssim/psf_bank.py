@@ -1,18 +1,23 @@
 """PSF and OTF banks by Fraunhofer (FFT) diffraction of the third-order pupil.
 
-Sampling. The image pixel pitch is ``Delta`` (default the paper's ``lambda f# / 2``, 1.5625 um
-for f = 25 mm, y = 2 mm, lambda = 0.5 um). With an ``N x N`` FFT the pupil-plane sample spacing is
-``lambda f / (N Delta)``, so the pupil radius spans ``R = N Delta / (2 lambda f#)`` samples
-(``N / 4`` at the Nyquist pitch: the pupil fills half the grid and the OTF support,
-``|f| < Delta / (lambda f#)`` cycles/pixel, just fits in ``[-1/2, 1/2)``). A pitch coarser than
-``lambda f# / 2`` would alias the OTF and is refused.
+Sampling. The image pixel pitch is the sensor's ``Delta`` (1.5625 um for the paper). With an
+``N x N`` FFT the pupil-plane sample spacing is ``lambda f / (N Delta)``, so the pupil radius spans
+``R = N Delta / (2 lambda f#)`` samples (``N / 4`` at the Nyquist pitch: the pupil fills half the
+grid and the OTF support, ``|f| < Delta / (lambda f#)`` cycles/pixel, just fits in ``[-1/2, 1/2)``).
+A pitch coarser than ``lambda f# / 2`` would alias the OTF and is refused
+(:meth:`lenssim.camera.Camera.check_sampling`).
 
-FFT size. A wavefront slope of ``G`` waves per unit normalised pupil radius is
-``G / R`` waves per pupil sample and moves light by ``G lambda f / (y Delta)`` pixels
-(``4 G`` at the Nyquist pitch). :func:`fft_size` picks the smallest FFT-friendly ``N`` for which
-the largest slope over the pupil uses at most ``fill`` of the Nyquist limit (0.5 wave per
-sample) and the geometric PSF plus ``margin_px`` pixels of diffraction fits in the grid, so
-neither the pupil phase nor the PSF aliases.
+Spectrum. Coefficient banks carry a wavelength axis ``K`` (the camera's spectrum): ``(*, K, T)``
+in waves at each wavelength. The PSF of a spectrum is the weighted sum of the unit-sum PSFs of
+each wavelength on the same pixel grid (each with its own pupil scale ``R``); its OTF is the
+weighted sum of the OTFs.
+
+FFT size. A wavefront slope of ``G`` waves per unit normalised pupil radius is ``G / R`` waves per
+pupil sample and moves light by ``G lambda f / (y Delta)`` pixels (``4 G`` at the Nyquist pitch).
+:func:`fft_size` picks the smallest FFT-friendly ``N`` for which the largest slope over the pupil
+uses at most ``fill`` of the Nyquist limit (0.5 wave per sample) and the geometric PSF plus
+``margin_px`` pixels of diffraction fits in the grid, so neither the pupil phase nor the PSF
+aliases (settings: :class:`lenssim.numerics.Numerics`).
 
 Orientation. PSF arrays are indexed ``[..., row, col] = [y, x]`` in image-plane pixel units
 with the paraxial image point at ``[N // 2, N // 2]`` (or ``[0, 0]`` for the unshifted banks).
@@ -28,19 +33,24 @@ from functools import lru_cache
 
 import torch
 
-from .aberrations import _check_coeffs, wavefront, wavefront_gradient
-from .lens import ThinLens, as_tensor
+from .aberrations import N_TERMS, _check_coeffs, pupil_monomials, wavefront_coefficients, wavefront_gradient
+from .camera import Camera
+from .checks import check_shape
+from .design import Design
+from .numerics import DEFAULT_NUMERICS, Numerics
+from .torch_utils import as_tensor
 
 __all__ = [
     "nice_fft_size",
     "max_wavefront_slope",
+    "spectral_coefficients",
     "fft_size",
-    "pupil_radius_samples",
     "pupil_amplitude",
     "psf",
     "psf_at",
     "otf",
     "otf_quarter",
+    "otf_quarter_spectrum",
 ]
 
 
@@ -74,7 +84,7 @@ def max_wavefront_slope(coeffs: torch.Tensor) -> torch.Tensor:
     _check_coeffs(coeffs)
     rr, rt = _polar_probe()
     rr, rt = rr.to(coeffs.device), rt.to(coeffs.device)
-    flat = coeffs.reshape(-1, 4).to(torch.float64)
+    flat = coeffs.reshape(-1, N_TERMS).to(torch.float64)
     out = torch.empty(flat.shape[0], dtype=torch.float64, device=coeffs.device)
     for i in range(0, flat.shape[0], 4096):  # bounded memory for any batch
         g_r, g_t = wavefront_gradient(flat[i:i + 4096], rr, rt)
@@ -82,46 +92,39 @@ def max_wavefront_slope(coeffs: torch.Tensor) -> torch.Tensor:
     return out.reshape(coeffs.shape[:-1])
 
 
-def _pitch_um(lens: ThinLens, pixel_pitch_um: float | None) -> float:
-    if pixel_pitch_um is None:
-        return lens.pixel_pitch_um
-    nyq = lens.pixel_pitch_um
-    if not (pixel_pitch_um > 0 and pixel_pitch_um <= nyq * (1 + 1e-12)):
-        raise ValueError(f"pixel_pitch_um={pixel_pitch_um!r} is not allowed: must be in (0, {nyq}] um "
-                         "(coarser than lambda f#/2 aliases the OTF)")
-    return float(pixel_pitch_um)
+def spectral_coefficients(camera: Camera, design: Design, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
+    """Wavefront coefficients at every wavelength of the camera's spectrum: ``(*, A, K, T)`` in waves
+    (``(*, K, T)`` if elementwise; see :func:`lenssim.aberrations.wavefront_coefficients`)."""
+    return torch.stack([wavefront_coefficients(camera.lens, design, alpha_deg, wavelength_um=lam, elementwise=elementwise)
+                        for lam in camera.spectrum.wavelengths_um], dim=-2)
 
 
-def pupil_radius_samples(lens: ThinLens, n: int, pixel_pitch_um: float | None = None) -> float:
-    """Pupil radius in samples of an ``n``-point FFT: ``n Delta / (2 lambda f#)``."""
-    return n * _pitch_um(lens, pixel_pitch_um) / (2 * lens.wavelength_um * lens.f_number)
+def _check_spectral(camera: Camera, coeffs: torch.Tensor) -> None:
+    K = check_shape(coeffs, f"* K {N_TERMS}", "coeffs (waves per wavelength)")["K"]
+    if K != len(camera.spectrum):
+        raise ValueError(f"coeffs has {K} wavelengths, the camera's spectrum {len(camera.spectrum)}: expected "
+                         "(*, K, T) with one row per wavelength (see spectral_coefficients)")
 
 
-def _unaliased_pupil_radius(lens: ThinLens, n: int, pixel_pitch_um: float | None) -> float:
-    """:func:`pupil_radius_samples`, refused where it exceeds ``n / 4`` (the OTF would alias)."""
-    R = pupil_radius_samples(lens, n, pixel_pitch_um)
-    if R > n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
-    return R
+def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+    """FFT size ``N`` for each coefficient set ``(*, K, T)`` (waves at each wavelength); int64 ``(*)``.
 
-
-def fft_size(lens: ThinLens, coeffs: torch.Tensor, *, fill: float = 0.7, margin_px: int = 16,
-             min_size: int = 64, pixel_pitch_um: float | None = None) -> torch.Tensor:
-    """FFT size ``N`` for each coefficient set ``(*, 4)``; returns an int64 tensor ``(*)``.
-
-    ``N`` is the smallest :func:`nice_fft_size` with (i) at most ``fill`` x 0.5 wave of pupil
-    phase per sample and (ii) the geometric PSF diameter ``2 G lambda f / (y Delta)`` plus
-    ``margin_px`` pixels inside the grid (``G`` = :func:`max_wavefront_slope`), and ``N >= min_size``.
+    ``N`` is the smallest :func:`nice_fft_size` with, at every wavelength, (i) at most
+    ``numerics.fill`` x 0.5 wave of pupil phase per sample and (ii) the geometric PSF diameter
+    ``2 G lambda f / (y Delta)`` plus ``numerics.margin_px`` pixels inside the grid (``G`` =
+    :func:`max_wavefront_slope`), and ``N >= numerics.min_size``.
     """
-    if not 0 < fill <= 1:
-        raise ValueError(f"fill={fill!r} is not allowed: must be in (0, 1]")
-    delta = _pitch_um(lens, pixel_pitch_um)
-    G = max_wavefront_slope(coeffs).cpu()
-    r_per_n = pupil_radius_samples(lens, 1, delta)  # pupil radius (samples) per unit N
-    n_phase = G / (0.5 * fill) / r_per_n
-    half_extent_px = G * lens.wavelength_um * lens.focal_length_mm / (lens.pupil_radius_mm * delta)
-    n_psf = 2 * half_extent_px / fill + margin_px
-    need = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(min_size), dtype=G.dtype))
+    _check_spectral(camera, coeffs)
+    camera.check_sampling()
+    fill = numerics.fill
+    need = None
+    for k, lam in enumerate(camera.spectrum.wavelengths_um):
+        G = max_wavefront_slope(coeffs[..., k, :]).cpu()
+        r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
+        n_phase = G / (0.5 * fill) / r_per_n
+        n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
+        nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype))
+        need = nk if need is None else torch.maximum(need, nk)
     sizes = sorted({nice_fft_size(int(math.ceil(v))) for v in need.flatten().tolist()})
     table = torch.tensor(sizes, dtype=torch.float64)
     idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
@@ -146,6 +149,14 @@ def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: in
     return amp
 
 
+def _radius(camera: Camera, n: int, wavelength_um: float) -> float:
+    """:meth:`Camera.pupil_radius_px`, refused where it exceeds ``n / 4`` (the OTF would alias)."""
+    R = camera.pupil_radius_px(n, wavelength_um)
+    if R > n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    return R
+
+
 @lru_cache(maxsize=4)
 def _pupil_cached(n: int, radius: float, supersample: int):
     """Anti-aliased pupil amplitude on the DFT grid (origin at index 0), float64 CPU ``(n, n)``."""
@@ -154,15 +165,17 @@ def _pupil_cached(n: int, radius: float, supersample: int):
     return _coverage(x, x, radius, supersample), x
 
 
-def pupil_amplitude(lens: ThinLens, n: int, *, pixel_pitch_um: float | None = None, supersample: int = 8,
-                    dtype=torch.float32, device=None):
+def pupil_amplitude(camera: Camera, n: int, wavelength_um: float | None = None, *,
+                    numerics: Numerics = DEFAULT_NUMERICS, dtype=torch.float32, device=None):
     """Pupil transmission (area fraction of each sample inside the disc) and sample coordinates.
 
     Returns ``(amp, rho)``: ``amp`` ``(n, n)`` with the pupil centre at index ``[0, 0]`` (DFT
-    order) and ``rho`` ``(n,)``, the normalised pupil coordinate of each index.
+    order) and ``rho`` ``(n,)``, the normalised pupil coordinate of each index, at ``wavelength_um``
+    (default: the spectrum's first).
     """
-    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
-    amp, x = _pupil_cached(int(n), float(R), int(supersample))
+    lam = camera.spectrum.wavelengths_um[0] if wavelength_um is None else wavelength_um
+    R = _radius(camera, n, lam)
+    amp, x = _pupil_cached(int(n), float(R), int(numerics.supersample))
     return amp.to(dtype=dtype, device=device), (x / R).to(dtype=dtype, device=device)
 
 
@@ -174,27 +187,27 @@ def _pupil_box_cached(radius: float, supersample: int):
     return _coverage(x, x, radius, supersample), x / radius
 
 
-def _field(lens, coeffs, n, azimuth_rad, pixel_pitch_um, dtype, device):
-    """Complex pupil field ``(B, 2m+1, 2m+1)`` on the pupil's bounding box, coefficients ``(B, 4)``.
+def _field(coeffs, radius, azimuth_rad, supersample, dtype, device):
+    """Complex pupil field ``(B, 2m+1, 2m+1)`` on the pupil's bounding box, coefficients ``(B, T)``.
 
     Only the box is evaluated (the rest of the ``n x n`` grid is zero); :func:`_intensity`
     zero-pads it. Placing the box at index 0 instead of centring it on the DFT origin multiplies
-    the image-plane amplitude by a linear phase, which ``|.|^2`` removes.
+    the image-plane amplitude by a linear phase, which ``|.|^2`` removes. ``azimuth_rad`` ``(B,)``
+    rotates each pupil to its image point's azimuth (exactly, no resampling); None puts the field
+    along +y (rows).
     """
-    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
-    amp, rho = _pupil_box_cached(float(R), 8)
+    amp, rho = _pupil_box_cached(float(radius), int(supersample))
     amp, rho = amp.to(dtype=dtype, device=device), rho.to(dtype=dtype, device=device)
     coeffs = coeffs.to(dtype)
     ry, rx = rho[:, None], rho[None, :]  # rows = y, cols = x
     if azimuth_rad is None:
-        W = wavefront(coeffs, ry.expand_as(amp), rx.expand_as(amp))
-    else:  # rotate the pupil to each image point's azimuth, one PSF per coefficient row
+        rho_r, rho_t = ry.expand_as(amp), rx.expand_as(amp)
+    else:
         azimuth_rad = azimuth_rad.to(dtype)
         c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]
         rho_r, rho_t = rx * c + ry * s, -rx * s + ry * c
-        r2 = rho_r**2 + rho_t**2
-        a, b, cc, d = (coeffs[:, i, None, None] for i in range(4))
-        W = a * r2**2 + b * r2 * rho_r + cc * rho_r**2 + d * r2
+    m = pupil_monomials(rho_r, rho_t)  # (T, B or 1, rows, cols)
+    W = sum(coeffs[:, k, None, None] * m[k] for k in range(N_TERMS))
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 
@@ -204,14 +217,15 @@ def _intensity(field: torch.Tensor, n: int) -> torch.Tensor:
     return a.real.square() + a.imag.square()
 
 
-def _batch_coeffs(coeffs: torch.Tensor) -> tuple[torch.Tensor, tuple]:
-    _check_coeffs(coeffs)
-    return coeffs.reshape(-1, 4), coeffs.shape[:-1]
+def _azimuth(azimuth_deg, flat: torch.Tensor):
+    if azimuth_deg is None:
+        return None
+    return torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
 
 
-def psf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, pixel_pitch_um: float | None = None,
-        centered: bool = True, dtype: torch.dtype | None = None) -> torch.Tensor:
-    """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, 4)`` in waves.
+def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, centered: bool = True,
+        dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+    """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, K, T)`` (waves per wavelength).
 
     ``azimuth_deg`` ``(*)`` gives, per PSF, the direction (deg, from +x towards +y) of the image
     point seen from the optical axis; the pupil coordinates are rotated exactly (no resampling).
@@ -219,68 +233,81 @@ def psf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, pixel
     ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
     ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak).
     """
-    flat, lead = _batch_coeffs(coeffs)
-    az = None
-    if azimuth_deg is not None:
-        az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
-    field = _field(lens, flat, int(n), az, pixel_pitch_um, dtype or flat.dtype, flat.device)
-    p = _intensity(field, int(n))
-    p = p / p.sum(dim=(-2, -1), keepdim=True)
+    _check_spectral(camera, coeffs)
+    lead = coeffs.shape[:-2]
+    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
+    az = _azimuth(azimuth_deg, flat)
+    out = None
+    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, dtype or flat.dtype,
+                       flat.device)
+        p = _intensity(field, int(n))
+        p = p / p.sum(dim=(-2, -1), keepdim=True)
+        out = p if len(camera.spectrum) == 1 else (w * p if out is None else out.add_(p, alpha=w))
     if centered:
-        p = torch.fft.fftshift(p, dim=(-2, -1))
-    return p.reshape(lead + (n, n))
+        out = torch.fft.fftshift(out, dim=(-2, -1))
+    return out.reshape(lead + (n, n))
 
 
-def psf_at(lens: ThinLens, s, Q, x_mm, y_mm, n: int | None = None, *, pixel_pitch_um: float | None = None,
-           centered: bool = True, dtype: torch.dtype | None = None):
+def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, centered: bool = True,
+           dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS):
     """PSFs at image points ``(x_mm, y_mm)`` (mm from the optical axis, image-plane axes).
 
     The field angle is ``atan(r / f)``, ``r = hypot(x, y)``, and the pupil is rotated to the point's
-    azimuth, so the coma flare lies along the radial direction of ``(x, y)``. ``s``, ``Q``, ``x_mm``,
-    ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n`` defaults to :func:`fft_size`
-    with the metrics' ``fill = 0.5`` (at least 128). ``dtype``: as in :func:`psf`.
+    azimuth, so the coma flare lies along the radial direction of ``(x, y)``. The design's
+    parameters, ``x_mm`` and ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n``
+    defaults to :func:`fft_size` under ``numerics``. ``dtype``: as in :func:`psf`; Python numbers
+    follow the tensors' precision (float64 if no tensor is given).
     """
-    from .aberrations import wavefront_coefficients
-
-    given = [v for v in (s, Q, x_mm, y_mm) if isinstance(v, torch.Tensor) and v.is_floating_point()]
-    common = given[0].dtype if given else torch.get_default_dtype()
+    given = [v for v in (x_mm, y_mm) if isinstance(v, torch.Tensor) and v.is_floating_point()]
+    given += [v for v in design.values.values()]
+    common = given[0].dtype if given else torch.float64
     for v in given[1:]:
-        common = torch.promote_types(common, v.dtype)  # Python numbers follow the tensors' precision
-    s, Q, x, y = torch.broadcast_tensors(*(as_tensor(v, dtype=common) for v in (s, Q, x_mm, y_mm)))
-    lens.check_design(s, Q)
-    alpha = lens.field_angle_deg(x, y)
+        common = torch.promote_types(common, v.dtype)
+    x, y = (as_tensor(v, dtype=common) for v in (x_mm, y_mm))
+    design = design.to(common)
+    shape = torch.broadcast_shapes(x.shape, y.shape, design.shape)
+    x, y = x.expand(shape), y.expand(shape)
+    design = design.map(lambda t: t.expand(shape))
+    camera.lens.check_design(design)
+    alpha = camera.geometry.field_angle_deg(x, y)
     if (alpha >= 90).any():
         raise ValueError("image point at or beyond 90 degrees of field")
-    coeffs = wavefront_coefficients(lens, s, Q, alpha, elementwise=True).reshape(-1, 4)
+    coeffs = spectral_coefficients(camera, design, alpha, elementwise=True).reshape(-1, len(camera.spectrum), N_TERMS)
     azimuth = torch.rad2deg(torch.atan2(y, x)).flatten()
     if n is None:
-        n = int(fft_size(lens, coeffs, fill=0.5, min_size=128, pixel_pitch_um=pixel_pitch_um).max())
-    out = psf(lens, coeffs, n, azimuth_deg=azimuth, pixel_pitch_um=pixel_pitch_um, centered=centered, dtype=dtype)
-    return out.reshape(s.shape + (n, n)), n
+        n = int(fft_size(camera, coeffs, numerics).max())
+    out = psf(camera, coeffs, n, azimuth_deg=azimuth, centered=centered, dtype=dtype, numerics=numerics)
+    return out.reshape(shape + (n, n)), n
 
 
-def otf(lens: ThinLens, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
-        pixel_pitch_um: float | None = None) -> torch.Tensor:
-    """OTFs ``(*, n, n)`` (complex, DFT order, ``OTF[0, 0] = 1``): ``fft2`` of ``|fft2(pupil)|^2``.
+def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
+        numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+    """OTFs ``(*, n, n)`` (complex, DFT order, ``OTF[0, 0] = 1``) from coefficients ``(*, K, T)``.
 
-    Frequencies are ``k / n`` cycles/pixel. This is the general (reference) path; like
-    :func:`otf_quarter` it is normalised by the pupil area (see :func:`_area_normalise`).
+    ``fft2`` of ``|fft2(pupil)|^2`` per wavelength, normalised by the pupil area (see
+    :func:`_area_normalise`), weighted over the spectrum. Frequencies are ``k / n`` cycles/pixel.
+    This is the general (reference) path.
     """
-    flat, lead = _batch_coeffs(coeffs)
-    az = None
-    if azimuth_deg is not None:
-        az = torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
-    field = _field(lens, flat, int(n), az, pixel_pitch_um, flat.dtype, flat.device)
-    H = torch.fft.fft2(_intensity(field, int(n)))
-    amp, _ = pupil_amplitude(lens, n, pixel_pitch_um=pixel_pitch_um, dtype=flat.dtype, device=flat.device)
-    return _area_normalise(H, amp).reshape(lead + (n, n))
+    _check_spectral(camera, coeffs)
+    lead = coeffs.shape[:-2]
+    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
+    az = _azimuth(azimuth_deg, flat)
+    out = None
+    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, flat.dtype, flat.device)
+        H = torch.fft.fft2(_intensity(field, int(n)))
+        amp, _ = pupil_amplitude(camera, n, lam, numerics=numerics, dtype=flat.dtype, device=flat.device)
+        H = _area_normalise(H, amp)
+        out = H if len(camera.spectrum) == 1 else (w * H if out is None else out + w * H)
+    return out.reshape(lead + (n, n))
 
 
 def _quarter_basis_compute(n: int, radius: float, supersample: int):
     """Half-pupil amplitude and monomial basis for :func:`otf_quarter` (float64, CPU).
 
     Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..n/2``.
-    Basis ``(4, rows, n/2+1)``: ``rho^4, rho^2 rho_r, rho_r^2, rho^2`` with ``rho_r = y / R``.
+    Basis ``(T, rows, n/2+1)``: the monomials of :data:`lenssim.aberrations.TERMS` with ``rho_r = y / R``.
     """
     h = n // 2
     ry = int(math.floor(radius + 0.5))
@@ -288,10 +315,7 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int):
     xv = torch.arange(0, h + 1, dtype=torch.float64)
     a = _coverage(yv, xv, radius, supersample)
     area = 2 * a.sum() - a[:, 0].sum()  # the x < 0 half mirrors x > 0
-    yy = (yv / radius)[:, None]
-    xx = (xv / radius)[None, :]
-    r2 = yy**2 + xx**2
-    basis = torch.stack([r2**2, r2 * yy, (yy**2).expand_as(r2), r2])
+    basis = pupil_monomials((yv / radius)[:, None], (xv / radius)[None, :])
     return a, basis, float(area)
 
 
@@ -314,15 +338,17 @@ def _quarter_basis_cached(n: int, radius: float, supersample: int):
     return val
 
 
-def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um: float | None = None,
-                oversample: int = 1) -> torch.Tensor:
-    """Fast OTF bank for field-axis PSFs: ``H[fy, fx]`` for ``fy, fx = 0..m/2``, ``m = oversample n``.
+def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversample: int = 1,
+                supersample: int = DEFAULT_NUMERICS.supersample) -> torch.Tensor:
+    """Fast OTF bank for field-axis PSFs at one wavelength: ``H[fy, fx]`` for ``fy, fx = 0..m/2``, ``m = oversample n``.
 
-    Frequencies are ``k / m`` cycles/pixel. Input ``(B, 4)`` coefficients (waves) with the field
-    along +y, output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With ``oversample=1`` it
-    equals the quarter of :func:`otf` to rounding; ``oversample > 1`` zero-pads the ``n x n`` PSF
-    (which :func:`fft_size` keeps inside the grid) to sample the same OTF on a finer frequency
-    grid, for integrals whose integrand is not band-limited (the Wiener error). It exploits:
+    Frequencies are ``k / m`` cycles/pixel. Input ``(B, T)`` coefficients (waves) with the field
+    along +y and the pupil radius in samples of the ``n``-point FFT (:meth:`Camera.pupil_radius_px`,
+    at most ``n / 4``); output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With
+    ``oversample=1`` it equals the quarter of :func:`otf` to rounding; ``oversample > 1`` zero-pads
+    the ``n x n`` PSF (which :func:`fft_size` keeps inside the grid) to sample the same OTF on a
+    finer frequency grid, for integrals whose integrand is not band-limited (the Wiener error).
+    It exploits:
 
     * the mirror symmetry ``W(x, y) = W(-x, y)``: only the ``x >= 0`` half of the pupil is
       evaluated and its ``x``-DFT (even sequence) is two real inverse FFTs of half length,
@@ -332,18 +358,18 @@ def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um:
     * Hermitian symmetry ``H(-f) = conj H(f)`` with evenness in ``fx``: ``|H|^2`` and ``Re H`` are
       even in both axes, so the quarter plane carries everything the MSE integrals need.
     """
-    _check_coeffs(coeffs)
-    if coeffs.ndim != 2:
-        raise ValueError(f"coeffs has shape {tuple(coeffs.shape)}: otf_quarter expects (B, 4)")
+    check_shape(coeffs, f"B {N_TERMS}", "coeffs (waves)")
     if n % 2:
         raise ValueError(f"n={n} is not allowed: must be even")
-    R = _unaliased_pupil_radius(lens, n, pixel_pitch_um)
+    R = float(pupil_radius_px)
+    if not 0 < R <= n / 4 * (1 + 1e-9):
+        raise ValueError(f"pupil radius {R:.3f} samples is not allowed: in (0, n/4 = {n / 4}] (the OTF would alias)")
     dtype, device = coeffs.dtype, coeffs.device
-    a, basis, area = _quarter_basis_cached(int(n), float(R), 8)
+    a, basis, area = _quarter_basis_cached(int(n), R, int(supersample))
     a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)
     h = n // 2
     B = coeffs.shape[0]
-    W = (coeffs @ basis.reshape(4, -1)).reshape(B, *a.shape)
+    W = (coeffs @ basis.reshape(N_TERMS, -1)).reshape(B, *a.shape)
     phase = (-2 * math.pi) * W
     re_im = torch.stack([a * torch.cos(phase), a * torch.sin(phase)], dim=1)  # (B, 2, rows, h+1)
     row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
@@ -369,6 +395,20 @@ def otf_quarter(lens: ThinLens, coeffs: torch.Tensor, n: int, *, pixel_pitch_um:
     H = torch.complex(g_re, g_im)
     H[..., 0, 0] = 1
     return H
+
+
+def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
+                         numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+    """:func:`otf_quarter` for coefficients ``(B, K, T)`` at the camera's wavelengths, weighted over the spectrum."""
+    _check_spectral(camera, coeffs)
+    out = None
+    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        H = otf_quarter(coeffs[:, k], n, pupil_radius_px=_radius(camera, n, lam), oversample=oversample,
+                        supersample=numerics.supersample)
+        if len(camera.spectrum) == 1:
+            return H
+        out = w * H if out is None else out.add_(H, alpha=w)
+    return out
 
 
 def _area_normalise(H: torch.Tensor, amp: torch.Tensor) -> torch.Tensor:

@@ -13,8 +13,9 @@ import math
 
 import torch
 
-from .lens import ThinLens
-from .paraxial import Surface, thin_lens_surfaces
+from .design import Design
+from .lens import Lens
+from .paraxial import Surface
 
 __all__ = ["trace_rays", "transverse_aberration"]
 
@@ -70,7 +71,7 @@ def trace_rays(surfaces: list[Surface], starts: torch.Tensor, direction: torch.T
     return P + t.unsqueeze(-1) * d
 
 
-def transverse_aberration(lens: ThinLens, s: float, Q: float, alpha_deg: float, rho_r: torch.Tensor,
+def transverse_aberration(lens: Lens, design: Design, alpha_deg: float, rho_r: torch.Tensor,
                           rho_t: torch.Tensor, pupil_radius_mm: float | None = None):
     """Exact transverse ray aberration (mm) in the paraxial image plane of the thin lens.
 
@@ -87,5 +88,5 @@ def transverse_aberration(lens: ThinLens, s: float, Q: float, alpha_deg: float, 
     a = math.radians(alpha_deg)
     starts = torch.stack([rho_t * y, rho_r * y, torch.zeros_like(rho_r)], dim=-1)
     direction = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=dt)
-    img = trace_rays(thin_lens_surfaces(lens, s, Q), starts, direction, lens.focal_length_mm)
+    img = trace_rays(lens.surfaces(design), starts, direction, lens.focal_length_mm)
     return img[..., 1] - lens.focal_length_mm * math.tan(a), img[..., 0]

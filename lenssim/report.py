@@ -15,8 +15,9 @@ import xarray as xr
 
 from .figures import all_figures, table1
 from .files import atomic_write, atomic_write_text
-from .sweep import SweepConfig, run_sweep
-from .tradeoff import PAPER_COST_LEVELS, min_cost_for_quality, tradeoff
+from .paper import PAPER_COST_LEVELS, PAPER_DESIGNS, REFERENCE_SNR_DB
+from .sweep import SweepConfig, design_dims, run_sweep
+from .tradeoff import find_optimum, min_cost_for_quality, tradeoff
 
 __all__ = ["reproduce", "report_text"]
 
@@ -34,50 +35,51 @@ def _load_or_compute_tradeoff(ds: xr.Dataset, path: Path) -> xr.Dataset:
 
 
 def _fmt_design(s, Q):
-    return f"s = {s:g}, Q = {Q:g}"
+    return f"s = {s:g}, Q_back = {Q:g}"
 
 
-def report_text(ds: xr.Dataset, trade: xr.Dataset, rows: list[dict], snr: float = 27.6) -> str:
-    """The report: the paper's claims beside the measured values (Markdown)."""
-    from .cli import find_optimum
-
+def report_text(ds: xr.Dataset, trade: xr.Dataset, rows: list[dict], snr: float = REFERENCE_SNR_DB) -> str:
+    """The report: the paper's claims beside the measured values (Markdown); needs an (s, Q_back) sweep."""
+    if design_dims(ds) != ("s", "Q_back"):
+        raise ValueError(f"the paper's report needs a sweep over (s, Q_back); this one is over {list(design_dims(ds))}")
     best = {c: find_optimum(ds, c, snr) for c in ("rms_w", "mse_s", "mse_r")}
     snrs = [float(v) for v in ds["snr"].values]
     opt_r = {v: find_optimum(ds, "mse_r", v) for v in snrs}
-    e2e_paper = ds.sel(s=-0.775, Q=-2.4, method="nearest")
+    p_rms, p_e2e = PAPER_DESIGNS["rms_w_paper"].floats(), PAPER_DESIGNS["end_to_end_paper"].floats()
+    e2e_paper = ds.sel(p_e2e, method="nearest")
     rel = {r["design"]: r["mse_r_relative"] for r in rows}
     cost = {r["design"]: r["cost_Ca"] for r in rows}
-    grid_is_paper = ds.sizes["s"] == 122 and ds.sizes["Q"] == 113 and ds.sizes["alpha"] == 15
+    grid_is_paper = ds.sizes["s"] == 122 and ds.sizes["Q_back"] == 113 and ds.sizes["alpha"] == 15
     e2e_val = float(e2e_paper["mse_r"].sel(snr=snr, method="nearest"))
     spread = max(abs(opt_r[a]["s"] - opt_r[b]["s"]) for a in snrs for b in snrs)
     qspread = max(abs(opt_r[a]["Q"] - opt_r[b]["Q"]) for a in snrs for b in snrs)
     lines = [
         "# Reproduction report",
         "",
-        f"Sweep: {ds.sizes['s']} s x {ds.sizes['Q']} Q x {ds.sizes['alpha']} field angles, SNR {snrs} dB "
+        f"Sweep: {ds.sizes['s']} s x {ds.sizes['Q_back']} Q_back x {ds.sizes['alpha']} field angles, SNR {snrs} dB "
         f"({'the paper grid' if grid_is_paper else 'NOT the paper grid: claims about grid optima are indicative'}); "
         f"config digest {ds.attrs.get('config_digest', '?')}.",
         "",
         "| paper's claim | paper | measured | verdict |",
         "|---|---|---|---|",
-        f"| RMS_W optimum | s = -0.725, Q = -10 | {_fmt_design(best['rms_w']['s'], best['rms_w']['Q'])} | "
-        f"{'reproduced' if np.isclose(best['rms_w']['s'], -0.725) and np.isclose(best['rms_w']['Q'], -10) else 'differs'} |",
-        f"| end-to-end (MSE_R, {snr:g} dB) design | s = -0.775, Q = -2.4 | {_fmt_design(best['mse_r']['s'], best['mse_r']['Q'])}; "
+        f"| RMS_W optimum | {_fmt_design(p_rms['s'], p_rms['Q_back'])} | {_fmt_design(best['rms_w']['design']['s'], best['rms_w']['design']['Q_back'])} | "
+        f"{'reproduced' if np.isclose(best['rms_w']['design']['s'], p_rms['s']) and np.isclose(best['rms_w']['design']['Q_back'], p_rms['Q_back']) else 'differs'} |",
+        f"| end-to-end (MSE_R, {snr:g} dB) design | {_fmt_design(p_e2e['s'], p_e2e['Q_back'])} | {_fmt_design(best['mse_r']['design']['s'], best['mse_r']['design']['Q_back'])}; "
         f"the paper's design is {100 * (e2e_val / best['mse_r']['value'] - 1):.3f}% above it | "
-        f"{'reproduced' if abs(best['mse_r']['s'] + 0.775) <= 0.0251 and abs(best['mse_r']['Q'] + 2.4) <= 0.101 else 'differs'} "
+        f"{'reproduced' if abs(best['mse_r']['design']['s'] - p_e2e['s']) <= 0.0251 and abs(best['mse_r']['design']['Q_back'] - p_e2e['Q_back']) <= 0.101 else 'differs'} "
         "(within one grid step) |",
         f"| RMS_W design's MSE_R vs best | about 37% worse | {100 * (rel['RMS_W'] - 1):.1f}% worse | "
         f"{'reproduced' if abs(rel['RMS_W'] - 1.37) < 0.03 else 'differs'} |",
         f"| MSE_S design's MSE_R vs best | about 7% worse | {100 * (rel['MSE_S'] - 1):.1f}% worse (MSE_S optimum "
-        f"{_fmt_design(best['mse_s']['s'], best['mse_s']['Q'])}{', on the grid boundary' if best['mse_s']['on_grid_boundary'] else ''}) | "
+        f"{_fmt_design(best['mse_s']['design']['s'], best['mse_s']['design']['Q_back'])}{', on the grid boundary' if best['mse_s']['on_grid_boundary'] else ''}) | "
         f"{'reproduced' if abs(rel['MSE_S'] - 1.07) < 0.02 else 'not reproduced: the MSE_S optimum sits on the |Q| bound, so this ratio depends on where the grid stops'} |",
         f"| end-to-end design costs less than the sequential ones (Table 1) | yes | C_a: MSE_R {cost['MSE_R']:.3e}, "
         f"MSE_S {cost['MSE_S']:.3e}, RMS_W {cost['RMS_W']:.3e} | "
         f"{'reproduced' if cost['MSE_R'] < min(cost['MSE_S'], cost['RMS_W']) else 'differs'} |",
         f"| trade-off barely depends on the noise level | yes | MSE_R optima at {', '.join(f'{v:g}' for v in snrs)} dB: "
-        + "; ".join(_fmt_design(opt_r[v]['s'], opt_r[v]['Q']) for v in snrs)
+        + "; ".join(_fmt_design(opt_r[v]['design']['s'], opt_r[v]['design']['Q_back']) for v in snrs)
         + f" (spread {spread:.3f} in s, {qspread:.2f} in Q) | {'reproduced' if spread <= 0.051 and qspread <= 0.21 else 'differs'} |",
-        f"| zero-cost contour is Q = 0 or s = 1 | yes | max C_a on Q = 0: {float(ds['cost'].sel(Q=0, method='nearest').max()):.1e} | "
+        f"| zero-cost contour is Q = 0 or s = 1 | yes | max C_a on Q = 0: {float(ds['cost'].sel(Q_back=0, method='nearest').max()):.1e} | "
         "reproduced |",
     ]
     ref = trade.attrs.get("reference_snr_db", snr)
@@ -108,7 +110,7 @@ def reproduce(out_dir: str | os.PathLike, cfg: SweepConfig, *, device: str = "au
     ds = run_sweep(cfg, out / "sweep.nc", device=device, show_progress=show_progress)
     trade = _load_or_compute_tradeoff(ds, out / "tradeoff.nc")
     all_figures(ds, trade, out)
-    _, _, rows = table1(ds, out, trade.attrs.get("reference_snr_db", 27.6))
-    text = report_text(ds, trade, rows, trade.attrs.get("reference_snr_db", 27.6))
+    _, _, rows = table1(ds, out, trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB))
+    text = report_text(ds, trade, rows, trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB))
     atomic_write_text(out / "report.md", text)
     return out / "report.md"

@@ -1,9 +1,11 @@
 """Cost-performance trade-off (paper Section 2.4): the best design on each iso-cost curve.
 
 For cost levels ``C`` (paper: 30 levels uniform in [0, 2e-3]) the iso-cost curve ``C_a(s, Q) = C`` is
-located *exactly* from the cost model, not from the sweep grid: at fixed ``s`` the cost grows
-monotonically with ``|Q|`` (zero at ``Q = 0``), so each ``s`` has at most one solution with
-``Q < 0`` and one with ``Q > 0``, found by bisection to 1e-12 in ``Q``. Each criterion (RMS_W,
+located *exactly* from the cost model, not from the sweep grid. The sweep's two design dimensions
+are read from the dataset: the curve runs along the first (``s``) and is solved for in the second,
+a conic constant (``Q_back``): at fixed ``s`` the cost grows monotonically with ``|Q|`` (zero at
+``Q = 0``), so each ``s`` has at most one solution with ``Q < 0`` and one with ``Q > 0``, found by
+bisection to 1e-12 in ``Q``. Each criterion (RMS_W,
 MSE_S and MSE_R at each SNR) is then interpolated from the sweep grid with bicubic splines along
 the curve (sampled every ``ds`` in ``s``), and the minimum is refined by a parabola through the
 three best samples. The precision of the interpolated optimum is checked by evaluating the model
@@ -22,21 +24,27 @@ import torch
 import xarray as xr
 from scipy.interpolate import RectBivariateSpline
 
-from .cost import slope_departure_cost
-from .lens import ThinLens
+from .cost import DEFAULT_COST_POINTS, slope_departure_cost
+from .criteria import CRITERIA, validate_criterion
+from .design import Design
+from .lens import Lens
+from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
+from .sweep import SweepConfig, design_dims
 
-__all__ = ["PAPER_COST_LEVELS", "iso_cost_curve", "criteria_of", "tradeoff", "min_cost_for_quality", "TradeoffPoint"]
+__all__ = ["PAPER_COST_LEVELS", "iso_cost_curve", "criteria_of", "tradeoff", "min_cost_for_quality", "TradeoffPoint",
+           "find_optimum"]
 
-PAPER_COST_LEVELS = np.linspace(0.0, 2e-3, 30)
 
-
-def iso_cost_curve(lens: ThinLens, level: float, s_values, Q_range=(-10.0, 1.2), *, cost_points: int = 101,
-                   iterations: int = 60) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def iso_cost_curve(lens: Lens, level: float, s_values, Q_range=(-10.0, 1.2), *, cost_points: int = DEFAULT_COST_POINTS,
+                   iterations: int = 60, dims: tuple[str, str] = ("s", "Q_back")) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points ``(s, Q, branch)`` with ``C_a(s, Q) = level`` inside ``Q_range``.
 
-    ``branch`` is -1 for ``Q < 0`` and +1 for ``Q > 0``. For ``level = 0`` the curve is ``Q = 0`` (and
-    the line ``s = 1``, which is returned as the ``s`` values equal to 1 with ``Q`` over the range).
+    ``dims`` names the two design parameters: the one the curve runs along (given values
+    ``s_values``) and the conic constant solved for. ``branch`` is -1 for ``Q < 0`` and +1 for
+    ``Q > 0``. For ``level = 0`` the curve is ``Q = 0`` (and the line ``s = 1``, which is returned
+    as the ``s`` values equal to 1 with ``Q`` over the range).
     """
+    cost = lambda a, b: slope_departure_cost(lens, Design({dims[0]: a, dims[1]: b}), cost_points)  # noqa: E731
     s = torch.as_tensor(np.asarray(s_values, dtype=np.float64))
     out_s, out_q, out_b = [], [], []
     if level <= 0:
@@ -44,7 +52,7 @@ def iso_cost_curve(lens: ThinLens, level: float, s_values, Q_range=(-10.0, 1.2),
     for branch, q_end in ((-1, Q_range[0]), (1, Q_range[1])):
         if branch * q_end <= 0:
             continue
-        c_end = slope_departure_cost(lens, s, torch.full_like(s, q_end), cost_points)
+        c_end = cost(s, torch.full_like(s, q_end))
         ok = c_end >= level
         if not ok.any():
             continue
@@ -52,7 +60,7 @@ def iso_cost_curve(lens: ThinLens, level: float, s_values, Q_range=(-10.0, 1.2),
         hi = torch.full_like(lo, q_end)
         for _ in range(iterations):  # bisection on |Q|: cost(lo) < level <= cost(hi)
             mid = 0.5 * (lo + hi)
-            above = slope_departure_cost(lens, s[ok], mid, cost_points) >= level
+            above = cost(s[ok], mid) >= level
             hi = torch.where(above, mid, hi)
             lo = torch.where(above, lo, mid)
         out_s.append(s[ok].numpy())
@@ -64,11 +72,17 @@ def iso_cost_curve(lens: ThinLens, level: float, s_values, Q_range=(-10.0, 1.2),
 
 
 def criteria_of(ds: xr.Dataset) -> dict[str, xr.DataArray]:
-    """The sweep's criteria as 2-D (s, Q) landscapes: ``rms_w``, ``mse_s@SNR``, ``mse_r@SNR``."""
-    out = {"rms_w": ds["rms_w"]}
-    for k in ("mse_s", "mse_r"):
-        for snr in ds["snr"].values:
-            out[f"{k}@{snr:g}"] = ds[k].sel(snr=snr)
+    """The sweep's quality criteria (every registered one but the cost) as design-space landscapes:
+    ``rms_w``, ``mse_s@SNR``, ``mse_r@SNR``."""
+    out = {}
+    for name, c in CRITERIA.items():
+        if name == "cost" or name not in ds:
+            continue
+        if c.per_snr:
+            for snr in ds["snr"].values:
+                out[f"{name}@{snr:g}"] = ds[name].sel(snr=snr)
+        else:
+            out[name] = ds[name]
     return out
 
 
@@ -81,36 +95,46 @@ class TradeoffPoint:
     value: float
 
 
-def _spline(da: xr.DataArray) -> RectBivariateSpline:
-    """Bicubic interpolant of a (s, Q) landscape (lower degree on grids of fewer than 4 points)."""
-    s, q = da["s"].values, da["Q"].values
-    return RectBivariateSpline(s, q, da.transpose("s", "Q").values, kx=min(3, len(s) - 1), ky=min(3, len(q) - 1))
+def _spline(da: xr.DataArray, dims) -> RectBivariateSpline:
+    """Bicubic interpolant of a 2-D design landscape (lower degree on grids of fewer than 4 points)."""
+    s, q = da[dims[0]].values, da[dims[1]].values
+    return RectBivariateSpline(s, q, da.transpose(*dims).values, kx=min(3, len(s) - 1), ky=min(3, len(q) - 1))
 
 
-def tradeoff(ds: xr.Dataset, lens: ThinLens | None = None, levels=PAPER_COST_LEVELS, *, ds_step: float = 0.002,
+def _two_dims(ds: xr.Dataset) -> tuple[str, str]:
+    dims = design_dims(ds)
+    if len(dims) != 2:
+        raise ValueError(f"the trade-off needs a sweep over two design parameters (along, conic); this one has "
+                         f"{list(dims)}")
+    return dims
+
+
+def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS, *, ds_step: float = 0.002,
              cost_points: int | None = None) -> xr.Dataset:
     """Best design of every criterion on every iso-cost level.
 
-    Returns a dataset with dims ``(criterion, level)``: ``s``, ``Q`` (the optimum), ``value`` (the
-    criterion there), ``cost`` (C_a recomputed at the optimum), and ``mse_r_ref`` (MSE_R at the
-    sweep's middle SNR at that design, for Fig. 6).
+    Returns a dataset with dims ``(criterion, level)``: one variable per design dimension (the
+    optimum, e.g. ``s`` and ``Q_back``), ``value`` (the criterion there), ``cost`` (C_a recomputed at
+    the optimum), and ``mse_r_ref`` (MSE_R at the sweep's middle SNR at that design, for Fig. 6).
     """
     import json
 
-    cfg = json.loads(ds.attrs.get("config", "{}"))
+    dims = _two_dims(ds)
+    cfg = SweepConfig.from_dict(json.loads(ds.attrs["config"])) if "config" in ds.attrs else None
     if lens is None:
-        lens = ThinLens(**cfg["lens"]) if "lens" in cfg else ThinLens()
-    cost_points = cost_points or cfg.get("cost_points", 101)
-    s_grid, q_grid = ds["s"].values, ds["Q"].values
+        lens = cfg.lens if cfg is not None else Lens()
+    cost_points = cost_points or (cfg.numerics.cost_points if cfg is not None else DEFAULT_COST_POINTS)
+    s_grid, q_grid = ds[dims[0]].values, ds[dims[1]].values
     s_fine = np.arange(s_grid[0], s_grid[-1] + 1e-12, ds_step)
     crits = criteria_of(ds)
-    splines = {k: _spline(v) for k, v in crits.items()}
+    splines = {k: _spline(v, dims) for k, v in crits.items()}
     mid = float(ds["snr"].values[len(ds["snr"]) // 2])
     ref = splines[f"mse_r@{mid:g}"]
     names = list(crits)
-    res = {k: np.full((len(names), len(levels)), np.nan) for k in ("s", "Q", "value", "cost", "mse_r_ref")}
+    res = {k: np.full((len(names), len(levels)), np.nan) for k in dims + ("value", "cost", "mse_r_ref")}
     for j, level in enumerate(levels):
-        cs, cq, cb = iso_cost_curve(lens, float(level), s_fine, (q_grid[0], q_grid[-1]), cost_points=cost_points)
+        cs, cq, cb = iso_cost_curve(lens, float(level), s_fine, (q_grid[0], q_grid[-1]), cost_points=cost_points,
+                                    dims=dims)
         if level <= 0:  # zero cost: Q = 0 line, plus the flat-back line s = 1 if on the grid
             cs, cq = np.concatenate([cs, np.full(len(q_grid), 1.0)]), np.concatenate([cq, q_grid])
             inside = cs <= s_grid[-1] + 1e-12
@@ -132,19 +156,19 @@ def tradeoff(ds: xr.Dataset, lens: ThinLens | None = None, levels=PAPER_COST_LEV
                     t = 0.5 * (y0 - y2) / den  # in units of the s step, within (-1, 1)
                     s_try = cs[i1] + t * (cs[i2] - cs[i1] if t > 0 else cs[i1] - cs[i0])
                     ts, tq, _ = iso_cost_curve(lens, float(level), [s_try], (q_grid[0], q_grid[-1]),
-                                               cost_points=cost_points)
+                                               cost_points=cost_points, dims=dims)
                     if len(ts):
                         q_try = tq[np.argmin(np.abs(tq - q_opt))]
                         v_try = float(splines[name].ev(s_try, q_try))
                         if v_try <= v_opt:
                             s_opt, q_opt, v_opt = float(s_try), float(q_try), v_try
-            res["s"][i, j], res["Q"][i, j], res["value"][i, j] = s_opt, q_opt, v_opt
-            res["cost"][i, j] = float(slope_departure_cost(lens, s_opt, q_opt, cost_points))
+            res[dims[0]][i, j], res[dims[1]][i, j], res["value"][i, j] = s_opt, q_opt, v_opt
+            res["cost"][i, j] = float(slope_departure_cost(lens, Design({dims[0]: s_opt, dims[1]: q_opt}), cost_points))
             res["mse_r_ref"][i, j] = float(ref.ev(s_opt, q_opt))
     out = xr.Dataset({k: (("criterion", "level"), v) for k, v in res.items()},
                      coords={"criterion": names, "level": np.asarray(levels, dtype=np.float64)})
     out["level"].attrs = {"long_name": "iso-cost level C_a", "units": "1 (slope)"}
-    out.attrs = {"reference_snr_db": mid, "method": "exact iso-cost curves (bisection on the cost model), "
+    out.attrs = {"reference_snr_db": mid, "design_parameters": " ".join(dims), "method": "exact iso-cost curves (bisection on the cost model), "
                  f"bicubic interpolation of the sweep along them every {ds_step} in s, parabolic refinement"}
     return out
 
@@ -154,3 +178,33 @@ def min_cost_for_quality(trade: xr.Dataset, criterion: str, quality: float) -> f
     v = trade["value"].sel(criterion=criterion).values
     ok = np.nonzero(v <= quality)[0]
     return float(trade["level"].values[ok[0]]) if len(ok) else float("nan")
+
+
+def find_optimum(ds: xr.Dataset, criterion: str, snr: float | None = None) -> dict:
+    """Grid argmin of a registered ``criterion`` in a sweep dataset (``snr`` in dB picks the noise level).
+
+    Returns ``criterion``, ``snr_db``, ``design`` (``{parameter: value}``), ``value``, the other
+    criteria at that design (``rms_w_waves``, ``cost_Ca``, ``mse_s`` and ``mse_r`` per SNR) and
+    ``on_grid_boundary``.
+    """
+    validate_criterion(criterion)
+    if criterion not in ds:
+        raise ValueError(f"criterion {criterion!r} is not in this sweep; it holds {', '.join(k for k in CRITERIA if k in ds)}")
+    dims = design_dims(ds)
+    da = ds[criterion]
+    if "snr" in da.dims:
+        if snr is None:
+            snr = REFERENCE_SNR_DB if REFERENCE_SNR_DB in ds["snr"].values else float(ds["snr"].values[len(ds["snr"]) // 2])
+        if not np.any(np.isclose(ds["snr"].values, snr)):
+            raise ValueError(f"SNR {snr!r} dB is not in the sweep; available: {[float(v) for v in ds['snr'].values]}")
+        da = da.sel(snr=snr, method="nearest")
+    da = da.transpose(*dims)
+    idx = np.unravel_index(int(np.nanargmin(da.values)), da.shape)
+    at = dict(zip(dims, idx))
+    design = {d: float(ds[d].values[i]) for d, i in at.items()}
+    out = {"criterion": criterion, "snr_db": snr, "design": design, "value": float(da.values[idx]),
+           "rms_w_waves": float(ds["rms_w"][at]), "cost_Ca": float(ds["cost"][at])}
+    for k in ("mse_s", "mse_r"):
+        out[k] = {f"{v:g}": float(ds[k][at].sel(snr=v)) for v in ds["snr"].values}
+    out["on_grid_boundary"] = bool(any(i in (0, ds.sizes[d] - 1) for d, i in at.items()))
+    return out

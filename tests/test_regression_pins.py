@@ -45,21 +45,20 @@ def _stats(t: torch.Tensor) -> list[float]:
 
 
 def _evaluate_pins():
-    from lenssim import PAPER_LENS, evaluate
+    from lenssim import PAPER_CAMERA, Design, evaluate
 
     out = {}
     for name, (s, Q) in PAPER_DESIGNS.items():
-        r = evaluate(PAPER_LENS, s, Q)
+        r = evaluate(PAPER_CAMERA, Design(s=s, Q_back=Q))
         out[name] = {k: r[k].double().flatten().tolist() for k in
                      ("rms_w", "rms_w_piston_removed", "rms_w_alpha", "mse_s", "mse_r", "mse_r_alpha", "cost", "fft_size")}
     return out
 
 
 def _sweep_pins(tmp: Path):
-    from lenssim.cli import find_optimum
     from lenssim.figures import table1
     from lenssim.sweep import load_config, run_sweep
-    from lenssim.tradeoff import tradeoff
+    from lenssim.tradeoff import find_optimum, tradeoff
 
     cfg_path = tmp / "tiny.toml"
     cfg_path.write_text(TINY)
@@ -68,26 +67,29 @@ def _sweep_pins(tmp: Path):
     for crit in ("rms_w", "mse_s", "mse_r", "cost"):
         for snr in (21.6, 27.6, 33.6):
             r = find_optimum(ds, crit, snr)
-            optima[f"{crit}@{snr:g}"] = [r["s"], r["Q"], r["value"]]
+            optima[f"{crit}@{snr:g}"] = [r["design"]["s"], r["design"]["Q_back"], r["value"]]
     _, _, rows = table1(ds, tmp / "t1", 27.6)
     trade = tradeoff(ds, levels=np.linspace(0, 1e-3, 4), ds_step=0.01)
     return {
         "mse_r": ds["mse_r"].values.flatten().tolist(),
         "cost": ds["cost"].values.flatten().tolist(),
         "optima": optima,
-        "table1": [[r["s"], r["Q"], r["mse_r"], r["mse_r_relative"], r["cost_Ca"]] for r in rows],
-        "tradeoff": {k: trade[k].values.flatten().tolist() for k in ("s", "Q", "value", "cost", "mse_r_ref")},
+        "table1": [[r["parameters"]["s"], r["parameters"]["Q_back"], r["mse_r"], r["mse_r_relative"], r["cost_Ca"]]
+                   for r in rows],
+        "tradeoff": {k: trade[v].values.flatten().tolist() for k, v in
+                     (("s", "s"), ("Q", "Q_back"), ("value", "value"), ("cost", "cost"), ("mse_r_ref", "mse_r_ref"))},
     }
 
 
 def _psf_pins():
-    from lenssim import PAPER_LENS, otf_quarter, psf_at, wavefront_coefficients
+    from lenssim import PAPER_CAMERA, Design, otf_quarter_spectrum, psf_at, spectral_coefficients
 
     x = torch.tensor([0.0, 1.2, -3.0], dtype=torch.float64)
     y = torch.tensor([0.0, -2.0, 4.5], dtype=torch.float64)
-    p, n = psf_at(PAPER_LENS, -0.775, -2.4, x, y, n=256)
-    c = wavefront_coefficients(PAPER_LENS, -0.775, -2.4, (3.0, 9.0))
-    H = otf_quarter(PAPER_LENS, c, 256, oversample=2)
+    e2e = Design(s=-0.775, Q_back=-2.4)
+    p, n = psf_at(PAPER_CAMERA, e2e, x, y, n=256)
+    c = spectral_coefficients(PAPER_CAMERA, e2e, (3.0, 9.0))
+    H = otf_quarter_spectrum(PAPER_CAMERA, c, 256, oversample=2)
     return {"psf_at": [_stats(q) for q in p], "otf_quarter": [_stats(h.abs()) for h in H]}
 
 

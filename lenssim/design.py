@@ -1,0 +1,190 @@
+"""The design: the lens's free parameters, by name, as tensors; and the named designs.
+
+A :class:`Design` maps parameter names to tensors that broadcast together (one design, or a
+batch or grid of designs). Every optics function takes a design, so a new free parameter is a new
+entry in :data:`PARAMETERS` plus the code that uses it (see docs/architecture.md); sweeps, optima,
+the trade-off, the autograd optimiser and the command line take their dimension names from here.
+
+Today's parameters (the paper's two): ``s`` (shape factor) and ``Q_back`` (conic constant of the
+back surface; alias ``Q``). A parameter not given takes its default (e.g. a spherical surface).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+__all__ = ["Parameter", "PARAMETERS", "parameter_name", "Design", "load_designs"]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A free design parameter: name, meaning, unit, default, aliases and a typical step (its grid step)."""
+
+    name: str
+    description: str
+    unit: str = "1"
+    default: float = 0.0
+    aliases: tuple[str, ...] = ()
+    step: float = 1.0
+
+
+PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
+    Parameter("s", "shape factor (c1 + c2) / (c1 - c2)", step=0.025),
+    Parameter("Q_back", "conic constant of the back surface", aliases=("Q",), step=0.1),
+)}
+"""The registry of design parameters, in their canonical order."""
+
+
+def parameter_name(name: str) -> str:
+    """The canonical name of a parameter or alias; ``ValueError`` listing the valid names otherwise."""
+    if name in PARAMETERS:
+        return name
+    for p in PARAMETERS.values():
+        if name in p.aliases:
+            return p.name
+    valid = ", ".join(f"{p.name}" + (f" (alias {', '.join(p.aliases)})" if p.aliases else "") for p in PARAMETERS.values())
+    raise ValueError(f"design parameter {name!r} is not known; valid: {valid}")
+
+
+def _to_tensor(name: str, v) -> torch.Tensor:
+    if isinstance(v, torch.Tensor):
+        if v.is_complex():
+            raise ValueError(f"design parameter {name} is complex: expected real values")
+        return v if v.is_floating_point() else v.to(torch.float64)
+    if isinstance(v, bool):
+        raise ValueError(f"design parameter {name}={v!r} is not allowed: a number")
+    try:
+        return torch.as_tensor(v, dtype=torch.float64)  # Python numbers keep their full (double) precision
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"design parameter {name}={v!r} is not allowed: a number or a tensor of numbers") from None
+
+
+class Design:
+    """Named design parameters (tensors that broadcast together), with an optional name and description.
+
+    ``Design(s=-0.775, Q_back=-2.4)``, ``Design({"s": s_grid, "Q": q_grid})`` (aliases accepted).
+    ``design["Q"]`` and ``design["Q_back"]`` are the same tensor; a parameter that was not given
+    reads as its default (a 0-d float64 tensor). Python numbers become float64 tensors.
+    """
+
+    __slots__ = ("values", "name", "description")
+
+    def __init__(self, values: Mapping | None = None, *, name: str = "", description: str = "", **kw):
+        merged: dict[str, torch.Tensor] = {}
+        for key, v in list((values or {}).items()) + list(kw.items()):
+            canon = parameter_name(key)
+            if canon in merged:
+                raise ValueError(f"design parameter {canon} is given twice (as {key!r} and another name)")
+            merged[canon] = _to_tensor(canon, v)
+        try:
+            torch.broadcast_shapes(*(t.shape for t in merged.values()))
+        except RuntimeError:
+            shapes = {k: tuple(t.shape) for k, t in merged.items()}
+            raise ValueError(f"design parameters do not broadcast together: {shapes}") from None
+        self.values = {k: merged[k] for k in PARAMETERS if k in merged}
+        self.name = name
+        self.description = description
+
+    # ---- access ---------------------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The parameters given (canonical names, registry order)."""
+        return tuple(self.values)
+
+    def __getitem__(self, name: str) -> torch.Tensor:
+        canon = parameter_name(name)
+        if canon in self.values:
+            return self.values[canon]
+        ref = next(iter(self.values.values()), None)
+        return torch.tensor(PARAMETERS[canon].default, dtype=ref.dtype if ref is not None else torch.float64,
+                            device=ref.device if ref is not None else None)
+
+    def __contains__(self, name: str) -> bool:
+        return parameter_name(name) in self.values
+
+    @property
+    def shape(self) -> torch.Size:
+        return torch.broadcast_shapes(*(t.shape for t in self.values.values())) if self.values else torch.Size()
+
+    # ---- transformations (each returns a new Design) ---------------------------------------
+    def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> "Design":
+        return Design({k: fn(v) for k, v in self.values.items()}, name=self.name, description=self.description)
+
+    def broadcast(self) -> "Design":
+        """Every parameter expanded to the common :attr:`shape`."""
+        shape = self.shape
+        return self.map(lambda t: t.expand(shape))
+
+    def to(self, dtype=None, device=None) -> "Design":
+        return self.map(lambda t: t.to(dtype=dtype or t.dtype, device=device))
+
+    def unsqueeze(self, dim: int) -> "Design":
+        return self.map(lambda t: t.unsqueeze(dim))
+
+    def flatten(self) -> "Design":
+        return self.broadcast().map(lambda t: t.reshape(-1))
+
+    def replace(self, **kw) -> "Design":
+        vals = dict(self.values)
+        for k, v in kw.items():
+            vals[parameter_name(k)] = v
+        return Design(vals, name=self.name, description=self.description)
+
+    # ---- scalars --------------------------------------------------------------------------
+    def floats(self) -> dict[str, float]:
+        """``{name: value}`` of a single design (every parameter a one-element tensor)."""
+        out = {}
+        for k, v in self.values.items():
+            if v.numel() != 1:
+                raise ValueError(f"design parameter {k} holds {v.numel()} values: expected a single design")
+            out[k] = float(v.reshape(()))
+        return out
+
+    def label(self) -> str:
+        """``"s = -0.775, Q_back = -2.4"`` for a single design."""
+        return ", ".join(f"{k} = {v:g}" for k, v in self.floats().items())
+
+    def __repr__(self) -> str:
+        try:
+            body = ", ".join(f"{k}={v:g}" for k, v in self.floats().items())
+        except ValueError:
+            body = ", ".join(f"{k}: shape {tuple(v.shape)}" for k, v in self.values.items())
+        return f"Design({body}{', name=' + repr(self.name) if self.name else ''})"
+
+
+def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] | None = None) -> dict[str, Design]:
+    """Named designs: ``builtins`` (default: the paper's), updated from a TOML file of tables
+    ``[name]`` with parameter values (``s = -0.775``, ``Q_back = -2.4``; aliases accepted) and an
+    optional ``description``."""
+    if builtins is None:
+        from .paper import PAPER_DESIGNS as builtins
+    designs = dict(builtins)
+    if path is None:
+        return designs
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"designs file {str(path)!r} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"designs file {str(path)!r} is not valid TOML: {exc}") from None
+    for name, t in raw.items():
+        if not isinstance(t, dict):
+            raise ValueError(f"designs file {str(path)!r}: [{name}] must be a table of parameter values")
+        t = dict(t)
+        desc = str(t.pop("description", ""))
+        bad = [k for k, v in t.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
+        if bad or not t:
+            raise ValueError(f"designs file {str(path)!r}: [{name}] needs finite numeric parameter values "
+                             f"(e.g. s and Q_back){'; bad: ' + ', '.join(bad) if bad else ''}")
+        try:
+            designs[name] = Design(t, name=name, description=desc)
+        except ValueError as exc:
+            raise ValueError(f"designs file {str(path)!r}: [{name}]: {exc}") from None
+    return designs

@@ -1,0 +1,110 @@
+"""PSF providers: field position -> PSF, the one thing blur and restoration need from the optics.
+
+The image pipeline (blur, restoration, the exact per-pixel reference) never sees a lens model: it
+asks a provider for the PSFs at pixel positions of an array whose optical axis is at
+``optical_center``, on an ``n x n`` grid of the sensor's pixels. Two providers:
+
+* :class:`LensPSF`: the model (camera + design, Fourier optics of the third-order pupil),
+* :class:`FunctionPSF`: any callable ``fn(x_mm, y_mm, n) -> (P, n, n)`` (measured or tabulated PSFs,
+  centred, unit sum), with the field geometry it lives in.
+
+A provider returns ``(P, n, n)`` (one PSF for every colour channel) or ``(P, C, n, n)`` (one per
+channel); :attr:`channels` says which (1 or C).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from .camera import Camera
+from .design import Design
+from .geometry import FieldGeometry
+from .numerics import DEFAULT_NUMERICS, Numerics
+from .psf_bank import max_wavefront_slope, psf_at, spectral_coefficients
+
+__all__ = ["PSFProvider", "LensPSF", "FunctionPSF"]
+
+
+class PSFProvider:
+    """Interface: :attr:`geometry`, :attr:`channels`, :meth:`psf_at_pixels` and :meth:`extent_px`."""
+
+    geometry: FieldGeometry
+    channels: int = 1
+
+    def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None,
+                      device=None) -> torch.Tensor:
+        """PSFs ``(P, n, n)`` or ``(P, C, n, n)`` (unit sum) at pixel positions ``rows``, ``cols`` ``(P,)``."""
+        raise NotImplementedError
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        """Diameter (px) of the largest PSF support over the positions (0 if unknown)."""
+        return 0
+
+
+@dataclass(frozen=True)
+class LensPSF(PSFProvider):
+    """The model's PSFs: the camera (lens, sensor pitch, spectrum) with one design (single values)."""
+
+    camera: Camera
+    design: Design
+    numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
+
+    def __post_init__(self):
+        d = self.design.to(torch.float64)
+        self.camera.lens.check_design(d)
+        d.floats()  # one design: every parameter a single value
+        object.__setattr__(self, "design", d)
+
+    @property
+    def geometry(self) -> FieldGeometry:
+        return self.camera.geometry
+
+    def _design_like(self, t: torch.Tensor) -> Design:
+        return self.design.map(lambda v: torch.full_like(t, float(v.reshape(()))))
+
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows).to(device), torch.as_tensor(cols).to(device),
+                                              optical_center)
+        p, _ = psf_at(self.camera, self._design_like(y_mm), x_mm, y_mm, n=n, centered=centered, dtype=dtype,
+                      numerics=self.numerics)
+        return p
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
+        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
+        a = self.geometry.field_angle_deg(x_mm, y_mm)
+        c = spectral_coefficients(self.camera, self._design_like(a), a, elementwise=True)
+        half = max(float(self.camera.geometric_radius_px(max_wavefront_slope(c[..., k, :]).max(), lam))
+                   for k, lam in enumerate(self.camera.spectrum.wavelengths_um))
+        return int(math.ceil(2 * half)) + self.numerics.margin_px
+
+
+@dataclass(frozen=True)
+class FunctionPSF(PSFProvider):
+    """PSFs from ``fn(x_mm, y_mm, n) -> (P, n, n)`` or ``(P, C, n, n)`` (centred at ``[n//2, n//2]``, unit sum).
+
+    ``x_mm``, ``y_mm`` ``(P,)`` are image-plane positions from the optical axis; ``geometry`` maps
+    pixels to mm (e.g. ``Camera().geometry``); ``channels`` is 1 or the number of channels of ``fn``'s
+    output; ``extent`` (px) the PSF support diameter, if known (checked against the windows).
+    """
+
+    fn: Callable
+    geometry: FieldGeometry
+    channels: int = 1
+    extent: int = 0
+
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
+        p = torch.as_tensor(self.fn(x_mm, y_mm, n))
+        expect = (len(x_mm), n, n) if self.channels == 1 else (len(x_mm), self.channels, n, n)
+        if tuple(p.shape) != expect:
+            raise ValueError(f"PSF function returned shape {tuple(p.shape)}: expected {expect}")
+        p = p.to(dtype=dtype or p.dtype, device=device)
+        return p if centered else torch.fft.ifftshift(p, dim=(-2, -1))
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        return int(self.extent)
