@@ -47,6 +47,7 @@ __all__ = [
     "wavefront_coefficients",
     "pupil_monomials",
     "wavefront",
+    "wavefront_rotated",
     "wavefront_gradient",
     "rms_wavefront",
     "field_rms_wavefront",
@@ -67,6 +68,11 @@ class Term:
         if self.a == 0:
             return rho_r**self.b
         return r2**self.a * rho_r**self.b
+
+    def weighted(self, coeff: torch.Tensor, r2: torch.Tensor, rho_r: torch.Tensor) -> torch.Tensor:
+        """``coeff r2^a rho_r^b``, multiplied left to right (the rounding of the original four-term formula)."""
+        out = coeff * r2**self.a if self.a else coeff
+        return out * rho_r**self.b if self.b else out * torch.ones_like(r2)
 
 
 TERMS = (Term("W040", 2, 0), Term("W131", 1, 1), Term("W222", 0, 2), Term("W220", 1, 0))
@@ -160,9 +166,16 @@ def wavefront(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) ->
     against the point arrays: the result has shape ``(*, *P)`` for points of shape ``P``.
     """
     _check_coeffs(coeffs)
-    m = pupil_monomials(rho_r, rho_t)
-    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * (m.ndim - 1) + (N_TERMS,))
-    return sum(c[..., k] * m[k] for k in range(N_TERMS))
+    r2 = rho_r**2 + rho_t**2
+    c = coeffs.reshape(coeffs.shape[:-1] + (1,) * rho_r.ndim + (N_TERMS,))
+    return sum(t.weighted(c[..., k], r2, rho_r) for k, t in enumerate(TERMS))
+
+
+def wavefront_rotated(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:
+    """``W`` (waves) for coefficients ``(B, T)`` and per-row pupil points ``(B or 1, *P)``: ``(B, *P)``."""
+    r2 = rho_r**2 + rho_t**2
+    extra = (None,) * (rho_r.ndim - 1)
+    return sum(t.weighted(coeffs[(slice(None), k) + extra], r2, rho_r) for k, t in enumerate(TERMS))
 
 
 def wavefront_gradient(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor):

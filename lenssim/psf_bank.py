@@ -33,7 +33,8 @@ from functools import lru_cache
 
 import torch
 
-from .aberrations import N_TERMS, _check_coeffs, pupil_monomials, wavefront_coefficients, wavefront_gradient
+from .aberrations import (N_TERMS, _check_coeffs, pupil_monomials, wavefront_coefficients, wavefront_gradient,
+                          wavefront_rotated)
 from .camera import Camera
 from .checks import check_shape
 from .design import Design
@@ -206,8 +207,7 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device):
         azimuth_rad = azimuth_rad.to(dtype)
         c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]
         rho_r, rho_t = rx * c + ry * s, -rx * s + ry * c
-    m = pupil_monomials(rho_r, rho_t)  # (T, B or 1, rows, cols)
-    W = sum(coeffs[:, k, None, None] * m[k] for k in range(N_TERMS))
+    W = wavefront_rotated(coeffs, rho_r, rho_t)  # (B, rows, cols)
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 

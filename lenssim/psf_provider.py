@@ -14,6 +14,7 @@ channel); :attr:`channels` says which (1 or C).
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -72,6 +73,11 @@ class LensPSF(PSFProvider):
         p, _ = psf_at(self.camera, self._design_like(y_mm), x_mm, y_mm, n=n, centered=centered, dtype=dtype,
                       numerics=self.numerics)
         return p
+
+    def fingerprint(self) -> str:
+        """A stable description of these PSFs (camera, design, numerics), e.g. for checkpoints."""
+        return json.dumps({"camera": self.camera.to_dict(), "design": self.design.floats(),
+                           "numerics": self.numerics.to_dict()}, sort_keys=True)
 
     def extent_px(self, rows, cols, optical_center) -> int:
         """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""

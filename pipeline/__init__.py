@@ -1,14 +1,15 @@
 """pipeline: the camera pipeline (photo -> linear -> spatially-variant blur -> noise -> restoration).
 
-Modules: image I/O (:mod:`pipeline.io`), sRGB <-> linear (:mod:`pipeline.colour_space`), optional
-gentle denoising of the input (:mod:`pipeline.denoise`), the generated default scene
-(:mod:`pipeline.scene`), Poisson noise at the paper's full-well capacities (:mod:`pipeline.noise`),
-the windowed spatially-variant blur with its exact per-pixel reference (:mod:`pipeline.blur`),
-adaptive local Wiener and windowed Richardson-Lucy restoration (:mod:`pipeline.restoration`),
+Modules: image I/O (:mod:`pipeline.io`), the ideal image of a run (:mod:`pipeline.photo`), sRGB <->
+linear (:mod:`pipeline.colour_space`), optional gentle denoising of the input
+(:mod:`pipeline.denoise`), the generated default scene (:mod:`pipeline.scene`), sensor noise
+(:mod:`pipeline.noise`), the windowed spatially-variant blur with its exact per-pixel reference
+(:mod:`pipeline.blur`), the restoration methods and their registry (:mod:`pipeline.restoration`),
 PSNR/SSIM in sRGB (:mod:`pipeline.quality`), PSNR over the field (:mod:`pipeline.field_map`), the
-simulation of crops and whole frames (:mod:`pipeline.simulate`), the Fig. 8 mosaic
-(:mod:`pipeline.figure8`) and the command line (:mod:`pipeline.cli`).
-Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse.
+simulation of crops and whole frames (:mod:`pipeline.simulate`) and the Fig. 8 mosaic
+(:mod:`pipeline.figure8`). The optics come in as PSF providers (:class:`lenssim.LensPSF`).
+Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse, and never the
+command line (:mod:`lenssim_cli`).
 """
 
 from .blur import (PAPER_SCHEME, WindowScheme, apply_windowed, blur_exact, blur_windowed, core_irfft2, tent_weights,
@@ -17,19 +18,25 @@ from .colour_space import linear_to_srgb, srgb_to_linear
 from .denoise import gentle_denoise
 from .field_map import field_psnr, plot_field_psnr
 from .io import ImageFileError, ImageInfo, read_image, write_image
-from .noise import ISO_FULL_WELL, add_poisson_noise, full_well_for_iso
+from .noise import ISO_FULL_WELL, add_poisson_noise, full_well_for_iso, read_out
+from .photo import load_photo
 from .quality import psnr_map_srgb, psnr_srgb, ssim_srgb
-from .restoration import richardson_lucy_windowed, wiener_windowed
+from .restoration import (RESTORATION_METHODS, RestorationMethod, restore, richardson_lucy_windowed, validate_method,
+                          wiener_windowed)
 from .scene import resolution_scene
-from .simulate import CropResult, FrameResult, crop_at_field_angle, crops_from_frame, simulate_crops, simulate_frame
+from .simulate import (DEFAULT_METHODS, CropResult, FrameResult, crop_at_field_angle, crops_from_frame, simulate_crops,
+                       simulate_frame)
 
 __all__ = [
+    "DEFAULT_METHODS",
     "ISO_FULL_WELL",
     "PAPER_SCHEME",
+    "RESTORATION_METHODS",
     "CropResult",
     "FrameResult",
     "ImageFileError",
     "ImageInfo",
+    "RestorationMethod",
     "WindowScheme",
     "add_poisson_noise",
     "apply_windowed",
@@ -42,17 +49,21 @@ __all__ = [
     "full_well_for_iso",
     "gentle_denoise",
     "linear_to_srgb",
+    "load_photo",
     "plot_field_psnr",
     "psnr_map_srgb",
     "psnr_srgb",
     "read_image",
+    "read_out",
     "resolution_scene",
+    "restore",
     "richardson_lucy_windowed",
     "simulate_crops",
     "simulate_frame",
     "srgb_to_linear",
     "ssim_srgb",
     "tent_weights",
+    "validate_method",
     "window_centres",
     "window_count",
     "wiener_windowed",

@@ -3,7 +3,7 @@
 For a full-frame simulation the restored image's quality varies with the field, as the lens's
 aberrations do. :func:`field_psnr` cuts the frame into ``tile`` x ``tile`` blocks, computes the
 sRGB PSNR of the sensor and restored images in each, and the field angle (degrees) of each
-block's centre for the lens (optical axis at the frame centre, the lens's pixel pitch);
+block's centre in the camera's field geometry (optical axis at the frame centre);
 :func:`plot_field_psnr` draws both maps on one colour scale and PSNR against field angle.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_LENS, ThinLens
+from lenssim import PAPER_CAMERA, FieldGeometry
 from lenssim.files import atomic_write
 
 from .quality import encode_srgb, scores_encoded
@@ -22,20 +22,16 @@ from .quality import encode_srgb, scores_encoded
 __all__ = ["tile_field_angles", "field_psnr", "plot_field_psnr"]
 
 
-def tile_field_angles(shape, tile: int = 256, lens: ThinLens = PAPER_LENS) -> torch.Tensor:
+def tile_field_angles(shape, tile: int = 256, geometry: FieldGeometry | None = None) -> torch.Tensor:
     """Field angle (deg) of each ``tile`` x ``tile`` block's centre, ``(rows, cols)`` float64, for ``shape`` ``(..., H, W)``.
 
     Blocks as in :func:`pipeline.quality.psnr_map_srgb`; optical axis at the frame centre.
     """
-    H, W = shape[-2:]
-    cy = torch.arange(H // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (H - 1) / 2
-    cx = torch.arange(W // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (W - 1) / 2
-    r_mm = torch.hypot(cy[:, None], cx[None, :]) * lens.pixel_pitch_um * 1e-3
-    return torch.rad2deg(torch.atan(r_mm / lens.focal_length_mm))
+    return (geometry or PAPER_CAMERA.geometry).tile_field_angles(shape, tile)
 
 
 def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor, *, tile: int = 256,
-               lens: ThinLens = PAPER_LENS) -> dict:
+               geometry: FieldGeometry | None = None) -> dict:
     """``{"sensor_db", "restored_db", "field_deg"}``: ``(rows, cols)`` float64 tensors, one entry per tile."""
     for name, t in (("sensor", sensor), ("restored", restored)):
         if t.shape != ideal.shape or ideal.ndim != 4 or ideal.shape[0] != 1:
@@ -43,7 +39,7 @@ def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor
     ref = encode_srgb(ideal)  # once for both comparisons
     m_s = scores_encoded(ref, encode_srgb(sensor), tile=tile, ssim=False)["psnr_map_db"]
     m_r = scores_encoded(ref, encode_srgb(restored), tile=tile, ssim=False)["psnr_map_db"]
-    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, lens)}
+    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, geometry)}
 
 
 def plot_field_psnr(maps: dict, path, *, title: str = "") -> Path:

@@ -11,36 +11,43 @@ from pathlib import Path
 
 import torch
 
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, Camera, Design, LensPSF
 from lenssim.files import atomic_write
+from lenssim.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
 
 from .colour_space import linear_to_srgb
-from .noise import full_well_for_iso
 from .simulate import crop_at_field_angle, simulate_crops
 
 __all__ = ["PAPER_FIG8_ANGLES", "figure8"]
 
-PAPER_FIG8_ANGLES = (1.3, 2.1, 7.1, 3.4, 4.8, 8.8)
+PAPER_FIG8_ANGLES = PAPER_FIG8_ANGLES_DEG
 
 
-def figure8(ideal: torch.Tensor, out_dir, *, rms_w=(-0.725, -10.0), e2e=(-0.775, -2.4), angles=PAPER_FIG8_ANGLES,
-            crop: int = 128, seed: int = 0) -> tuple[Path, list[dict]]:
+def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
+            rms_w: Design = PAPER_DESIGNS["rms_w_paper"], e2e: Design = PAPER_DESIGNS["end_to_end_paper"],
+            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method: str = "wiener") -> tuple[Path, list[dict]]:
+    """The mosaic for ``camera`` with a conventional (``rms_w``) and an end-to-end (``e2e``) design,
+    restored with ``method``; writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    boxes = [crop_at_field_angle(ideal.shape, a, crop) for a in angles]
-    runs = {("rms_w", 25): simulate_crops(ideal, *rms_w, full_well_for_iso(25), boxes, seed=seed)}
-    isos = (400, 100, 25)
-    per_iso = simulate_crops(ideal, *e2e, [full_well_for_iso(i) for i in isos], boxes, seed=seed)  # one blur
+    boxes = [crop_at_field_angle(ideal.shape, a, crop, camera.geometry) for a in angles]
+    isos = tuple(ISO_FOR_SNR.values())  # low, expected, high light: ISO 400, 100, 25
+    low_noise = isos[-1]
+    well = camera.sensor.full_well_for_iso
+    runs = {("rms_w", low_noise): simulate_crops(ideal, LensPSF(camera, rms_w), well(low_noise), boxes, seed=seed,
+                                                 methods=(method,), sensor=camera.sensor)}
+    per_iso = simulate_crops(ideal, LensPSF(camera, e2e), [well(i) for i in isos], boxes, seed=seed,  # one blur
+                             methods=(method,), sensor=camera.sensor)
     runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
-    cols = [("ideal", lambda i: runs[("e2e", 25)][i].ideal, None),
-            ("RMS_W: sensor (no noise)", lambda i: runs[("rms_w", 25)][i].blurred, None),
-            ("RMS_W: restored, ISO 25", lambda i: runs[("rms_w", 25)][i].restored, ("rms_w", 25)),
-            ("end-to-end: sensor (no noise)", lambda i: runs[("e2e", 25)][i].blurred, None),
-            ("end-to-end: restored, ISO 400", lambda i: runs[("e2e", 400)][i].restored, ("e2e", 400)),
-            ("end-to-end: restored, ISO 100", lambda i: runs[("e2e", 100)][i].restored, ("e2e", 100)),
-            ("end-to-end: restored, ISO 25", lambda i: runs[("e2e", 25)][i].restored, ("e2e", 25))]
+    img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
+    cols = [("ideal", img(("e2e", low_noise), "ideal"), None),
+            ("RMS_W: sensor (no noise)", img(("rms_w", low_noise), "blurred"), None),
+            (f"RMS_W: restored, ISO {low_noise}", img(("rms_w", low_noise), method), ("rms_w", low_noise)),
+            ("end-to-end: sensor (no noise)", img(("e2e", low_noise), "blurred"), None)]
+    cols += [(f"end-to-end: restored, ISO {iso}", img(("e2e", iso), method), ("e2e", iso)) for iso in isos]
     fig, axes = plt.subplots(len(boxes), len(cols), figsize=(2.0 * len(cols), 2.05 * len(boxes) + 0.6),
                              squeeze=False, constrained_layout=True)
     table = []
@@ -55,9 +62,9 @@ def figure8(ideal: torch.Tensor, out_dir, *, rms_w=(-0.725, -10.0), e2e=(-0.775,
             if i == 0:
                 ax.set_title(title, fontsize=7)
             if j == 0:
-                ax.set_ylabel(f"{runs[('e2e', 25)][i].field_deg:.1f} deg", fontsize=8)
+                ax.set_ylabel(f"{runs[('e2e', low_noise)][i].field_deg:.1f} deg", fontsize=8)
             if key is not None:
-                p = runs[key][i].psnr_restored_db
+                p = runs[key][i].scores[method]["psnr_db"]
                 ax.text(3, 12, f"{p:.1f} dB", color="yellow", fontsize=7, backgroundcolor=(0, 0, 0, 0.4))
                 table.append({"field_deg": runs[key][i].field_deg, "design": key[0], "iso": key[1], "psnr_restored_db": p})
     out = Path(out_dir)

@@ -1,30 +1,59 @@
-"""Photon (Poisson) noise of the paper's sensor (Section 3.2-3.3).
+"""Sensor noise (paper Section 3.2-3.3): photon (Poisson) noise, optional read noise and ADC.
 
 The blurred linear image's maximum is scaled to the full-well capacity (electrons), each pixel is
-Poisson-sampled, and the result is scaled back. FWC: 3,200 e- at ISO 100 (the expected level,
-SNR ~27.6 dB), 800 at ISO 400 and 12,800 at ISO 25. Randomness comes only from the explicit
-``generator`` (or ``seed``), so results are reproducible.
+Poisson-sampled, and the result is scaled back. The paper's sensor (:data:`lenssim.PAPER_SENSOR`):
+3,200 e- at ISO 100 (the expected level, SNR ~27.6 dB), 800 at ISO 400 and 12,800 at ISO 25, no
+read noise, no quantisation. A :class:`lenssim.Sensor` with ``read_noise_e > 0`` adds Gaussian
+read noise (electrons RMS) and with ``bit_depth`` quantises the electrons to ``2^bits - 1`` levels
+over the full well. Randomness comes only from the explicit ``generator`` (or ``seed``), so
+results are reproducible.
 """
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise"]
+from lenssim import PAPER_SENSOR, Sensor
 
-ISO_FULL_WELL = {25: 12800.0, 100: 3200.0, 400: 800.0}
+__all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise", "read_out", "read_noise_variance"]
+
+ISO_FULL_WELL = dict(PAPER_SENSOR.full_well_e)
+"""The paper's full-well capacity (electrons) per ISO (from :data:`lenssim.PAPER_SENSOR`)."""
 
 
-def full_well_for_iso(iso: int) -> float:
-    """Full-well capacity (electrons) of the paper's sensor at ``iso`` (25, 100 or 400)."""
-    if iso not in ISO_FULL_WELL:
-        raise ValueError(f"iso={iso!r} is not allowed: one of {sorted(ISO_FULL_WELL)} (or give full_well directly)")
-    return ISO_FULL_WELL[iso]
+def full_well_for_iso(iso: int, sensor: Sensor = PAPER_SENSOR) -> float:
+    """Full-well capacity (electrons) of ``sensor`` at ``iso`` (the paper's: 25, 100 or 400)."""
+    return sensor.full_well_for_iso(iso)
+
+
+def read_out(electrons: torch.Tensor, sensor: Sensor, full_well: float, *, generator: torch.Generator) -> torch.Tensor:
+    """Read noise and ADC quantisation of ``sensor`` applied to photo-electron counts (any shape).
+
+    Gaussian read noise of ``sensor.read_noise_e`` electrons RMS (drawn from ``generator``), then,
+    with ``sensor.bit_depth``, rounding to ``2^bits - 1`` levels over ``[0, full_well]``. The paper's
+    sensor has neither: the counts come back unchanged (and no random number is drawn).
+    """
+    out = electrons
+    if sensor.read_noise_e > 0:
+        noise = torch.randn(out.shape, generator=generator, dtype=out.dtype, device=out.device)
+        out = out + sensor.read_noise_e * noise
+    if sensor.bit_depth is not None:
+        levels = 2**sensor.bit_depth - 1
+        gain = full_well / levels  # electrons per digital number
+        out = torch.round(out / gain).clamp_(0, levels) * gain
+    return out
+
+
+def read_noise_variance(sensor: Sensor, electrons_per_unit: float) -> float:
+    """Variance (squared linear image units) of the read noise and ADC rounding, for the Wiener filter."""
+    var_e = sensor.read_noise_e**2
+    return var_e / electrons_per_unit**2 if electrons_per_unit != float("inf") else 0.0
 
 
 def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch.Generator | None = None,
-                      seed: int | None = None) -> torch.Tensor:
-    """Poisson noise on a linear image ``(B, C, H, W)`` >= 0, with its maximum at ``full_well`` electrons.
+                      seed: int | None = None, sensor: Sensor = PAPER_SENSOR) -> torch.Tensor:
+    """Poisson noise on a linear image ``(B, C, H, W)`` >= 0, with its maximum at ``full_well`` electrons,
+    then ``sensor``'s read noise and quantisation (none for the paper's sensor).
 
     Exactly one of ``generator`` and ``seed`` must be given. Returns the same shape, dtype and device.
     """
@@ -43,4 +72,5 @@ def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch
         return image.clone()
     scale = full_well / peak
     electrons = torch.poisson((image * scale).to(torch.float64), generator=generator)
+    electrons = read_out(electrons, sensor, full_well, generator=generator)
     return (electrons / scale).to(image.dtype)

@@ -22,21 +22,27 @@ import math
 
 import torch
 
-from lenssim import PAPER_RHO0, ThinLens, image_psd
+from collections.abc import Callable
+from dataclasses import dataclass
 
-from .blur import PAPER_SCHEME, WindowScheme, apply_windowed
+from lenssim import PAPER_RHO0, PSFProvider, image_psd
 
-__all__ = ["wiener_windowed", "richardson_lucy_windowed"]
+from .blur import PAPER_SCHEME, WindowScheme, _check_image, apply_windowed
+
+__all__ = ["wiener_windowed", "richardson_lucy_windowed", "RestorationMethod", "RESTORATION_METHODS",
+           "validate_method", "restore"]
 
 
-def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, *, electrons_per_unit: float,
+def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_unit: float,
                     read_noise_var: float = 0.0, rho0: float = PAPER_RHO0, stats: int = 128,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
-                    progress=None, psf_fn=None, floor: float = 1e-10) -> torch.Tensor:
-    """Restore a linear sensor image ``(B, C, H, W)`` blurred by the lens ``(s, Q)`` with Poisson noise.
+                    progress=None, floor: float = 1e-10) -> torch.Tensor:
+    """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with Poisson noise.
 
-    ``electrons_per_unit`` may be ``math.inf`` (no photon noise). Returns the same shape.
+    ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
+    noise variance in squared image units. Returns the same shape.
     """
+    _check_image(observed, "observed")
     if not electrons_per_unit > 0:
         raise ValueError(f"electrons_per_unit={electrons_per_unit!r} is not allowed: must be > 0 (inf: no noise)")
     if not (isinstance(stats, int) and 2 <= stats <= scheme.window):
@@ -54,7 +60,7 @@ def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, 
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
         noise = mu.clamp_min(0) * inv_e + read_noise_var
-        H = otf[:, None, None]  # (k, 1, 1, win, win/2+1)
+        H = otf  # (k, 1, 1 or C, win, win/2+1)
         HP = (H.real.square() + H.imag.square()) * P
         # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
         gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
@@ -69,13 +75,13 @@ def wiener_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, 
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
 
-    return apply_windowed(observed, lens, s, Q, restore, scheme=scheme, optical_center=optical_center, region=region,
-                          chunk=chunk, progress=progress, psf_fn=psf_fn)
+    return apply_windowed(observed, psf, restore, scheme=scheme, optical_center=optical_center, region=region,
+                          chunk=chunk, progress=progress)
 
 
-def richardson_lucy_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q: float, *, iterations: int = 30,
+def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterations: int = 30,
                              scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int = 4,
-                             progress=None, psf_fn=None, eps: float = 1e-12) -> torch.Tensor:
+                             progress=None, eps: float = 1e-12) -> torch.Tensor:
     """Richardson-Lucy deconvolution (the non-linear, train-free comparison) in the blur's windows.
 
     Per window, with the local PSF ``h`` (circular convolution over the window, as the blur)::
@@ -85,14 +91,15 @@ def richardson_lucy_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q
     the same iteration as ``skimage.restoration.richardson_lucy`` (which the tests compare against).
     Non-negative input required; no regularisation (stop early with ``iterations``).
     """
-    if not (isinstance(iterations, int) and iterations >= 1):
+    _check_image(observed, "observed")
+    if isinstance(iterations, bool) or not (isinstance(iterations, int) and iterations >= 1):
         raise ValueError(f"iterations={iterations!r} is not allowed: an integer >= 1")
     if (observed < 0).any():
         raise ValueError("observed image has negative values: Richardson-Lucy needs y >= 0")
     win = scheme.window
 
     def rl(patches, otf):
-        H = otf[:, None, None]
+        H = otf
         conv = lambda x, F: torch.fft.irfft2(torch.fft.rfft2(x) * F, s=(win, win))  # noqa: E731
         u = torch.full_like(patches, 0.5)  # scikit-image's starting point
         for _ in range(iterations):
@@ -100,5 +107,55 @@ def richardson_lucy_windowed(observed: torch.Tensor, lens: ThinLens, s: float, Q
             u = u * conv(ratio, H.conj())
         return u
 
-    return apply_windowed(observed, lens, s, Q, rl, scheme=scheme, optical_center=optical_center, region=region,
-                          chunk=chunk, progress=progress, psf_fn=psf_fn)
+    return apply_windowed(observed, psf, rl, scheme=scheme, optical_center=optical_center, region=region,
+                          chunk=chunk, progress=progress)
+
+
+@dataclass(frozen=True)
+class RestorationMethod:
+    """A restoration method: ``fn(observed, psf, *, electrons_per_unit, read_noise_var, scheme, optical_center,
+    region, progress, **options) -> restored`` (linear ``(B, C, H, W)``), with a label for figures and
+    tables and the options it takes (``{name: default}``)."""
+
+    name: str
+    label: str
+    description: str
+    fn: Callable
+    options: tuple[tuple[str, object], ...] = ()
+
+
+def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, **kw):
+    return wiener_windowed(observed, psf, electrons_per_unit=electrons_per_unit, read_noise_var=read_noise_var, **kw)
+
+
+def _richardson_lucy(observed, psf, *, electrons_per_unit, read_noise_var=0.0, iterations=20, **kw):
+    # the noise level does not enter the (unregularised) iteration, which needs a non-negative input
+    return richardson_lucy_windowed(observed.clamp_min(0), psf, iterations=iterations, **kw)
+
+
+RESTORATION_METHODS: dict[str, RestorationMethod] = {m.name: m for m in (
+    RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
+                      _wiener),
+    RestorationMethod("richardson_lucy", "Richardson-Lucy", "windowed Richardson-Lucy deconvolution (non-linear, "
+                      "no regularisation)", _richardson_lucy, (("iterations", 20),)),
+)}
+"""The registry of restoration methods: name -> :class:`RestorationMethod`."""
+
+
+def validate_method(name: str) -> RestorationMethod:
+    """The registered method ``name``; ``ValueError`` listing the valid names otherwise."""
+    if name not in RESTORATION_METHODS:
+        raise ValueError(f"restoration method {name!r} is not known; valid: {', '.join(RESTORATION_METHODS)}")
+    return RESTORATION_METHODS[name]
+
+
+def restore(method: str, observed: torch.Tensor, psf: PSFProvider, *, electrons_per_unit: float,
+            read_noise_var: float = 0.0, options: dict | None = None, **kw) -> torch.Tensor:
+    """Restore ``observed`` with the registered ``method`` (``options``: the method's own settings)."""
+    m = validate_method(method)
+    options = dict(options or {})
+    bad = set(options) - {k for k, _ in m.options}
+    if bad:
+        raise ValueError(f"restoration method {method!r} takes no option(s) {sorted(bad)}; it takes "
+                         f"{[k for k, _ in m.options] or 'none'}")
+    return m.fn(observed, psf, electrons_per_unit=electrons_per_unit, read_noise_var=read_noise_var, **options, **kw)

@@ -14,7 +14,7 @@ import math
 
 import torch
 
-from lenssim import PAPER_LENS, ThinLens
+from lenssim import PAPER_CAMERA, FieldGeometry
 
 __all__ = ["resolution_scene", "target_tile"]
 
@@ -45,25 +45,22 @@ def target_tile(size: int = 256, kind: int = 0) -> torch.Tensor:
     return tile
 
 
-def _diagonal_positions(height: int, width: int, tile: int, lens: ThinLens, step_deg: float = 2.0):
+def _diagonal_positions(height: int, width: int, tile: int, geometry: FieldGeometry, step_deg: float = 2.0):
     """Top-left corners and kinds of the tiles centred on the diagonal every ``step_deg`` degrees of field."""
-    az = math.atan2(height, width)
     out, a = [], 0.0
     while True:
-        r_px = lens.focal_length_mm * math.tan(math.radians(a)) / (lens.pixel_pitch_um * 1e-3)
-        cy, cx = (height - 1) / 2 + r_px * math.sin(az), (width - 1) / 2 + r_px * math.cos(az)
         # kept inside the frame exactly as crop_at_field_angle keeps its crops
-        r0 = min(max(int(round(cy - tile / 2)), 0), height - tile)
-        c0 = min(max(int(round(cx - tile / 2)), 0), width - tile)
-        if out and (r0, c0) == out[-1][:2] or r_px > math.hypot(height, width) / 2:
+        r0, _, c0, _ = geometry.box_at_field_angle((height, width), a, tile)
+        if out and (r0, c0) == out[-1][:2] or geometry.radius_px(a) > math.hypot(height, width) / 2:
             return out
         out.append((r0, c0, 0 if round(a / step_deg) % 2 == 0 else 1))
         a += step_deg
 
 
 def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, tile: int = 256,
-                     spacing: int = 640, lens: ThinLens = PAPER_LENS) -> torch.Tensor:
-    """The default scene: linear RGB ``(1, 3, height, width)`` float32 (``lens`` places the diagonal targets)."""
+                     spacing: int = 640, geometry: FieldGeometry | None = None) -> torch.Tensor:
+    """The default scene: linear RGB ``(1, 3, height, width)`` float32 (``geometry``, default the paper
+    camera's, places the diagonal targets)."""
     if height < tile or width < tile:
         raise ValueError(f"scene {height}x{width} is smaller than one {tile}-px target")
     g = torch.Generator().manual_seed(seed)
@@ -75,7 +72,7 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
     img = bg
     tiles = [target_tile(tile, k) for k in range(3)]
     colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]])
-    diagonal = _diagonal_positions(height, width, tile, lens)
+    diagonal = _diagonal_positions(height, width, tile, geometry or PAPER_CAMERA.geometry)
     clear = lambda r, c: all(abs(r - dr) >= tile + 8 or abs(c - dc) >= tile + 8 for dr, dc, _ in diagonal)  # noqa: E731
     k = 0
     for r in range(spacing // 2 - tile // 2, height - tile + 1, spacing):

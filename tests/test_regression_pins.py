@@ -94,21 +94,21 @@ def _psf_pins():
 
 
 def _pipeline_pins():
-    from lenssim import PAPER_LENS
+    from lenssim import PAPER_CAMERA, Design, LensPSF
     from pipeline import WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
     img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
     scheme = WindowScheme(256, 32, 64)
     oc = (-500.0, -700.0)  # optical centre far outside: the array sits at ~2.9 deg of field
-    blurred = blur_windowed(img, PAPER_LENS, -0.775, -2.4, scheme=scheme, optical_center=oc)
-    restored = wiener_windowed(blurred, PAPER_LENS, -0.775, -2.4, electrons_per_unit=3200.0, scheme=scheme,
-                               optical_center=oc)
+    e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
+    blurred = blur_windowed(img, e2e, scheme=scheme, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=scheme, optical_center=oc)
     big = resolution_scene(600, 800, tile=128, spacing=256)
-    res = simulate_crops(big, -0.725, -10.0, [3200.0, 800.0], [(100, 164, 200, 264), (400, 464, 600, 664)],
-                         seed=5, scheme=scheme)
-    crops = [[r.psnr_sensor_db, r.psnr_restored_db, r.ssim_sensor, r.ssim_restored, r.field_deg]
-             for per in res for r in per]
+    res = simulate_crops(big, LensPSF(PAPER_CAMERA, Design(s=-0.725, Q_back=-10.0)), [3200.0, 800.0],
+                         [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme)
+    crops = [[r.scores["sensor"]["psnr_db"], r.scores["wiener"]["psnr_db"], r.scores["sensor"]["ssim"],
+              r.scores["wiener"]["ssim"], r.field_deg] for per in res for r in per]
     return {"blur": _stats(blurred), "wiener": _stats(restored), "crops": crops}
 
 
