@@ -130,6 +130,10 @@ class Design:
     def flatten(self) -> "Design":
         return self.broadcast().map(lambda t: t.reshape(-1))
 
+    def complete(self) -> "Design":
+        """Every registered parameter, those not given at their defaults."""
+        return Design({k: self[k] for k in PARAMETERS}, name=self.name, description=self.description)
+
     def replace(self, **kw) -> "Design":
         vals = dict(self.values)
         for k, v in kw.items():
@@ -159,11 +163,14 @@ class Design:
 
 
 def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] | None = None) -> dict[str, Design]:
-    """Named designs: ``builtins`` (default: the paper's), updated from a TOML file of tables
-    ``[name]`` with parameter values (``s = -0.775``, ``Q_back = -2.4``; aliases accepted) and an
-    optional ``description``."""
+    """Named designs: ``builtins`` (default: the paper's and those of the built-in ``configs/designs.toml``),
+    updated from a TOML file of tables ``[name]`` with parameter values (``s = -0.775``,
+    ``Q_back = -2.4``; aliases accepted) and an optional ``description``."""
     if builtins is None:
-        from .paper import PAPER_DESIGNS as builtins
+        from .paper import PAPER_DESIGNS
+        from .resources import designs_file
+
+        builtins = load_designs(designs_file(), PAPER_DESIGNS)
     designs = dict(builtins)
     if path is None:
         return designs

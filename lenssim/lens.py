@@ -97,7 +97,7 @@ class Lens:
         if "refractive_index" in d:
             if "glass" in d:
                 raise LensError("give either glass or refractive_index, not both")
-            d["glass"] = ConstantGlass(d.pop("refractive_index"))
+            d["glass"] = d.pop("refractive_index")  # a number: a constant glass
         allowed = {f.name for f in fields(cls)}
         bad = sorted(set(d) - allowed)
         if bad:

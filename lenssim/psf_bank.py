@@ -202,7 +202,7 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device):
     coeffs = coeffs.to(dtype)
     ry, rx = rho[:, None], rho[None, :]  # rows = y, cols = x
     if azimuth_rad is None:
-        rho_r, rho_t = ry.expand_as(amp), rx.expand_as(amp)
+        rho_r, rho_t = ry.expand_as(amp)[None], rx.expand_as(amp)[None]
     else:
         azimuth_rad = azimuth_rad.to(dtype)
         c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]

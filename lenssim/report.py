@@ -51,8 +51,8 @@ def report_text(ds: xr.Dataset, trade: xr.Dataset, rows: list[dict], snr: float 
     cost = {r["design"]: r["cost_Ca"] for r in rows}
     grid_is_paper = ds.sizes["s"] == 122 and ds.sizes["Q_back"] == 113 and ds.sizes["alpha"] == 15
     e2e_val = float(e2e_paper["mse_r"].sel(snr=snr, method="nearest"))
-    spread = max(abs(opt_r[a]["s"] - opt_r[b]["s"]) for a in snrs for b in snrs)
-    qspread = max(abs(opt_r[a]["Q"] - opt_r[b]["Q"]) for a in snrs for b in snrs)
+    spread = max(abs(opt_r[a]["design"]["s"] - opt_r[b]["design"]["s"]) for a in snrs for b in snrs)
+    qspread = max(abs(opt_r[a]["design"]["Q_back"] - opt_r[b]["design"]["Q_back"]) for a in snrs for b in snrs)
     lines = [
         "# Reproduction report",
         "",

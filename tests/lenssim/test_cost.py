@@ -5,10 +5,19 @@ import pytest
 import torch
 from scipy import optimize
 
-from lenssim import PAPER_LENS, LensError, ThinLens, best_fit_sphere_curvature, slope_departure_cost, \
-    slope_departure_cost_third_order
+from lenssim import PAPER_LENS, Design, LensError, ThinLens, best_fit_sphere_curvature
+from lenssim import slope_departure_cost as _cost
+from lenssim import slope_departure_cost_third_order as _cost3
 
 D = torch.float64
+
+
+def slope_departure_cost(lens, s, Q, *n, **kw):
+    return _cost(lens, Design(s=s, Q_back=Q), *n, **kw)
+
+
+def slope_departure_cost_third_order(lens, s, Q):
+    return _cost3(lens, Design(s=s, Q_back=Q))
 
 
 def test_zero_cost_contour():
@@ -58,6 +67,19 @@ def test_cost_converges_with_the_number_of_points():
 def test_cost_errors_and_dtype():
     with pytest.raises(ValueError, match="n_points=1"):
         slope_departure_cost(PAPER_LENS, -0.5, -1.0, 1)
-    with pytest.raises(LensError, match="Q=20"):
+    with pytest.raises(LensError, match="Q_back=20"):
         slope_departure_cost(PAPER_LENS, -2.0, 20.0)
-    assert slope_departure_cost(PAPER_LENS, torch.tensor([-0.5], dtype=torch.float32), -1.0).dtype == torch.float32
+    assert slope_departure_cost(PAPER_LENS, torch.tensor([-0.5], dtype=torch.float32),
+                                torch.tensor(-1.0, dtype=torch.float32)).dtype == torch.float32
+    assert slope_departure_cost(PAPER_LENS, -0.5, -1.0).dtype == torch.float64  # Python numbers: float64
+
+
+def test_the_cost_counts_every_aspheric_surface():
+    """The cost sums over the surfaces whose conic is a design parameter (here the back one only)."""
+    d = Design(s=-0.775, Q_back=-2.4)
+    aspheres = [s for s in PAPER_LENS.surfaces(d) if s.aspheric]
+    assert [s.conic_name for s in aspheres] == ["Q_back"]
+    from lenssim.cost import surface_cost
+
+    c = torch.as_tensor(aspheres[0].curvature, dtype=D)
+    assert float(_cost(PAPER_LENS, d)) == float(surface_cost(c, torch.as_tensor(-2.4, dtype=D), 2.0))

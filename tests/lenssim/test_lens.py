@@ -3,12 +3,13 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_LENS, LensError, ThinLens
+from lenssim import PAPER_CAMERA, PAPER_LENS, PAPER_SENSOR, Camera, Design, LensError, Sensor, Spectrum, ThinLens
 
 
 def test_paper_lens_derived_quantities():
     assert PAPER_LENS.f_number == 6.25
-    assert PAPER_LENS.pixel_pitch_um == pytest.approx(1.5625)
+    assert PAPER_SENSOR.pixel_pitch_um == pytest.approx(1.5625)
+    assert PAPER_LENS.nyquist_pitch_um(0.5) == pytest.approx(PAPER_SENSOR.pixel_pitch_um)
     assert PAPER_LENS.image_distance_mm == pytest.approx(25.0)
     c1, c2 = PAPER_LENS.curvatures(-0.775)
     assert (c1 + c2) / (c1 - c2) == pytest.approx(-0.775)
@@ -17,8 +18,17 @@ def test_paper_lens_derived_quantities():
 
 
 def test_6000x4000_sensor_spans_12p7_degrees():
-    half_diag_mm = math.hypot(3000, 2000) * PAPER_LENS.pixel_pitch_um * 1e-3
-    assert float(PAPER_LENS.field_angle_deg(half_diag_mm, 0.0)) == pytest.approx(12.7, abs=0.05)
+    half_diag_mm = math.hypot(3000, 2000) * PAPER_SENSOR.pixel_pitch_um * 1e-3
+    assert float(PAPER_CAMERA.geometry.field_angle_deg(half_diag_mm, 0.0)) == pytest.approx(12.7, abs=0.05)
+    assert PAPER_CAMERA.geometry.max_field_angle_deg(PAPER_SENSOR.shape) == pytest.approx(12.7, abs=0.05)
+
+
+def test_the_sensor_pitch_does_not_move_with_the_wavelength():
+    for lam in (0.45, 0.5, 0.65):
+        assert Camera(spectrum=Spectrum.monochromatic(lam)).pixel_pitch_um == 1.5625
+    with pytest.raises(ValueError, match="pixel_pitch_um=1.5625 is not allowed.*aliases"):
+        Camera(spectrum=Spectrum.monochromatic(0.45)).pupil_radius_px(256, 0.45)
+    assert Camera(sensor=Sensor(pixel_pitch_um=1.0)).pupil_radius_px(256, 0.5) == pytest.approx(256 * 1.0 / 6.25)
 
 
 @pytest.mark.parametrize(
@@ -30,7 +40,6 @@ def test_6000x4000_sensor_spans_12p7_degrees():
         ({"focal_length_mm": -25.0}, "focal_length_mm"),
         ({"pupil_radius_mm": 0.0}, "pupil_radius_mm"),
         ({"pupil_radius_mm": 30.0}, "pupil_radius_mm"),
-        ({"wavelength_um": 0.0}, "wavelength_um"),
         ({"position_factor": 1.0}, "position_factor"),
         ({"focal_length_mm": float("nan")}, "focal_length_mm"),
         ({"field_angles_deg": (0.0, 90.0)}, "field angle"),
@@ -41,16 +50,32 @@ def test_6000x4000_sensor_spans_12p7_degrees():
 )
 def test_unphysical_lens_is_refused_with_its_name(kw, name):
     with pytest.raises(LensError, match=name):
-        ThinLens(**kw)
+        ThinLens.from_dict(kw)
+
+
+@pytest.mark.parametrize("kw, name", [({"pixel_pitch_um": 0.0}, "pixel_pitch_um"), ({"width_px": 0}, "width_px"),
+                                      ({"read_noise_e": -1.0}, "read_noise_e"), ({"bit_depth": 0}, "bit_depth"),
+                                      ({"full_well_e": ((100, -5.0),)}, "full_well_e")])
+def test_unphysical_sensor_is_refused_with_its_name(kw, name):
+    with pytest.raises(ValueError, match=name):
+        Sensor(**kw)
+
+
+def test_spectrum_normalises_weights_and_refuses_nonsense():
+    sp = Spectrum((0.45, 0.55, 0.65), (1.0, 2.0, 1.0))
+    assert sp.weights == (0.25, 0.5, 0.25) and sp.reference_um == pytest.approx(0.55)
+    for bad in (((0.5,), (1.0, 1.0)), ((-0.5,), (1.0,)), ((0.5,), (0.0,)), ((), ())):
+        with pytest.raises(ValueError):
+            Spectrum(*bad)
 
 
 def test_undefined_conic_is_refused():
     # s = -2: c2 = -0.12 /mm, y = 2 mm -> (1 + Q) c2^2 y^2 < 1 needs Q < 16.36
-    PAPER_LENS.check_design(-2.0, 16.0)
-    with pytest.raises(LensError, match=r"Q=17\.0 .*undefined.*Q must be < 16\.36"):
-        PAPER_LENS.check_design(-2.0, 17.0)
+    PAPER_LENS.check_design(Design(s=-2.0, Q_back=16.0))
+    with pytest.raises(LensError, match=r"Q_back=17\.0 .*undefined.*Q_back must be < 16\.36"):
+        PAPER_LENS.check_design(Design(s=-2.0, Q=17.0))
     with pytest.raises(LensError, match="s=nan"):
-        PAPER_LENS.check_design(float("nan"), 0.0)
-    with pytest.raises(LensError, match="front sphere"):
-        PAPER_LENS.check_design(40.0, -10.0)
-    PAPER_LENS.check_design(torch.linspace(-2, 1, 7), torch.tensor(-10.0))
+        PAPER_LENS.check_design(Design(s=float("nan"), Q_back=0.0))
+    with pytest.raises(LensError, match="surface 1 .spherical. is smaller than"):
+        PAPER_LENS.check_design(Design(s=40.0, Q_back=-10.0))
+    PAPER_LENS.check_design(Design(s=torch.linspace(-2, 1, 7), Q_back=torch.tensor(-10.0)))

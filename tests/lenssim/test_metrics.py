@@ -1,23 +1,34 @@
 import pytest
 import torch
 
-from lenssim import PAPER_LENS, LensError, evaluate, fft_size, image_psd, mse_bank, noise_variance, otf, \
-    wavefront_coefficients
+from lenssim import (CRITERIA, PAPER_CAMERA, Camera, Design, LensError, Numerics, Spectrum, evaluate, fft_size, image_psd,
+                     noise_variance, otf, otf_criteria_bank, spectral_coefficients)
 
 D = torch.float64
 SNR = (21.6, 27.6, 33.6)
+CAM = PAPER_CAMERA
 
 
 def coeffs_for(s, Q, alphas):
-    return wavefront_coefficients(PAPER_LENS, torch.tensor(s, dtype=D), torch.tensor(Q, dtype=D), alphas)
+    """(A, K, T) coefficients of the paper camera."""
+    return spectral_coefficients(CAM, Design(s=s, Q_back=Q), alphas)
+
+
+def mse_bank(c, sizes, snr, oversample=2):
+    out = otf_criteria_bank(CAM, c, sizes, snr, numerics=Numerics(oversample=oversample))
+    return out["mse_s"], out["mse_r"]
+
+
+def design(s, Q):
+    return Design(s=s, Q_back=Q)
 
 
 def test_mse_matches_an_explicit_wiener_filter_on_the_full_grid():
     """Independent route: build the Wiener filter, apply E|H_W Y - X|^2 term by term on the full grid."""
     c = coeffs_for(-0.775, -2.4, [3.0, 11.0])
     n = 384
-    ms, mr = mse_bank(PAPER_LENS, c, torch.full((2,), n), SNR, oversample=1)
-    H = otf(PAPER_LENS, c, n)
+    ms, mr = mse_bank(c, torch.full((2,), n), SNR, oversample=1)
+    H = otf(CAM, c, n)
     P = image_psd(n, dtype=D)
     for j, s2 in enumerate(noise_variance(SNR)):
         Hw = P * H.conj() / (H.abs() ** 2 * P + s2)
@@ -31,8 +42,8 @@ def test_mse_matches_monte_carlo_images():
     """Random images with correlation rho0^|r|, blurred, noised and Wiener-filtered on the grid."""
     n, reps = 128, 400
     c = coeffs_for(-0.775, -2.4, [8.0])
-    ms, mr = mse_bank(PAPER_LENS, c, torch.tensor([n]), [27.6], oversample=1)
-    H = otf(PAPER_LENS, c, n)[0]
+    ms, mr = mse_bank(c, torch.tensor([n]), [27.6], oversample=1)
+    H = otf(CAM, c, n)[0]
     P = image_psd(n, dtype=D)
     s2 = float(noise_variance(27.6))
     g = torch.Generator().manual_seed(0)
@@ -50,7 +61,7 @@ def test_restoration_never_worse_and_noise_monotone():
     g = torch.Generator().manual_seed(3)
     s = torch.rand(12, generator=g, dtype=D) * 3 - 2
     Q = torch.rand(12, generator=g, dtype=D) * 11.2 - 10
-    r = evaluate(PAPER_LENS, s, Q, SNR, fft_size=256)
+    r = evaluate(CAM, design(s, Q), SNR, fft_size=256)
     assert torch.all(r["mse_r"] <= r["mse_s"])
     assert torch.all(r["mse_r_alpha"] <= r["mse_s_alpha"])
     assert torch.all(r["mse_r"][:, 1:] < r["mse_r"][:, :-1])  # better with more signal
@@ -60,10 +71,10 @@ def test_restoration_never_worse_and_noise_monotone():
 
 def test_perfect_lens_limits():
     """No aberration, no noise: MSE_R is the image power beyond the cutoff |f| = 0.5 cycles/pixel."""
-    c = torch.zeros(1, 4, dtype=D)
+    c = torch.zeros(1, 1, 4, dtype=D)
     # native grid: H is zero to rounding beyond the cutoff (an oversampled grid interpolates the
     # truncated PSF and leaks |H|^2 ~ 1e-8 there, which matters only at absurd SNRs like this one)
-    ms, mr = mse_bank(PAPER_LENS, c, torch.tensor([512]), [200.0], oversample=1)
+    ms, mr = mse_bank(c, torch.tensor([512]), [200.0], oversample=1)
     m = 512
     P = image_psd(m, dtype=D)
     k = torch.fft.fftfreq(m, dtype=D)
@@ -90,9 +101,9 @@ CONVERGENCE_CASES = [
 def test_metrics_converge_in_fft_size(design, alphas):
     """Each field-averaged metric at the chosen size is within 0.2% of its value at 4x the size."""
     c = coeffs_for(*design, alphas).float()
-    n = fft_size(PAPER_LENS, c.double(), fill=0.5, min_size=256)
-    a_s, a_r = mse_bank(PAPER_LENS, c, n, SNR)
-    b_s, b_r = mse_bank(PAPER_LENS, c, 4 * n, SNR)
+    n = fft_size(CAM, c.double(), Numerics(fill=0.5, min_size=256))
+    a_s, a_r = mse_bank(c, n, SNR)
+    b_s, b_r = mse_bank(c, 4 * n, SNR)
     assert _relerr(a_s.mean(0), b_s.mean(0)) < 2e-3
     assert _relerr(a_r.mean(0), b_r.mean(0)) < 2e-3
     assert _relerr(a_s, b_s) < 5e-3 and _relerr(a_r, b_r) < 1e-2  # per angle
@@ -105,13 +116,30 @@ def test_metrics_converge_in_fft_size_full_field_corners(design):
 
 
 def test_evaluate_outputs_and_override():
-    r = evaluate(PAPER_LENS, torch.tensor([-0.775, -0.725]), torch.tensor([-2.4, -10.0]), SNR)
+    r = evaluate(CAM, design(torch.tensor([-0.775, -0.725]), torch.tensor([-2.4, -10.0])), SNR)
     assert r["rms_w"].shape == (2,) and r["mse_s"].shape == (2, 3) and r["mse_r_alpha"].shape == (2, 15, 3)
     assert r["fft_size"].shape == (2, 15) and r["cost"].shape == (2,)
     assert float(r["rms_w"][1]) < float(r["rms_w"][0])
-    r2 = evaluate(PAPER_LENS, -0.775, -2.4, [27.6], fft_size=256)
+    r2 = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256)
     assert torch.all(r2["fft_size"] == 256)
+    assert set(CRITERIA) <= set(r2)
     with pytest.raises(ValueError, match="fft_size=255"):
-        evaluate(PAPER_LENS, -0.775, -2.4, fft_size=255)
-    with pytest.raises(LensError, match="Q=30"):
-        evaluate(PAPER_LENS, -2.0, 30.0)
+        evaluate(CAM, design(-0.775, -2.4), fft_size=255)
+    with pytest.raises(LensError, match="Q_back=30"):
+        evaluate(CAM, design(-2.0, 30.0))
+
+
+def test_a_spectrum_of_one_repeated_wavelength_changes_nothing():
+    """The spectral machinery (weights, per-wavelength OTFs) with one wavelength twice equals one wavelength."""
+    two = Camera(spectrum=Spectrum((0.5, 0.5), (0.5, 0.5)))
+    a = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D)
+    b = evaluate(two, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D)
+    for k in ("rms_w", "mse_s", "mse_r", "cost"):
+        torch.testing.assert_close(b[k], a[k], rtol=1e-12, atol=0)
+
+
+def test_criteria_registry_names_every_result():
+    r = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256)
+    for name, c in CRITERIA.items():
+        assert r[name].shape == ((1,) if c.per_snr else ())
+        assert c.units and c.label and (c.from_otf is None) != (c.from_design is None)

@@ -4,9 +4,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenssim import PAPER_LENS, ThinLens, evaluate
-from lenssim.cli import find_optimum, main
+from lenssim import PAPER_SENSOR, Camera, Design, Lens, Numerics, evaluate
 from lenssim.sweep import SweepConfig, grid_values, load_config, run_sweep
+from lenssim.tradeoff import find_optimum
+from lenssim_cli.main import main
 
 TINY = """
 [lens]
@@ -31,17 +32,20 @@ def test_grid_values_match_the_paper_counts():
     assert len(grid_values(-2.0, 1.025, 0.025)) == 122
     assert len(grid_values(-10.0, 1.2, 0.1)) == 113
     cfg = load_config(Path(__file__).resolve().parents[2] / "configs" / "paper_grid.toml")
-    assert len(cfg.s_values) * len(cfg.Q_values) * len(cfg.lens.field_angles_deg) == 206_790
+    assert cfg.dims == ("s", "Q_back")
+    assert len(cfg.values("s")) * len(cfg.values("Q")) * len(cfg.lens.field_angles_deg) == 206_790
 
 
 def test_sweep_values_equal_direct_evaluation(tiny_cfg, tmp_path):
     ds = run_sweep(tiny_cfg, tmp_path / "a.nc", show_progress=False)
-    assert dict(ds.sizes) == {"s": 3, "Q": 3, "alpha": 3, "snr": 2}
-    r = evaluate(tiny_cfg.lens, -0.75, -2.0, (21.6, 27.6), min_size=128)
-    np.testing.assert_allclose(ds["mse_r"].sel(s=-0.75, Q=-2.0).values, r["mse_r"].numpy(), rtol=1e-6)
-    np.testing.assert_allclose(float(ds["cost"].sel(s=-0.75, Q=0.0)), 0.0, atol=1e-15)
+    assert dict(ds.sizes) == {"s": 3, "Q_back": 3, "alpha": 3, "snr": 2}
+    r = evaluate(tiny_cfg.camera, Design(s=-0.75, Q_back=-2.0), (21.6, 27.6), numerics=Numerics(min_size=128))
+    np.testing.assert_allclose(ds["mse_r"].sel(s=-0.75, Q_back=-2.0).values, r["mse_r"].numpy(), rtol=1e-6)
+    np.testing.assert_allclose(float(ds["cost"].sel(s=-0.75, Q_back=0.0)), 0.0, atol=1e-15)
     assert ds["mse_s"].attrs["units"].startswith("1")
-    assert json.loads(ds.attrs["config"])["min_size"] == 128
+    assert json.loads(ds.attrs["config"])["numerics"]["min_size"] == 128
+    assert ds.attrs["design_parameters"] == "s Q_back"
+    assert SweepConfig.from_dict(json.loads(ds.attrs["config"])).digest() == tiny_cfg.digest()
     assert not (tmp_path / "a.nc.partial").exists()
 
 
@@ -67,7 +71,8 @@ def test_sweep_never_overwrites_foreign_files(tiny_cfg, tmp_path):
     with pytest.raises(FileExistsError, match="photo.nc"):
         run_sweep(tiny_cfg, foreign, show_progress=False)
     assert foreign.read_bytes() == b"not a sweep"
-    other = SweepConfig(lens=ThinLens(field_angles_deg=(0.0,)), s=(-1.0, -1.0, 0.1), Q=(0.0, 0.0, 0.1), min_size=64)
+    other = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0,))), grid={"s": (-1.0, -1.0, 0.1), "Q": (0.0, 0.0, 0.1)},
+                        numerics=Numerics(min_size=64))
     run_sweep(other, tmp_path / "x.nc", show_progress=False, max_chunks=0)
     with pytest.raises(FileExistsError, match="different config"):
         run_sweep(tiny_cfg, tmp_path / "x.nc", show_progress=False)
@@ -78,11 +83,13 @@ def test_sweep_never_overwrites_foreign_files(tiny_cfg, tmp_path):
     [
         ("[grid]\ns = [1, 0, 0.1]\n", "stop=0.0 is below start=1.0"),
         ("[grid]\ns = [0, 1]\n", r"\[start, stop, step\]"),
-        ("[grid]\nq = [0, 1, 0.1]\n", "unknown key"),
+        ("[grid]\nq = [0, 1, 0.1]\n", "design parameter 'q' is not known; valid: s, Q_back"),
         ("[lens]\nrefractive_index = 0.9\n", "refractive_index=0.9"),
         ("[lens]\ncolour = 1\n", "colour"),
         ("[numerics]\nfil = 0.5\n", "unknown key"),
-        ("[grid]\ns = [-2, -2, 0.1]\nQ = [20, 20, 1]\n", "Q=20"),
+        ("[grid]\ns = [-2, -2, 0.1]\nQ = [20, 20, 1]\n", "Q_back=20"),
+        ("[sensor]\npixel_pitch_um = -1\n", "pixel_pitch_um=-1"),
+        ("[spectrum]\nwavelengths_um = [0.5]\nweights = [1, 2]\n", "1 wavelengths and 2 weights"),
         ("[oops]\n", "unknown section"),
         ("[grid\n", "not valid TOML"),
     ],
@@ -111,13 +118,17 @@ def test_optimum_and_cli(tiny_cfg, tmp_path, capsys):
 def test_cli_evaluate_json_and_errors(capsys):
     assert main(["evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
-    assert r["s"] == -0.775 and r["Q"] == -2.4 and len(r["mse_r"]) == 1
+    assert r["s"] == -0.775 and r["Q_back"] == -2.4 and len(r["mse_r"]) == 1
+    assert r["parameters"] == {"s": -0.775, "Q_back": -2.4} and r["units"]["rms_w"] == "waves"
     assert r["mse_r"][0] < r["mse_s"][0] and len(r["fft_size_per_angle"]) == 15
     assert main(["evaluate", "--s", "-0.5", "--Q", "-1", "--snr", "27.6"]) == 0
     assert "MSE_R@27.6dB" in capsys.readouterr().out
     assert main(["evaluate", "--design", "nope"]) == 2
     assert "nope" in capsys.readouterr().err
     assert main(["evaluate", "--s", "-2", "--Q", "30"]) == 2
-    assert "Q=30" in capsys.readouterr().err
-    assert main(["evaluate", "--s", "-2"]) == 2
-    assert PAPER_LENS.pixel_pitch_um == 1.5625
+    assert "Q_back=30" in capsys.readouterr().err
+    assert main(["evaluate"]) == 2
+    assert "--design NAME" in capsys.readouterr().err
+    assert main(["evaluate", "--s", "-2", "--snr", "27.6", "--json"]) == 0  # Q_back takes its default 0
+    assert json.loads(capsys.readouterr().out)["Q_back"] == 0.0
+    assert PAPER_SENSOR.pixel_pitch_um == 1.5625

@@ -1,17 +1,20 @@
 import json
-from dataclasses import asdict
 
 import numpy as np
 import pytest
 import torch
 import xarray as xr
 
-from lenssim import PAPER_LENS, slope_departure_cost
+from lenssim import PAPER_LENS, Camera, Design, Lens, Numerics
+from lenssim import slope_departure_cost as _cost
 from lenssim.figures import all_figures, table1
 from lenssim.report import reproduce
 from lenssim.sweep import SweepConfig
 from lenssim.tradeoff import iso_cost_curve, min_cost_for_quality, tradeoff
-from lenssim.lens import ThinLens
+
+
+def slope_departure_cost(lens, s, Q):
+    return _cost(lens, Design(s=s, Q_back=Q))
 
 
 def synthetic_sweep(metric):
@@ -23,9 +26,11 @@ def synthetic_sweep(metric):
     snr = np.array([21.6, 27.6, 33.6])
     cost = slope_departure_cost(PAPER_LENS, torch.from_numpy(S), torch.from_numpy(QQ)).numpy()
     three = np.repeat(m[..., None], 3, axis=-1)
-    ds = xr.Dataset({"rms_w": (("s", "Q"), m), "mse_s": (("s", "Q", "snr"), three), "mse_r": (("s", "Q", "snr"), three),
-                     "cost": (("s", "Q"), cost)}, coords={"s": s, "Q": Q, "snr": snr, "alpha": np.arange(15.0)})
-    ds.attrs["config"] = json.dumps({"lens": asdict(PAPER_LENS), "cost_points": 101})
+    dims = ("s", "Q_back")
+    ds = xr.Dataset({"rms_w": (dims, m), "mse_s": (dims + ("snr",), three), "mse_r": (dims + ("snr",), three),
+                     "cost": (dims, cost)}, coords={"s": s, "Q_back": Q, "snr": snr, "alpha": np.arange(15.0)})
+    ds.attrs["config"] = json.dumps(SweepConfig().to_dict())
+    ds.attrs["design_parameters"] = "s Q_back"
     return ds
 
 
@@ -61,7 +66,7 @@ def test_tradeoff_prefers_lower_quality_values_along_the_curve():
     t = tradeoff(ds, levels=np.array([2e-4, 1e-3]))
     for lvl in (2e-4, 1e-3):
         cs, cq, _ = iso_cost_curve(PAPER_LENS, lvl, np.arange(-1.0, 1.0 + 1e-9, 0.002))
-        assert float(t.sel(criterion="rms_w", level=lvl)["Q"]) == pytest.approx(cq.min(), abs=1e-6)
+        assert float(t.sel(criterion="rms_w", level=lvl)["Q_back"]) == pytest.approx(cq.min(), abs=1e-6)
 
 
 def test_figures_and_table_render_headless(tmp_path):
@@ -80,11 +85,11 @@ def test_figures_and_table_render_headless(tmp_path):
 
 
 def test_reproduce_reuses_its_outputs(tmp_path):
-    cfg = SweepConfig(lens=ThinLens(field_angles_deg=(0.0, 7.0, 14.0)), s=(-1.0, -0.5, 0.25), Q=(-4.0, 0.0, 1.0),
-                      min_size=128, oversample=1)
+    cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 7.0, 14.0))),
+                      grid={"s": (-1.0, -0.5, 0.25), "Q": (-4.0, 0.0, 1.0)}, numerics=Numerics(min_size=128, oversample=1))
     report = reproduce(tmp_path, cfg, show_progress=False)
     text = report.read_text()
-    assert "| RMS_W optimum | s = -0.725, Q = -10 |" in text and "NOT the paper grid" in text
+    assert "| RMS_W optimum | s = -0.725, Q_back = -10 |" in text and "NOT the paper grid" in text
     stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}
     reproduce(tmp_path, cfg, show_progress=False)
     assert stamps == {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}

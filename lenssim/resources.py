@@ -1,0 +1,43 @@
+"""The built-in configs and named designs, found through ``importlib.resources`` in any install.
+
+In the repository they live in ``configs/`` (the place to read and copy them from); an install
+carries them as the package data ``lenssim.configs``. A config is named by a path, or by the
+name of a built-in one (``paper_grid``, ``paper_grid_fast``, ``small_grid``, ...).
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+__all__ = ["builtin_configs", "config_path", "designs_file"]
+
+_PACKAGE = "lenssim.configs"
+
+
+def _root() -> Path:
+    try:
+        return Path(str(resources.files(_PACKAGE)))
+    except ModuleNotFoundError:  # a source checkout used without installing: configs/ beside the package
+        return Path(__file__).resolve().parent.parent / "configs"
+
+
+def builtin_configs() -> list[str]:
+    """Names of the built-in sweep configs."""
+    return sorted(p.stem for p in _root().glob("*.toml") if p.stem != "designs")
+
+
+def config_path(spec: str | Path) -> Path:
+    """The sweep config ``spec``: an existing file, else a built-in config of that name (``.toml`` optional)."""
+    p = Path(spec)
+    if p.is_file():
+        return p
+    name = p.name[:-5] if p.name.endswith(".toml") else p.name
+    if p.parent == Path(".") and name in builtin_configs():
+        return _root() / f"{name}.toml"
+    raise FileNotFoundError(f"sweep config {str(spec)!r} does not exist; built-in configs: {', '.join(builtin_configs())}")
+
+
+def designs_file() -> Path:
+    """The built-in named designs file (``configs/designs.toml``)."""
+    return _root() / "designs.toml"

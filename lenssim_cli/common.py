@@ -1,0 +1,52 @@
+"""Helpers shared by the command modules: design arguments, named designs, tables, devices."""
+
+from __future__ import annotations
+
+import argparse
+
+from lenssim import PARAMETERS, Design, load_designs
+from lenssim.torch_utils import DEVICE_CHOICES
+
+__all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument"]
+
+
+def add_design_arguments(p: argparse.ArgumentParser, *, named: bool = True) -> None:
+    """``--design NAME`` / ``--designs FILE`` and one ``--NAME VALUE`` per design parameter (and alias)."""
+    if named:
+        p.add_argument("--design", help="a named design (see `lenssim designs`)")
+        p.add_argument("--designs", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
+    for prm in PARAMETERS.values():
+        flags = [f"--{prm.name}"] + [f"--{a}" for a in prm.aliases]
+        p.add_argument(*flags, dest=f"param_{prm.name}", type=float, metavar="VALUE",
+                       help=f"{prm.description} [{prm.unit}] (default {prm.default:g}"
+                            + (f"; alias {', '.join('--' + a for a in prm.aliases)}" if prm.aliases else "") + ")")
+
+
+def designs(path: str | None = None) -> dict[str, Design]:
+    return load_designs(path) if path else load_designs()
+
+
+def design_from_args(args, *, name: str = "custom") -> Design:
+    """The design of ``--design NAME`` (parameters given beside it override the named values) or of
+    the parameter flags (parameters not given take their defaults)."""
+    given = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
+    if getattr(args, "design", None) is not None:
+        table_ = designs(getattr(args, "designs", None))
+        if args.design not in table_:
+            raise ValueError(f"design {args.design!r} is not known; choose from {', '.join(sorted(table_))}")
+        d = table_[args.design]
+        return d.replace(**given) if given else d
+    if not given:
+        flags = ", ".join(f"--{n}" for n in PARAMETERS)
+        raise ValueError(f"give a named design (--design NAME) or design parameters ({flags})")
+    return Design(given, name=name)
+
+
+def table(rows: list[list[str]], header: list[str]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    line = lambda r: "  ".join(str(x).rjust(w) for x, w in zip(r, widths))  # noqa: E731
+    return "\n".join([line(header), line(["-" * w for w in widths])] + [line(r) for r in rows])
+
+
+def add_device_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--device", default="auto", help=DEVICE_CHOICES)

@@ -1,0 +1,197 @@
+"""Optics commands: evaluate designs, run sweeps, find optima, reproduce the paper, list designs."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from lenssim import CRITERIA, PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB, PARAMETERS, Design, evaluate, select_device
+from lenssim.resources import builtin_configs, config_path
+
+from .common import add_design_arguments, add_device_argument, design_from_args, designs, table
+
+DEMO_DESIGNS = tuple(PAPER_DESIGNS)
+DEMO_CONFIG = "small_grid"
+REPRODUCE_CONFIG = "paper_grid_fast"
+
+
+def evaluate_design(design: Design, snr, device: str = "auto") -> dict:
+    """Every registered criterion of one design, as JSON-ready values keyed by criterion name."""
+    res = evaluate(PAPER_CAMERA, design, snr, device=select_device(device))
+    params = design.complete().floats()
+    out = {"parameters": params, **params}
+    for name, c in CRITERIA.items():
+        v = res[name]
+        out[name] = [float(x) for x in v] if c.per_snr else float(v)
+    out["units"] = {name: c.units for name, c in CRITERIA.items()}
+    out["rms_w_waves"], out["cost_Ca"] = out["rms_w"], out["cost"]  # names of lenssim 0.1
+    out["rms_w_piston_removed_waves"] = float(res["rms_w_piston_removed"])
+    out["snr_db"] = [float(v) for v in res["snr_db"]]
+    out["fft_size_per_angle"] = [int(v) for v in res["fft_size"]]
+    out["alpha_deg"] = [float(v) for v in res["alpha_deg"]]
+    return out
+
+
+def design_table(results: list[tuple[str, dict]]) -> str:
+    snrs = results[0][1]["snr_db"]
+    names = list(results[0][1]["parameters"])
+    header = ["design"] + names
+    for name, c in CRITERIA.items():
+        header += [f"{c.label}@{v:g}dB" for v in snrs] if c.per_snr else [f"{c.label} [{c.units.split()[0]}]"]
+    rows = []
+    for label, r in results:
+        row = [label] + [f"{r['parameters'][n]:g}" for n in names]
+        for name, c in CRITERIA.items():
+            row += [f"{v:.5f}" for v in r[name]] if c.per_snr else [f"{r[name]:.4g}"]
+        rows.append(row)
+    return table(rows, header)
+
+
+def cmd_evaluate(args) -> int:
+    design = design_from_args(args)
+    t0 = time.perf_counter()
+    r = evaluate_design(design, args.snr, args.device)
+    if args.json:
+        print(json.dumps({"design": design.name or "custom", **r}, indent=2))
+    else:
+        print(design_table([(design.name or "custom", r)]))
+        print(f"\nFFT sizes per field angle {r['alpha_deg'][0]:g}..{r['alpha_deg'][-1]:g} deg: "
+              f"{r['fft_size_per_angle']}  ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from lenssim.sweep import load_config, run_sweep
+
+    cfg = load_config(config_path(args.config))
+    t0 = time.perf_counter()
+    run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks)
+    sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
+    print(f"wrote {args.out} ({sizes} x {len(cfg.lens.field_angles_deg)} angles) in {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr)
+    return 0
+
+
+def cmd_optimum(args) -> int:
+    import xarray as xr
+
+    from lenssim.tradeoff import find_optimum
+
+    path = Path(args.file)
+    if not path.exists():
+        raise FileNotFoundError(f"sweep file {str(path)!r} does not exist")
+    with xr.open_dataset(path) as ds:
+        r = find_optimum(ds.load(), args.criterion, args.snr)
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        snr_txt = f" at {r['snr_db']:g} dB" if r["snr_db"] is not None else ""
+        where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
+        print(f"best {r['criterion']}{snr_txt}: {where}  (value {r['value']:.6g})"
+              + ("  [on the grid boundary]" if r["on_grid_boundary"] else ""))
+        print(f"  RMS_W = {r['rms_w_waves']:.4f} waves, C_a = {r['cost_Ca']:.4e}")
+        for k in ("mse_s", "mse_r"):
+            print(f"  {k.upper()}: " + ", ".join(f"{v:.5f} @ {snr} dB" for snr, v in r[k].items()))
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from lenssim.sweep import load_config, run_sweep
+    from lenssim.tradeoff import find_optimum
+
+    named = designs()
+    results = [(n, evaluate_design(named[n], PAPER_SNR_DB, args.device)) for n in DEMO_DESIGNS]
+    lens = PAPER_CAMERA.lens
+    print(f"The paper's two highlighted designs (f = {lens.focal_length_mm:g} mm, f/{lens.f_number:g}, "
+          f"n = {lens.refractive_index:g}, {PAPER_CAMERA.spectrum.name}, field "
+          f"{lens.field_angles_deg[0]:g}-{lens.field_angles_deg[-1]:g} deg):\n")
+    print(design_table(results))
+    cfg = load_config(config_path(DEMO_CONFIG))
+    out = Path(args.out)
+    sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
+    print(f"\nSmall sweep {DEMO_CONFIG}: {sizes} x {len(cfg.lens.field_angles_deg)} angles -> {out}", file=sys.stderr)
+    ds = run_sweep(cfg, out, device=args.device, show_progress=not args.quiet)
+    ref = f"{PAPER_SNR_DB[1]:g}"
+    rows = []
+    for crit, c in CRITERIA.items():
+        for snr in (ds["snr"].values if c.per_snr else [None]):
+            r = find_optimum(ds, crit, snr)
+            rows.append([crit + (f"@{snr:g}dB" if snr is not None else "")]
+                        + [f"{r['design'][d]:g}" for d in cfg.dims]
+                        + [f"{r['value']:.5g}", f"{r['rms_w_waves']:.3f}", f"{r['cost_Ca']:.3e}",
+                           f"{r['mse_r'][ref]:.5f}" if ref in r["mse_r"] else "-"])
+    print("\nGrid optima of the small sweep (coarse grid; the paper's grid is the built-in config paper_grid):\n")
+    print(table(rows, ["criterion", *cfg.dims, "value", "RMS_W", "C_a", f"MSE_R@{ref}dB"]))
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from lenssim.report import reproduce
+    from lenssim.sweep import load_config
+
+    cfg = load_config(config_path(args.config or REPRODUCE_CONFIG))
+    t0 = time.perf_counter()
+    report = reproduce(args.out, cfg, device=args.device, show_progress=not args.quiet)
+    print(report.read_text())
+    print(f"wrote {args.out}/ (report.md, fig3..6 .png/.svg, table1.csv/.md) in {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr)
+    return 0
+
+
+def cmd_designs(args) -> int:
+    if args.parameters:
+        for p in PARAMETERS.values():
+            alias = f" (alias {', '.join(p.aliases)})" if p.aliases else ""
+            print(f"{p.name:10s} {p.description} [{p.unit}], default {p.default:g}{alias}")
+        return 0
+    for name, d in designs(args.designs).items():
+        print(f"{name:20s} {d.label():32s} {d.description}")
+    return 0
+
+
+def register(sub) -> None:
+    from lenssim import REFERENCE_SNR_DB
+
+    configs = ", ".join(builtin_configs())
+    e = sub.add_parser("evaluate", help="criteria of one design")
+    add_design_arguments(e)
+    e.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
+                   help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)})")
+    add_device_argument(e)
+    e.add_argument("--json", action="store_true", help="JSON output for scripts")
+    e.set_defaults(func=cmd_evaluate)
+
+    s = sub.add_parser("sweep", help="run or resume a design sweep")
+    s.add_argument("config", help=f"sweep config (TOML file, or a built-in one: {configs})")
+    s.add_argument("--out", required=True, help="output NetCDF file")
+    add_device_argument(s)
+    s.add_argument("--keep-chunks", action="store_true", help="keep OUT.partial/ after finishing")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(func=cmd_sweep)
+
+    o = sub.add_parser("optimum", help="best grid design of a sweep")
+    o.add_argument("file", help="sweep NetCDF file")
+    o.add_argument("--criterion", required=True, help=", ".join(CRITERIA))
+    o.add_argument("--snr", type=float, help=f"SNR in dB for SNR-dependent criteria (default {REFERENCE_SNR_DB:g})")
+    o.add_argument("--json", action="store_true")
+    o.set_defaults(func=cmd_optimum)
+
+    d = sub.add_parser("demo", help="the paper's designs and a small sweep")
+    d.add_argument("--out", default="lenssim-demo-sweep.nc", help="where the small sweep is written (reused if present)")
+    add_device_argument(d)
+    d.add_argument("--quiet", action="store_true")
+    d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser("reproduce", help="the paper's figures 3-6, Table 1 and a claims report")
+    r.add_argument("--out", required=True, help="output folder (a second run reuses what is there)")
+    r.add_argument("--config", help=f"sweep config (default: {REPRODUCE_CONFIG}, ~10 min on 2 cores; built-in: {configs})")
+    add_device_argument(r)
+    r.add_argument("--quiet", action="store_true")
+    r.set_defaults(func=cmd_reproduce)
+
+    g = sub.add_parser("designs", help="list named designs (or the design parameters)")
+    g.add_argument("--designs", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
+    g.add_argument("--parameters", action="store_true", help="list the design parameters instead")
+    g.set_defaults(func=cmd_designs)
