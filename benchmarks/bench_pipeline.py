@@ -26,16 +26,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenssim import PAPER_LENS
-from pipeline import add_poisson_noise
-from pipeline.blur import PAPER_SCHEME, _psfs_at_pixels, blur_windowed, tent_weights, window_centres, window_count
-from pipeline.cli import load_photo
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF, select_device
+from pipeline import add_poisson_noise, load_photo
+from pipeline.blur import PAPER_SCHEME, blur_windowed, tent_weights, window_centres, window_count
 from pipeline.quality import psnr_srgb
 from pipeline.restoration import wiener_windowed
 from pipeline.simulate import crop_at_field_angle
 
-S, Q = -0.775, -2.4  # the paper's end-to-end design
-FULL_WELL = 3200.0  # ISO 100
+DESIGN = PAPER_DESIGNS["end_to_end_paper"]
+PSF = LensPSF(PAPER_CAMERA, DESIGN)
+FULL_WELL = PAPER_CAMERA.sensor.full_well_for_iso(100)
 
 
 class PeakRSS:
@@ -100,8 +100,7 @@ def baseline_blur(img: torch.Tensor, region, center) -> tuple[np.ndarray, int]:
     n = 0
     for y in cy:
         for xx in cx:
-            psf = _psfs_at_pixels(PAPER_LENS, S, Q, torch.tensor([y]), torch.tensor([xx]), center, win,
-                                  dtype=torch.float32)[0].numpy()
+            psf = PSF.psf_at_pixels(torch.tensor([y]), torch.tensor([xx]), center, win, dtype=torch.float32)[0].numpy()
             psf = psf[1:, 1:]  # odd size: 'same' mode centres a 511-px kernel on its index 255 = our PSF centre
             patch = xp[:, y + pad - half:y + pad + half, xx + pad - half:xx + pad + half]
             cy0, cx0 = y + core - core // 2, xx + core - core // 2
@@ -124,10 +123,10 @@ def side_by_side(ideal: torch.Tensor, region: int, angle: float) -> None:
     sub = ideal[..., R0:R1, C0:C1].float()
     center = ((H - 1) / 2 - R0, (W - 1) / 2 - C0)
     reg = (box[0] - R0, box[1] - R0, box[2] - C0, box[3] - C0)
-    blur_windowed(sub, PAPER_LENS, S, Q, optical_center=center, region=(reg[0], reg[0] + 1, reg[2], reg[2] + 1))
+    blur_windowed(sub, PSF, optical_center=center, region=(reg[0], reg[0] + 1, reg[2], reg[2] + 1))
     count = [0]
     t0 = time.perf_counter()
-    ours = blur_windowed(sub, PAPER_LENS, S, Q, optical_center=center, region=reg,
+    ours = blur_windowed(sub, PSF, optical_center=center, region=reg,
                          progress=lambda k: count.__setitem__(0, count[0] + k))
     t_ours = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -143,19 +142,19 @@ def side_by_side(ideal: torch.Tensor, region: int, angle: float) -> None:
 
 def full_frame(photo, device: torch.device) -> None:
     rows: list = []
-    print(f"full frame, paper scheme 512/32/64, s = {S}, Q = {Q}, ISO 100, device {device}:")
+    print(f"full frame, paper scheme 512/32/64, {DESIGN.label()}, ISO 100, device {device}:")
     with PeakRSS() as total:
         t_start = time.perf_counter()
         ideal, source = stage("read + linearise", rows, lambda: load_photo(photo))
         ideal = ideal.to(device)
         H, W = ideal.shape[-2:]
         n = window_count(ideal.shape)
-        blurred = stage(f"blur ({n} windows)", rows, lambda: blur_windowed(ideal, PAPER_LENS, S, Q))
+        blurred = stage(f"blur ({n} windows)", rows, lambda: blur_windowed(ideal, PSF))
         e = FULL_WELL / float(blurred.amax())
         noisy = stage("Poisson noise", rows, lambda b=blurred: add_poisson_noise(b.clamp_min(0), FULL_WELL, seed=0))
         del blurred
         restored = stage(f"adaptive Wiener ({n} windows)", rows,
-                         lambda: wiener_windowed(noisy, PAPER_LENS, S, Q, electrons_per_unit=e))
+                         lambda: wiener_windowed(noisy, PSF, electrons_per_unit=e))
         p = stage("sRGB PSNR (whole frame)", rows, lambda: (psnr_srgb(ideal.cpu(), noisy.cpu()),
                                                             psnr_srgb(ideal.cpu(), restored.cpu())))
         t_total = time.perf_counter() - t_start
@@ -176,8 +175,7 @@ def main() -> int:
     args = ap.parse_args()
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "photos" / "outdoor_misty_forest_6016x4016.jpg"
     photo = args.photo or (str(shared) if shared.exists() else None)
-    device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else
-                          ("cpu" if args.device == "auto" else args.device))
+    device = select_device(args.device)
     ideal, _ = load_photo(photo)
     side_by_side(ideal, args.region, args.angle)
     del ideal

@@ -20,9 +20,16 @@ import time
 import numpy as np
 import torch
 
-from lenssim import PAPER_LENS, image_psd, mse_bank, noise_variance, wavefront_coefficients
+from lenssim import (PAPER_CAMERA, PAPER_SNR_DB, Design, Numerics, image_psd, noise_variance, otf_criteria_bank,
+                     spectral_coefficients)
 
-SNR = (21.6, 27.6, 33.6)
+SNR = PAPER_SNR_DB
+NATIVE = Numerics(oversample=1)
+
+
+def mse_bank(c, sizes):
+    out = otf_criteria_bank(PAPER_CAMERA, c, sizes, SNR, numerics=NATIVE)
+    return out["mse_s"], out["mse_r"]
 
 
 def prysm_loop(coeffs: np.ndarray, n: int) -> np.ndarray:
@@ -45,7 +52,7 @@ def prysm_loop(coeffs: np.ndarray, n: int) -> np.ndarray:
         E = focus(amp * np.exp(-2j * np.pi * W), Q=2)
         psf = np.abs(E) ** 2
         psf /= psf.sum()
-        H = otf_from_psf(psf, dx=PAPER_LENS.pixel_pitch_um)  # centred, H[n//2, n//2] = 1
+        H = otf_from_psf(psf, dx=PAPER_CAMERA.pixel_pitch_um)  # centred, H[n//2, n//2] = 1
         H = H.data if hasattr(H, "data") else H
         blur = np.mean(np.abs(1 - H) ** 2 * P)
         out[i, 0] = s2 + blur
@@ -56,18 +63,18 @@ def prysm_loop(coeffs: np.ndarray, n: int) -> np.ndarray:
 def bench_bank(n: int, repeat: int) -> None:
     s = torch.tensor([-0.775, -0.725], dtype=torch.float64)[:, None]
     Q = torch.tensor([-2.4, -10.0], dtype=torch.float64)[:, None]
-    c = wavefront_coefficients(PAPER_LENS, s, Q)[:, 0].reshape(-1, 4)  # 30 PSFs: two designs x 15 angles
+    c = spectral_coefficients(PAPER_CAMERA, Design(s=s, Q_back=Q)).reshape(-1, 1, 4)  # 30 PSFs: 2 designs x 15 angles
     c = torch.cat([c] * 2)  # 60 PSFs
     sizes = torch.full((c.shape[0],), n)
     cf = c.float()
-    mse_bank(PAPER_LENS, cf[:2], sizes[:2], SNR, oversample=1)  # warm caches
+    mse_bank(cf[:2], sizes[:2])  # warm caches
     t_ours, t_prysm = [], []
     for _ in range(repeat):
         t0 = time.perf_counter()
-        ms, mr = mse_bank(PAPER_LENS, cf, sizes, SNR, oversample=1)
+        ms, mr = mse_bank(cf, sizes)
         t_ours.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        ref = prysm_loop(c.numpy(), n)
+        ref = prysm_loop(c[:, 0].numpy(), n)
         t_prysm.append(time.perf_counter() - t0)
     ours, base = min(t_ours), min(t_prysm)
     k = c.shape[0]

@@ -20,10 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
-from lenssim import PAPER_LENS, otf, wavefront_coefficients  # noqa: E402
-from lenssim.psf_bank import psf_at  # noqa: E402
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, otf, psf_at, spectral_coefficients  # noqa: E402
 
-DESIGNS = {"RMS_W design (s=-0.725, Q=-10)": (-0.725, -10.0), "end-to-end (s=-0.775, Q=-2.4)": (-0.775, -2.4)}
+DESIGNS = {"RMS_W design": PAPER_DESIGNS["rms_w_paper"], "end-to-end": PAPER_DESIGNS["end_to_end_paper"]}
 ANGLES = (0.0, 4.0, 8.0, 12.7)
 DIAG = math.atan2(2000, 3000)  # azimuth of the 3:2 sensor's diagonal
 
@@ -33,10 +32,11 @@ def main() -> None:
     ap.add_argument("--out", default="psf_gallery.png")
     args = ap.parse_args()
     fig, axes = plt.subplots(2, len(ANGLES) + 1, figsize=(3.2 * (len(ANGLES) + 1), 6.4), constrained_layout=True)
-    for row, (name, (s, Q)) in enumerate(DESIGNS.items()):
+    for row, (name, design) in enumerate(DESIGNS.items()):
+        name = f"{name} ({design.label()})"
         for col, a in enumerate(ANGLES):
-            r = PAPER_LENS.focal_length_mm * math.tan(math.radians(a))
-            p, n = psf_at(PAPER_LENS, s, Q, r * math.cos(DIAG), r * math.sin(DIAG))
+            r = float(PAPER_CAMERA.geometry.image_height_mm(a))
+            p, n = psf_at(PAPER_CAMERA, design, r * math.cos(DIAG), r * math.sin(DIAG))
             c = n // 2
             win = p[c - 32:c + 32, c - 32:c + 32]
             ax = axes[row, col]
@@ -46,8 +46,8 @@ def main() -> None:
             ax.set_xlabel("x [pixels of 1.5625 um]")
             if col == 0:
                 ax.set_ylabel(f"{name}\ny [pixels]", fontsize=9)
-        c8 = wavefront_coefficients(PAPER_LENS, s, Q, [8.0])
-        H = otf(PAPER_LENS, c8, 512)[0].abs()
+        c8 = spectral_coefficients(PAPER_CAMERA, design, [8.0])
+        H = otf(PAPER_CAMERA, c8, 512)[0].abs()
         f = torch.arange(257) / 512
         ax = axes[row, -1]
         ax.plot(f, H[:257, 0], label="radial (meridional)")

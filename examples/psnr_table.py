@@ -14,13 +14,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
 from lenssim.files import atomic_write_text
-from pipeline.cli import load_photo
-from pipeline.noise import full_well_for_iso
+from lenssim.paper import ISO_FOR_SNR
+from pipeline import load_photo
 from pipeline.simulate import crop_at_field_angle, simulate_crops
 
-DESIGNS = {"RMS_W (s=-0.725, Q=-10)": (-0.725, -10.0), "end-to-end (s=-0.775, Q=-2.4)": (-0.775, -2.4)}
-ISOS = (400, 100, 25)
+DESIGNS = {"RMS_W": PAPER_DESIGNS["rms_w_paper"], "end-to-end": PAPER_DESIGNS["end_to_end_paper"]}
+ISOS = tuple(ISO_FOR_SNR.values())  # 400, 100, 25
 
 
 def main() -> None:
@@ -38,15 +39,16 @@ def main() -> None:
     for photo in photos:
         ideal, source = load_photo(photo)
         boxes = [crop_at_field_angle(ideal.shape, a, args.crop) for a in args.angles]
-        for name, (s, Q) in DESIGNS.items():
-            per_iso = simulate_crops(ideal, s, Q, [full_well_for_iso(i) for i in ISOS], boxes)
+        for name, design in DESIGNS.items():
+            wells = [PAPER_CAMERA.sensor.full_well_for_iso(i) for i in ISOS]
+            per_iso = simulate_crops(ideal, LensPSF(PAPER_CAMERA, design), wells, boxes)
             means = []
             for iso, res in zip(ISOS, per_iso):
-                sensor = sum(r.psnr_sensor_db for r in res) / len(res)
-                restored = sum(r.psnr_restored_db for r in res) / len(res)
+                sensor = sum(r.scores["sensor"]["psnr_db"] for r in res) / len(res)
+                restored = sum(r.scores["wiener"]["psnr_db"] for r in res) / len(res)
                 means.append(restored)
                 lines.append(f"{Path(source).name},{name},{iso},{sensor:.3f},{restored:.3f}")
-            print(f"| {Path(source).name} | {name} | " + " | ".join(f"{m:.2f}" for m in means) + " |", flush=True)
+            print(f"| {Path(source).name} | {name} ({design.label()}) | " + " | ".join(f"{m:.2f}" for m in means) + " |", flush=True)
     path = atomic_write_text(Path(args.out) / "psnr_table.csv", "\n".join(lines) + "\n")
     print(f"wrote {path}")
 

@@ -14,9 +14,8 @@ from pathlib import Path
 
 import torch
 
-from pipeline import linear_to_srgb, write_image
-from pipeline.cli import load_photo
-from pipeline.noise import full_well_for_iso
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
+from pipeline import RESTORATION_METHODS, linear_to_srgb, load_photo, write_image
 from pipeline.simulate import crop_at_field_angle, simulate_crops
 
 
@@ -29,13 +28,16 @@ def main() -> None:
     args = ap.parse_args()
     ideal, source = load_photo(args.photo)
     boxes = [crop_at_field_angle(ideal.shape, a, 160) for a in (2.0, 8.0)]
-    res = simulate_crops(ideal, -0.775, -2.4, full_well_for_iso(args.iso), boxes, rl_iterations=args.rl)
+    methods = ("wiener", "richardson_lucy")
+    psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["end_to_end_paper"])
+    res = simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes, methods=methods,
+                         method_options={"richardson_lucy": {"iterations": args.rl}})
     rows = []
     for r in res:
-        print(f"{source}, {r.field_deg:.1f} deg, ISO {args.iso}: sensor {r.psnr_sensor_db:.2f} dB / SSIM {r.ssim_sensor:.3f}; "
-              f"Wiener {r.psnr_restored_db:.2f} / {r.ssim_restored:.3f}; "
-              f"Richardson-Lucy ({args.rl} it.) {r.psnr_rl_db:.2f} / {r.ssim_rl:.3f}")
-        rows.append(torch.cat([r.ideal, r.sensor, r.restored, r.restored_rl], dim=-1))
+        scores = "; ".join(f"{RESTORATION_METHODS[m].label if m != 'sensor' else 'sensor'} "
+                           f"{r.scores[m]['psnr_db']:.2f} dB / SSIM {r.scores[m]['ssim']:.3f}" for m in ("sensor",) + methods)
+        print(f"{source}, {r.field_deg:.1f} deg, ISO {args.iso} (Richardson-Lucy: {args.rl} it.): {scores}")
+        rows.append(torch.cat([r.ideal, r.sensor] + [r.images[m] for m in methods], dim=-1))
     path = write_image(Path(args.out) / "wiener_vs_rl.png", linear_to_srgb(torch.cat(rows, dim=-2).clamp(0, 1)))
     print(f"wrote {path}")
 

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import torch
 
-from pipeline import linear_to_srgb, write_image
-from pipeline.cli import load_photo
-from pipeline.noise import full_well_for_iso
+from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
+from pipeline import linear_to_srgb, load_photo, write_image
 from pipeline.simulate import crop_at_field_angle, simulate_crops
 
-DESIGNS = {"end-to-end (s=-0.775, Q=-2.4)": (-0.775, -2.4), "RMS_W (s=-0.725, Q=-10)": (-0.725, -10.0)}
+DESIGNS = {"end-to-end": PAPER_DESIGNS["end_to_end_paper"], "RMS_W": PAPER_DESIGNS["rms_w_paper"]}
 
 
 def main() -> None:
@@ -33,11 +32,12 @@ def main() -> None:
     ideal, source = load_photo(photo)
     boxes = [crop_at_field_angle(ideal.shape, a, 192) for a in (1.0, 5.0, 9.0)]
     rows = []
-    for name, (s, Q) in DESIGNS.items():
-        for r in simulate_crops(ideal, s, Q, full_well_for_iso(args.iso), boxes):
-            print(f"{source} | {name} | {r.field_deg:4.1f} deg: sensor {r.psnr_sensor_db:.2f} dB -> "
-                  f"restored {r.psnr_restored_db:.2f} dB")
-            rows.append(torch.cat([r.ideal, r.sensor, r.restored], dim=-1))
+    for name, design in DESIGNS.items():
+        psf = LensPSF(PAPER_CAMERA, design)
+        for r in simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes):
+            print(f"{source} | {name} ({design.label()}) | {r.field_deg:4.1f} deg: sensor "
+                  f"{r.scores['sensor']['psnr_db']:.2f} dB -> restored {r.scores['wiener']['psnr_db']:.2f} dB")
+            rows.append(torch.cat([r.ideal, r.sensor, r.images["wiener"]], dim=-1))
     path = write_image(Path(args.out) / "comparison.png", linear_to_srgb(torch.cat(rows, dim=-2).clamp(0, 1)))
     print(f"wrote {path}  (rows: end-to-end at 1/5/9 deg, then RMS_W at 1/5/9 deg)")
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lenssim import PAPER_LENS
-from lenssim.design_opt import DifferentiableMSE, optimise_on_iso_cost
+from lenssim import PAPER_CAMERA, REFERENCE_SNR_DB
+from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
 from lenssim.tradeoff import PAPER_COST_LEVELS, iso_cost_curve
 
 
@@ -25,26 +25,26 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tradeoff", default="results/repro/tradeoff.nc")
     ap.add_argument("--levels", type=int, nargs="+", default=[3, 8, 14, 20])
-    ap.add_argument("--snr", type=float, default=27.6)
+    ap.add_argument("--snr", type=float, default=REFERENCE_SNR_DB)
     args = ap.parse_args()
     grid = None
     if Path(args.tradeoff).exists():
         import xarray as xr
 
         grid = xr.load_dataset(args.tradeoff).sel(criterion=f"mse_r@{args.snr:g}")
-    print("| level C_a | start (s, Q) | autograd optimum (s, Q) | MSE_R | evaluations | grid-based optimum (s, Q) | MSE_R (grid) |")
+    print("| level C_a | start (s, Q_back) | autograd optimum (s, Q_back) | MSE_R | evaluations | grid-based optimum | MSE_R (grid) |")
     print("|---|---|---|---|---|---|---|")
     for j in args.levels:
         level = float(PAPER_COST_LEVELS[j])
-        cs, cq, _ = iso_cost_curve(PAPER_LENS, level, [-1.0])
+        cs, cq, _ = iso_cost_curve(PAPER_CAMERA.lens, level, [-1.0])
         x0 = (-1.0, float(cq[0]))
-        f = DifferentiableMSE(PAPER_LENS, args.snr, "mse_r")
+        f = DifferentiableCriterion(PAPER_CAMERA, args.snr, "mse_r")
         t0 = time.perf_counter()
-        r = optimise_on_iso_cost(PAPER_LENS, f, x0, level)
+        r = optimise_on_iso_cost(f, x0, level)
         dt = time.perf_counter() - t0
         g = grid.isel(level=j) if grid is not None else None
-        gtxt = f"({float(g.s):.4f}, {float(g.Q):.3f}) | {float(g.value):.5f}" if g is not None else "- | -"
-        print(f"| {level:.3e} | ({x0[0]:.3f}, {x0[1]:.3f}) | ({r.s:.4f}, {r.Q:.3f}) | {r.value:.5f} | "
+        gtxt = f"({float(g['s']):.4f}, {float(g['Q_back']):.3f}) | {float(g['value']):.5f}" if g is not None else "- | -"
+        print(f"| {level:.3e} | ({x0[0]:.3f}, {x0[1]:.3f}) | ({r.design['s']:.4f}, {r.design['Q_back']:.3f}) | {r.value:.5f} | "
               f"{r.evaluations} ({r.iterations} steps, {dt:.0f} s) | {gtxt} |", flush=True)
 
 

@@ -3,11 +3,11 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_LENS
+from lenssim import PAPER_CAMERA, Design, FunctionPSF, LensPSF
 from pipeline.blur import (PAPER_SCHEME, WindowScheme, blur_exact, blur_windowed, core_irfft2, tent_weights,
                            window_centres)
 
-E2E = (-0.775, -2.4)
+E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 
 
 def texture(h, w, seed=0):
@@ -33,7 +33,7 @@ def test_delta_psf_leaves_the_image_unchanged():
         p[:, n // 2, n // 2] = 1
         return p
 
-    out = blur_windowed(img, PAPER_LENS, *E2E, scheme=WindowScheme(64, 16, 32), psf_fn=delta)
+    out = blur_windowed(img, FunctionPSF(delta, PAPER_CAMERA.geometry), scheme=WindowScheme(64, 16, 32))
     torch.testing.assert_close(out, img, rtol=0, atol=1e-12)
 
 
@@ -44,9 +44,9 @@ def test_windowed_blur_matches_exact_per_pixel_processing_above_70_db():
     r0, c0 = 300, 300
     center = (r0 + 1400, c0 + 2100)
     rows, cols = torch.meshgrid(torch.arange(r0, r0 + 12), torch.arange(c0, c0 + 12), indexing="ij")
-    win = blur_windowed(img, PAPER_LENS, *E2E, scheme=PAPER_SCHEME, optical_center=center,
+    win = blur_windowed(img, E2E, scheme=PAPER_SCHEME, optical_center=center,
                         region=(r0, r0 + 12, c0, c0 + 12))
-    ref = blur_exact(img, PAPER_LENS, *E2E, rows.flatten(), cols.flatten(), n=512, optical_center=center)
+    ref = blur_exact(img, E2E, rows.flatten(), cols.flatten(), n=512, optical_center=center)
     got = win[:, :, r0:r0 + 12, c0:c0 + 12].flatten(2)
     snr_db = 10 * math.log10(float((ref**2).sum() / ((ref - got) ** 2).sum()))
     print(f"windowed vs exact: {snr_db:.1f} dB")
@@ -57,12 +57,12 @@ def test_windowed_blur_matches_exact_per_pixel_processing_above_70_db():
 
 def test_blur_conserves_flux_and_rejects_bad_input():
     img = torch.ones(1, 1, 96, 96, dtype=torch.float64)
-    out = blur_windowed(img, PAPER_LENS, *E2E, scheme=WindowScheme(256, 32, 64), optical_center=(48, 48))
+    out = blur_windowed(img, E2E, scheme=WindowScheme(256, 32, 64), optical_center=(48, 48))
     torch.testing.assert_close(out, img, rtol=0, atol=1e-9)  # a flat field stays flat (unit-sum PSFs)
-    with pytest.raises(ValueError, match=r"expected a floating tensor \(B, C, H, W\)"):
-        blur_windowed(torch.ones(96, 96), PAPER_LENS, *E2E)
+    with pytest.raises(ValueError, match=r"expected a floating tensor of shape \(B, C, H, W\)"):
+        blur_windowed(torch.ones(96, 96), E2E)
     with pytest.raises(ValueError, match="larger window"):
-        blur_windowed(torch.ones(1, 1, 96, 96), PAPER_LENS, -2.0, -10.0, scheme=WindowScheme(128, 32, 64),
+        blur_windowed(torch.ones(1, 1, 96, 96), LensPSF(PAPER_CAMERA, Design(s=-2.0, Q_back=-10.0)), scheme=WindowScheme(128, 32, 64),
                       optical_center=(2000, 3000))
     with pytest.raises(ValueError, match="stride=64, core=32"):
         WindowScheme(512, 64, 32)
@@ -82,7 +82,30 @@ def test_blur_precision_follows_the_image_dtype(dtype, tol):
     """float32 (the pipeline's working precision) vs the float64 result, relative to the image peak."""
     img = texture(160, 160)
     kw = dict(scheme=WindowScheme(256, 32, 64), optical_center=(80 + 900, 80 + 1200))
-    ref = blur_windowed(img, PAPER_LENS, *E2E, **kw)
-    out = blur_windowed(img.to(dtype), PAPER_LENS, *E2E, **kw)
+    ref = blur_windowed(img, E2E, **kw)
+    out = blur_windowed(img.to(dtype), E2E, **kw)
     assert out.dtype == dtype
     assert float((out.double() - ref).abs().max() / ref.max()) < tol
+
+
+def test_per_channel_psfs_blur_each_channel_with_its_own():
+    """A provider may give one PSF per channel: each channel then equals a one-channel blur with that PSF."""
+    img = texture(96, 96)
+
+    def shifted(k):
+        def fn(x, y, n):
+            p = torch.zeros(len(x), n, n, dtype=torch.float64)
+            p[:, n // 2 + k, n // 2] = 1
+            return p
+        return fn
+
+    def three(x, y, n):
+        return torch.stack([shifted(k)(x, y, n) for k in (0, 1, 2)], dim=1)
+
+    geom = PAPER_CAMERA.geometry
+    out = blur_windowed(img, FunctionPSF(three, geom, channels=3), scheme=WindowScheme(64, 16, 32))
+    for k in range(3):
+        ref = blur_windowed(img[:, k:k + 1], FunctionPSF(shifted(k), geom), scheme=WindowScheme(64, 16, 32))
+        torch.testing.assert_close(out[:, k:k + 1], ref, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="3 channels and the image 2"):
+        blur_windowed(img[:, :2], FunctionPSF(three, geom, channels=3), scheme=WindowScheme(64, 16, 32))

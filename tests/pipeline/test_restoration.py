@@ -3,14 +3,14 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_LENS
+from lenssim import PAPER_CAMERA, Design, FunctionPSF, LensPSF
 from pipeline import add_poisson_noise
 from pipeline.blur import WindowScheme, blur_windowed
 from pipeline.quality import psnr_srgb, ssim_srgb
 from pipeline.restoration import wiener_windowed
 
 SCHEME = WindowScheme(256, 32, 64)
-E2E = (-0.775, -2.4)
+E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 
 
 def scene(h=192, w=192, seed=0):
@@ -30,25 +30,25 @@ def delta(rows, cols, n):
 
 def test_wiener_without_blur_or_noise_is_the_identity():
     x = scene()
-    out = wiener_windowed(x, PAPER_LENS, *E2E, electrons_per_unit=math.inf, scheme=SCHEME, psf_fn=delta)
+    out = wiener_windowed(x, FunctionPSF(delta, PAPER_CAMERA.geometry), electrons_per_unit=math.inf, scheme=SCHEME)
     torch.testing.assert_close(out, x, rtol=0, atol=1e-9)
 
 
 def test_wiener_beats_the_sensor_image_with_a_known_psf():
     x = scene()
     center = (96 + 700, 96 + 900)  # the crop sits ~5 degrees off axis
-    y = blur_windowed(x, PAPER_LENS, *E2E, scheme=SCHEME, optical_center=center)
+    y = blur_windowed(x, E2E, scheme=SCHEME, optical_center=center)
     fwc = 3200.0
     noisy = add_poisson_noise(y, fwc, seed=3)
     e = fwc / float(y.amax())
-    r = wiener_windowed(noisy, PAPER_LENS, *E2E, electrons_per_unit=e, scheme=SCHEME, optical_center=center)
+    r = wiener_windowed(noisy, E2E, electrons_per_unit=e, scheme=SCHEME, optical_center=center)
     crop = (32, 160, 32, 160)
     p_sensor, p_restored = psnr_srgb(x, noisy, crop), psnr_srgb(x, r, crop)
     print(f"PSNR sensor {p_sensor:.2f} dB, restored {p_restored:.2f} dB")
     assert p_restored > p_sensor + 1.0
     assert ssim_srgb(x, r, crop) > ssim_srgb(x, noisy, crop)
     # noise-free: the restoration recovers much more
-    r0 = wiener_windowed(y, PAPER_LENS, *E2E, electrons_per_unit=1e9, scheme=SCHEME, optical_center=center)
+    r0 = wiener_windowed(y, E2E, electrons_per_unit=1e9, scheme=SCHEME, optical_center=center)
     assert psnr_srgb(x, r0, crop) > p_restored
 
 
@@ -80,8 +80,8 @@ def test_richardson_lucy_matches_scikit_image():
     psf[n // 2, n // 2 + 2] = 3.0  # asymmetric, to catch a mirrored kernel
     psf /= psf.sum()
     tiled = y0.repeat(5, 5)
-    ours = richardson_lucy_windowed(tiled[None, None], PAPER_LENS, *E2E, iterations=10,
-                                    scheme=WindowScheme(n, 32, 64), psf_fn=lambda r, c, m: psf.expand(len(r), m, m))
+    measured = FunctionPSF(lambda x, y, m: psf.expand(len(x), m, m), PAPER_CAMERA.geometry)
+    ours = richardson_lucy_windowed(tiled[None, None], measured, iterations=10, scheme=WindowScheme(n, 32, 64))
     ref = richardson_lucy(tiled.numpy(), psf[n // 2 - 3:n // 2 + 4, n // 2 - 3:n // 2 + 4].numpy(), num_iter=10,
                           clip=False)
     mid = slice(2 * n, 3 * n)
@@ -92,24 +92,24 @@ def test_richardson_lucy_errors():
     from pipeline.restoration import richardson_lucy_windowed
 
     with pytest.raises(ValueError, match="iterations=0"):
-        richardson_lucy_windowed(torch.ones(1, 1, 8, 8), PAPER_LENS, *E2E, iterations=0)
+        richardson_lucy_windowed(torch.ones(1, 1, 8, 8), E2E, iterations=0)
     with pytest.raises(ValueError, match="negative"):
-        richardson_lucy_windowed(-torch.ones(1, 1, 8, 8), PAPER_LENS, *E2E)
+        richardson_lucy_windowed(-torch.ones(1, 1, 8, 8), E2E)
 
 
 def test_wiener_in_float32_matches_float64():
     x = scene()
     center = (96 + 700, 96 + 900)
-    y = blur_windowed(x, PAPER_LENS, *E2E, scheme=SCHEME, optical_center=center)
+    y = blur_windowed(x, E2E, scheme=SCHEME, optical_center=center)
     noisy = add_poisson_noise(y, 3200.0, seed=3)
     e = 3200.0 / float(y.amax())
     kw = dict(electrons_per_unit=e, scheme=SCHEME, optical_center=center)
-    r64 = wiener_windowed(noisy, PAPER_LENS, *E2E, **kw)
-    r32 = wiener_windowed(noisy.float(), PAPER_LENS, *E2E, **kw)
+    r64 = wiener_windowed(noisy, E2E, **kw)
+    r32 = wiener_windowed(noisy.float(), E2E, **kw)
     assert r32.dtype == torch.float32
     assert float((r32.double() - r64).abs().max()) < 5e-6  # measured 4.5e-7; the noise is ~1e-2 per pixel
     # no noise at all with blur: the inverse-filter limit stays finite where |H| = 0
-    assert torch.isfinite(wiener_windowed(y.float(), PAPER_LENS, *E2E, electrons_per_unit=math.inf, scheme=SCHEME,
+    assert torch.isfinite(wiener_windowed(y.float(), E2E, electrons_per_unit=math.inf, scheme=SCHEME,
                                           optical_center=center)).all()
 
 
@@ -140,3 +140,17 @@ def test_scores_of_encoded_frames_equal_the_per_call_metrics():
     assert "ssim" not in scores_encoded(encode_srgb(x), encode_srgb(y), ssim=False)
     with pytest.raises(ValueError, match="expected two equal"):
         scores_encoded(encode_srgb(x), encode_srgb(y[..., :64]))
+
+
+def test_restoration_registry_runs_each_method_by_name():
+    from pipeline import RESTORATION_METHODS, restore, validate_method
+
+    x = torch.rand(1, 1, 64, 64, generator=torch.Generator().manual_seed(2), dtype=torch.float64) + 0.1
+    ident = FunctionPSF(delta, PAPER_CAMERA.geometry)
+    for name in RESTORATION_METHODS:
+        out = restore(name, x, ident, electrons_per_unit=math.inf, scheme=SCHEME)
+        torch.testing.assert_close(out, x, rtol=0, atol=1e-6)  # a delta PSF without noise: the identity
+    with pytest.raises(ValueError, match="restoration method 'tv' is not known; valid: wiener, richardson_lucy"):
+        validate_method("tv")
+    with pytest.raises(ValueError, match="takes no option"):
+        restore("wiener", x, ident, electrons_per_unit=1e3, options={"iterations": 3}, scheme=SCHEME)

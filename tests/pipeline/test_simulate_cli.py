@@ -4,12 +4,14 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_LENS
+from lenssim import PAPER_CAMERA, PAPER_SENSOR, Design, LensPSF
+from lenssim_cli.main import main
 from pipeline.blur import WindowScheme
-from pipeline.cli import main
 from pipeline.io import read_image
 from pipeline.scene import resolution_scene, target_tile
 from pipeline.simulate import crop_at_field_angle, crops_from_frame, simulate_crops, simulate_frame
+
+E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 
 
 def test_scene_is_deterministic_and_in_range():
@@ -28,7 +30,7 @@ def test_crops_sit_at_the_requested_field_angle():
     for a in (0.0, 5.0, 9.0):
         r0, r1, c0, c1 = crop_at_field_angle(shape, a, 256)
         cy, cx = (r0 + r1 - 1) / 2 - 1999.5, (c0 + c1 - 1) / 2 - 2999.5
-        alpha = math.degrees(math.atan(math.hypot(cy, cx) * PAPER_LENS.pixel_pitch_um * 1e-3 / 25))
+        alpha = math.degrees(math.atan(math.hypot(cy, cx) * PAPER_SENSOR.pixel_pitch_um * 1e-3 / 25))
         assert alpha == pytest.approx(a, abs=0.02)
 
 
@@ -41,11 +43,13 @@ def test_simulate_command_writes_images_and_metrics(tmp_path, capsys):
     c = m["crops"][0]
     assert m["iso"] == 400 and m["full_well_electrons"] == 800 and "denoised" in m["source"]
     assert c["psnr_restored_db"] > c["psnr_sensor_db"]
-    assert c["psnr_richardson_lucy_db"] > 0 and 0 < c["ssim_richardson_lucy"] <= 1
+    assert c["scores"]["wiener"]["psnr_db"] == c["psnr_restored_db"]
+    assert c["scores"]["richardson_lucy"]["psnr_db"] > 0 and 0 < c["scores"]["richardson_lucy"]["ssim"] <= 1
+    assert m["methods"] == ["wiener", "richardson_lucy"] and m["parameters"] == {"s": -0.775, "Q_back": -2.4}
     for kind in ("ideal", "sensor", "restored", "restored_rl"):
         assert (out / f"crop_0deg_{kind}.png").exists()
     assert (out / "mosaic.png").exists()
-    assert "PSNR sensor -> restored" in capsys.readouterr().out
+    assert "sensor -> adaptive Wiener, Richardson-Lucy" in capsys.readouterr().out
 
 
 def test_simulate_command_errors(tmp_path, capsys):
@@ -63,11 +67,11 @@ def test_psnr_table(tmp_path, capsys):
                "--angles", "0", "--crop", "64", "--out", str(out)])
     assert rc == 0
     lines = (out / "psnr_table.csv").read_text().strip().splitlines()
-    assert lines[0].startswith("photo,design,s,Q,iso") and len(lines) == 1 + 4
+    assert lines[0].startswith("photo,design,s,Q_back,iso,method") and len(lines) == 1 + 4
     md = (out / "psnr_table.md").read_text()
     assert "| skimage:camera | end_to_end_paper | 25 |" in md
     rows = [ln.split(",") for ln in lines[1:]]
-    by = {(r[1], int(r[4])): float(r[6]) for r in rows}
+    by = {(r[1], int(r[4])): float(r[7]) for r in rows}
     assert by[("end_to_end_paper", 25)] > by[("end_to_end_paper", 100)]  # less noise, better restoration
     assert main(["psnr-table", "--designs", "nope", "--out", str(out)]) == 2
 
@@ -84,30 +88,47 @@ def test_fig8_mosaic(tmp_path):
 def test_crops_at_several_iso_share_one_blur_and_equal_separate_runs():
     ideal = resolution_scene(600, 900, seed=2)
     boxes = [crop_at_field_angle(ideal.shape, 0.5, 48)]
-    both = simulate_crops(ideal, -0.775, -2.4, [800.0, 12800.0], boxes, seed=4)
+    both = simulate_crops(ideal, E2E, [800.0, 12800.0], boxes, seed=4)
     for fwc, res in zip((800.0, 12800.0), both):
-        alone = simulate_crops(ideal, -0.775, -2.4, fwc, boxes, seed=4)[0]
-        assert torch.equal(res[0].restored, alone.restored) and res[0].psnr_sensor_db == alone.psnr_sensor_db
-    assert both[1][0].psnr_restored_db > both[0][0].psnr_restored_db  # ISO 25 beats ISO 400
+        alone = simulate_crops(ideal, E2E, fwc, boxes, seed=4)[0]
+        assert torch.equal(res[0].images["wiener"], alone.images["wiener"])
+        assert res[0].scores["sensor"] == alone.scores["sensor"]
+    assert both[1][0].scores["wiener"]["psnr_db"] > both[0][0].scores["wiener"]["psnr_db"]  # ISO 25 beats ISO 400
     with pytest.raises(ValueError, match="full_well=-1.0"):
-        simulate_crops(ideal, -0.775, -2.4, [-1.0], boxes)
+        simulate_crops(ideal, E2E, [-1.0], boxes)
+    with pytest.raises(ValueError, match="restoration method 'tv' is not known"):
+        simulate_crops(ideal, E2E, 800.0, boxes, methods=("tv",))
+
+
+def test_sensor_read_noise_and_adc_enter_the_sensor_image():
+    """A sensor with read noise and a 4-bit ADC: the sensor image gets worse, and only at the quantised levels."""
+    from lenssim import Sensor
+
+    ideal = resolution_scene(600, 900, seed=2)
+    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48)]
+    clean = simulate_crops(ideal, E2E, 800.0, boxes, seed=4)[0]
+    noisy = simulate_crops(ideal, E2E, 800.0, boxes, seed=4, sensor=Sensor(read_noise_e=20.0, bit_depth=4))[0]
+    assert noisy.scores["sensor"]["psnr_db"] < clean.scores["sensor"]["psnr_db"] - 0.3
+    e = 800.0 / float(ideal.amax())
+    levels = noisy.sensor * e / (800.0 / 15)  # digital numbers
+    torch.testing.assert_close(levels, levels.round(), rtol=0, atol=1e-3)
 
 
 def test_full_frame_resumes_from_its_checkpoint(tmp_path):
     ideal = resolution_scene(600, 900, seed=3)[..., :300, :400]
     scheme = WindowScheme(256, 32, 64)
-    first = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    first = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
     assert not first.resumed and (tmp_path / "sensor_linear.exr").exists()
-    again = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    again = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
     assert again.resumed and "blur" not in again.seconds
     assert torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
-    other = simulate_frame(ideal, -0.775, -2.4, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)
+    other = simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)
     assert not other.resumed and not torch.equal(other.sensor, first.sensor)  # another seed: recomputed
     # crops cut from the frame are the frame's pixels, at their own field angle
     box = crop_at_field_angle(ideal.shape, 0.3, 64)
     c = crops_from_frame(ideal, first, [box])[0]
-    assert torch.equal(c.restored, first.restored[..., box[0]:box[1], box[2]:box[3]])
-    assert c.field_deg == pytest.approx(0.3, abs=0.02) and c.psnr_restored_db > c.psnr_sensor_db
+    assert torch.equal(c.images["wiener"], first.restored[..., box[0]:box[1], box[2]:box[3]])
+    assert c.field_deg == pytest.approx(0.3, abs=0.02) and c.scores["wiener"]["psnr_db"] > c.scores["sensor"]["psnr_db"]
 
 
 def test_simulate_full_frame_command(tmp_path, capsys):
@@ -149,10 +170,10 @@ def test_console_script_exits_cleanly(tmp_path):
     import subprocess
     import sys
 
-    run = lambda *a: subprocess.run([sys.executable, "-m", "pipeline.cli", *a], capture_output=True, text=True)  # noqa: E731
+    run = lambda *a: subprocess.run([sys.executable, "-m", "lenssim_cli.main", *a], capture_output=True, text=True)  # noqa: E731
     ok = run("simulate", "skimage:camera", "--design", "end_to_end_paper", "--angles", "0", "--crop", "48",
              "--out", str(tmp_path / "c"))
-    assert ok.returncode == 0 and "PSNR sensor -> restored" in ok.stdout
+    assert ok.returncode == 0 and "sensor -> adaptive Wiener" in ok.stdout
     assert json.loads((tmp_path / "c" / "metrics.json").read_text())["crops"]
     assert "leaked" not in ok.stderr
     bad = run("simulate", "skimage:nothing", "--design", "end_to_end_paper", "--out", str(tmp_path / "d"))

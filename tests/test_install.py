@@ -1,0 +1,77 @@
+"""Packaging: a non-editable install (the built wheel) carries the configs and designs and runs from
+anywhere; the import layers hold (import-linter)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = ("pyproject.toml", "README.md", "lenssim", "pipeline", "lenssim_cli", "configs")
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """The project built as a wheel and installed (no dependencies: they are this environment's) into a folder."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    src.mkdir()
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info")
+    for name in SOURCES:
+        p = ROOT / name
+        (shutil.copytree(p, src / name, ignore=ignore) if p.is_dir() else shutil.copy(p, src / name))
+    pip = [sys.executable, "-m", "pip", "-q", "--disable-pip-version-check"]
+    subprocess.run(pip[:4] + ["wheel"] + pip[4:] + ["--no-deps", "--no-build-isolation", str(src), "-w", str(tmp / "dist")],
+                   check=True, capture_output=True)
+    wheel = next((tmp / "dist").glob("lenssim-*.whl"))
+    site = tmp / "site"
+    subprocess.run(pip[:4] + ["install"] + pip[4:] + ["--no-deps", "--target", str(site), str(wheel)], check=True,
+                   capture_output=True)
+    return wheel, site
+
+
+def _run(site: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    return subprocess.run([str(site / "bin" / "lenssim"), *args], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_the_wheel_carries_the_configs_and_the_command(installed):
+    wheel, _ = installed
+    names = zipfile.ZipFile(wheel).namelist()
+    for cfg in ("paper_grid", "paper_grid_fast", "small_grid", "designs"):
+        assert f"lenssim/configs/{cfg}.toml" in names
+    entry = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
+    assert "lenssim = lenssim_cli.main:entry" in entry
+
+
+def test_the_installed_command_runs_outside_the_repository(installed, tmp_path):
+    _, site = installed
+    where = subprocess.run([sys.executable, "-c", "import lenssim, lenssim.resources as r; print(lenssim.__file__); "
+                            "print(r.config_path('paper_grid_fast'))"], cwd=tmp_path, capture_output=True, text=True,
+                           env={**os.environ, "PYTHONPATH": str(site)}).stdout.split()
+    assert where[0].startswith(str(site)) and where[1].startswith(str(site))  # the installed copy, not the repository
+    r = _run(site, tmp_path, "reproduce", "--help")
+    assert r.returncode == 0 and "paper_grid_fast" in r.stdout
+    r = _run(site, tmp_path, "designs")
+    assert r.returncode == 0 and "end_to_end_paper" in r.stdout and "mse_s_grid" in r.stdout
+    r = _run(site, tmp_path, "evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=1e-9)  # the pinned value
+
+
+def test_import_layers_hold():
+    """lenssim never imports pipeline or lenssim_cli; pipeline never imports lenssim_cli (pyproject's contract)."""
+    exe = shutil.which("lint-imports", path=str(Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip("import-linter is not installed (pip install -e '.[test]')")
+    r = subprocess.run([exe], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "1 kept, 0 broken" in r.stdout
