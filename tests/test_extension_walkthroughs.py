@@ -1,0 +1,107 @@
+"""The four walkthroughs of docs/architecture.md, done at run time exactly as a contributor would do
+them in the files the docs name: each new feature works end to end through the existing code."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lenssim import CRITERIA, PAPER_CAMERA, PARAMETERS, Camera, Criterion, Design, Lens, LensPSF, Numerics, Parameter, Spectrum
+from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
+from lenssim.cost import surface_cost
+from lenssim.paraxial import Surface, seidel_surface_sums
+from lenssim.sweep import SweepConfig, run_sweep
+from lenssim.tradeoff import find_optimum
+
+D = torch.float64
+FAST = Numerics(min_size=128, oversample=1)
+
+
+def test_walkthrough_a_wavelength_band_is_a_spectrum():
+    """No code change: a Spectrum (or a [spectrum] config section) is taken by every PSF, criterion and blur."""
+    green = Camera(spectrum=Spectrum((0.50, 0.53, 0.56), (0.25, 0.5, 0.25)))
+    r = evaluate(green, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
+    mono = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
+    assert torch.isfinite(r["mse_r"]).all() and r["fft_size"].shape == (15,)
+    assert float(r["rms_w"]) < float(mono["rms_w"])  # waves of a longer mean wavelength: fewer of them
+    p, _ = psf_at(green, Design(s=-0.775, Q_back=-2.4), 0.0, 2.0, n=256)
+    assert float(p.sum()) == pytest.approx(1.0, abs=1e-9)
+
+
+def _front_asphere(monkeypatch):
+    """The walkthrough 'add a second aspheric surface': a parameter in design.py, the surface in lens.py."""
+    monkeypatch.setitem(PARAMETERS, "Q_front", Parameter("Q_front", "conic constant of the front surface", step=0.1))
+
+    def surfaces(self, design):
+        c1, c2 = self.curvatures(design["s"])
+        n = self.refractive_index
+        return [Surface(c1, design["Q_front"], n, 0.0, aspheric=True, conic_name="Q_front"),
+                Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back")]
+
+    monkeypatch.setattr(Lens, "surfaces", surfaces)
+
+
+def test_walkthrough_a_second_aspheric_surface(monkeypatch, tmp_path):
+    _front_asphere(monkeypatch)
+    lens = PAPER_CAMERA.lens
+    d = Design(s=torch.tensor(-0.775, dtype=D), Q_back=torch.tensor(-2.4, dtype=D), Q_front=torch.tensor(1.5, dtype=D))
+    # third order: the front conic adds (n - 1) Q_front c1^3 y^4 to S_I, as Welford's surface sums say
+    closed = seidel_sums(lens, d, [7.0])[0]
+    ref = seidel_surface_sums(lens.surfaces(d), torch.tensor(2.0, dtype=D), torch.tensor(0.0, dtype=D),
+                              torch.tensor(0.0, dtype=D), torch.tensor(math.tan(math.radians(7.0)), dtype=D))
+    torch.testing.assert_close(closed, ref[:4], rtol=1e-12, atol=1e-15)
+    assert float(closed[0]) != pytest.approx(float(seidel_sums(lens, d.replace(Q_front=0.0), [7.0])[0, 0]))
+    # the cost counts both aspheres
+    c1, c2 = lens.curvatures(torch.tensor(-0.775, dtype=D))
+    both = surface_cost(c1, torch.tensor(1.5, dtype=D), 2.0) + surface_cost(c2, torch.tensor(-2.4, dtype=D), 2.0)
+    assert float(slope_departure_cost(lens, d)) == pytest.approx(float(both), rel=1e-12)
+    # a sweep over (s, Q_front) takes its dimension names from the design
+    cam = Camera(Lens(field_angles_deg=(0.0, 10.0)))
+    cfg = SweepConfig(camera=cam, grid={"s": (-0.8, -0.7, 0.05), "Q_front": (-1.0, 1.0, 1.0)}, snr_db=(27.6,),
+                      numerics=FAST)
+    ds = run_sweep(cfg, tmp_path / "front.nc", show_progress=False)
+    assert ds["mse_r"].dims == ("s", "Q_front", "snr")
+    assert set(find_optimum(ds, "mse_r")["design"]) == {"s", "Q_front"}
+    # and the command line has the flag
+    from lenssim_cli.main import build_parser
+
+    args = build_parser().parse_args(["evaluate", "--s", "-0.7", "--Q_front", "0.5"])
+    assert args.param_Q_front == 0.5
+
+
+def test_walkthrough_a_restoration_method(monkeypatch):
+    """One entry in pipeline.restoration.RESTORATION_METHODS (and its function)."""
+    from pipeline import RESTORATION_METHODS, RestorationMethod, crop_at_field_angle, resolution_scene, simulate_crops
+
+    def unsharp(observed, psf, *, electrons_per_unit, read_noise_var=0.0, amount=1.0, **kw):
+        blurred = torch.nn.functional.avg_pool2d(observed, 3, 1, 1, count_include_pad=False)
+        return observed + amount * (observed - blurred)
+
+    monkeypatch.setitem(RESTORATION_METHODS, "unsharp", RestorationMethod(
+        "unsharp", "unsharp mask", "3x3 unsharp masking (a demo)", unsharp, (("amount", 1.0),)))
+    ideal = resolution_scene(400, 600, seed=1)
+    box = crop_at_field_angle(ideal.shape, 0.3, 48)
+    r = simulate_crops(ideal, LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4)), 3200.0, [box],
+                       methods=("wiener", "unsharp"), method_options={"unsharp": {"amount": 0.5}})[0]
+    assert set(r.scores) == {"sensor", "wiener", "unsharp"} and r.images["unsharp"].shape == r.ideal.shape
+
+
+def test_walkthrough_a_design_criterion(monkeypatch, tmp_path):
+    """One entry in lenssim.criteria.CRITERIA (and its function): evaluate, sweeps and optima pick it up."""
+    def blur_energy(H, H2, psd, pw, sigma2):  # the noise-free part of MSE_S
+        e = ((H2 - 2 * H.real + 1) * pw).sum(dim=(-2, -1)).to(torch.float64)
+        return e[:, None].expand(-1, sigma2.numel())
+
+    monkeypatch.setitem(CRITERIA, "blur_energy", Criterion(
+        "blur_energy", "E_blur", "noise-free sensor-image error, field average", "1 (unit signal variance)", True,
+        from_otf=blur_energy))
+    r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
+    np.testing.assert_allclose(float(r["blur_energy"][0]), float(r["mse_s"][0]) - 10 ** -2.76, rtol=1e-9)
+    cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 10.0))), grid={"s": (-0.8, -0.7, 0.05), "Q": (-3.0, -1.0, 1.0)},
+                      snr_db=(27.6,), numerics=FAST)
+    ds = run_sweep(cfg, tmp_path / "c.nc", show_progress=False)
+    assert ds["blur_energy"].attrs["units"].startswith("1") and "E_blur" in ds["blur_energy"].attrs["long_name"]
+    assert find_optimum(ds, "blur_energy")["value"] == pytest.approx(float(ds["blur_energy"].min()))
