@@ -52,18 +52,37 @@ def _radii(y, n, like):
 def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS, iterations: int = 12):
     """Curvature (1/mm) of the sphere of least RMS slope departure from the conic ``(c, Q)``.
 
-    ``c`` and ``Q`` broadcast to ``(*)``; returns ``(*)``.
+    Gauss-Newton from the third-order optimum, safeguarded: a step is halved until it stays inside
+    the sphere's domain (``|k| y < 1``) and does not increase the residual (needed only near the
+    conic's limit ``(1 + Q) c^2 y^2 -> 1``, where the rim slope diverges). ``c`` and ``Q`` broadcast
+    to ``(*)``; returns ``(*)``. Differentiable (the iterations are unrolled).
     """
     c, Q = torch.broadcast_tensors(as_tensor(c), as_tensor(Q, like=as_tensor(c)))
     r = _radii(y_mm, n_points, c)
     target = conic_slope(r, c[..., None], Q[..., None])
-    k = c + 0.3 * Q * c**3 * y_mm**2
-    for _ in range(iterations):
+    k_max = (1 - 1e-12) / y_mm
+
+    def residual(k):
         kk = k[..., None]
         q = 1 - kk**2 * r**2
-        res = target - kk * r / torch.sqrt(q)
+        return target - kk * r / torch.sqrt(q), q
+
+    k = (c + 0.3 * Q * c**3 * y_mm**2).clamp(-k_max, k_max)
+    for _ in range(iterations):
+        res, q = residual(k)
+        ssr = (res * res).sum(-1)
         jac = r / q**1.5  # d(sphere slope)/dk
-        k = k + (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(c.dtype).tiny)
+        step = (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(c.dtype).tiny)
+        t = torch.ones_like(k)
+        for _ in range(60):  # backtracking: full steps everywhere but close to the conic's limit
+            cand = k + t * step
+            ok = cand.abs() < k_max
+            res_c, _ = residual(torch.where(ok, cand, k))
+            ok = ok & ((res_c * res_c).sum(-1) <= ssr)
+            if bool(ok.all()):
+                break
+            t = torch.where(ok, t, 0.5 * t)
+        k = torch.where(ok, k + t * step, k)
     return k
 
 
@@ -91,6 +110,11 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
             c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64),
                                            as_tensor(surf.conic, dtype=torch.float64))
             cost = surface_cost(c, Q, lens.pupil_radius_mm, n_points)
+            if not bool(torch.isfinite(cost).all()):
+                bad = int(torch.nonzero(~torch.isfinite(cost.reshape(-1)))[0])
+                at = ", ".join(f"{k}={float(torch.broadcast_to(v, cost.shape).reshape(-1)[bad])!r}" for k, v in d64.values.items())
+                raise LensError(f"the asphere cost of the design {at} is not finite (the conic {surf.conic_name} is at "
+                                "its limit over the aperture)")
             total = cost if total is None else total + cost
     if total is None:
         total = torch.zeros(d64.shape, dtype=torch.float64)
