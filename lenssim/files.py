@@ -7,11 +7,13 @@ writers such as matplotlib and OpenImageIO still work), which is then given the 
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_write_text"]
+__all__ = ["atomic_write", "atomic_write_text", "json_text", "check_output_dir", "staged_output_dir"]
 
 
 def _default_mode() -> int:
@@ -39,3 +41,70 @@ def atomic_write(path, writer) -> Path:
 def atomic_write_text(path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
+def json_text(obj, *, indent: int = 2) -> str:
+    """JSON of ``obj`` with every number finite: ``inf`` (e.g. the PSNR of identical images) becomes ``null``,
+    NaN raises :class:`lenssim.validate.NumericalError` naming where it is (bare NaN is not JSON)."""
+    import math
+
+    from .validate import NumericalError
+
+    def clean(v, where):
+        if isinstance(v, float):
+            if math.isnan(v):
+                raise NumericalError(f"{where or 'a result'} is NaN: not written")
+            return v if math.isfinite(v) else None
+        if isinstance(v, dict):
+            return {k: clean(x, f"{where}.{k}" if where else str(k)) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x, f"{where}[{i}]") for i, x in enumerate(v)]
+        return v
+
+    import json
+
+    return json.dumps(clean(obj, ""), indent=indent, allow_nan=False)
+
+
+def _existing_ancestor(p: Path) -> Path:
+    q = p.resolve()
+    while not q.exists():
+        q = q.parent
+    return q
+
+
+def check_output_dir(path, inputs=()) -> Path:
+    """Before any work: ``path`` is, or can be created as, a writable folder that holds none of ``inputs``."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise NotADirectoryError(f"output folder {str(p)!r} is an existing file; choose a folder")
+    anc = _existing_ancestor(p)
+    if not anc.is_dir() or not os.access(anc, os.W_OK | os.X_OK):
+        raise PermissionError(f"output folder {str(p)!r} cannot be written (no write permission in {str(anc)!r})")
+    target = p.resolve()
+    for q in inputs:
+        qp = Path(q).resolve()
+        if target == qp or target in qp.parents:
+            raise ValueError(f"output folder {str(p)!r} holds the input {str(q)!r}; choose another folder")
+    return p
+
+
+@contextlib.contextmanager
+def staged_output_dir(path):
+    """Write a run's files into a hidden staging folder; on success move them into ``path`` (created then),
+    on failure or interruption remove them, so a failed run leaves no partial outputs."""
+    p = Path(path)
+    anc = _existing_ancestor(p)
+    for old in anc.glob(f".{p.name}.staging-*"):  # left by a run that was killed
+        shutil.rmtree(old, ignore_errors=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{p.name}.staging-", dir=anc))
+    try:
+        yield stage
+        p.mkdir(parents=True, exist_ok=True)
+        for f in sorted(stage.rglob("*")):
+            if f.is_file():
+                dest = p / f.relative_to(stage)
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(f, dest)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

@@ -24,6 +24,11 @@ from .design import Design
 from .glass import ConstantGlass, as_glass
 from .paraxial import Surface
 from .torch_utils import as_tensor
+from .validate import warn_model
+
+THIRD_ORDER_LIMIT = 0.25
+"""Largest ``(1 + conic) c^2 y^2`` of a surface for which the third-order model is taken as valid (the paper's
+grid reaches 0.13); beyond it a warning (the surface itself is defined up to 1)."""
 
 __all__ = ["LensError", "Lens", "ThinLens", "as_tensor"]
 
@@ -178,6 +183,9 @@ class Lens:
                 lim = 1 / (cj**2 * y2) - 1
                 raise LensError(f"{where} is not allowed: the conic surface {i + 1} is undefined over the "
                                 f"{self.pupil_radius_mm} mm aperture; {surf.conic_name} must be < {lim:.6g} here")
+            if bool((arg < 1 - THIRD_ORDER_LIMIT).any()):
+                warn_model(f"surface {i + 1}: (1 + conic) c^2 y^2 exceeds {THIRD_ORDER_LIMIT:g} for some designs; the "
+                           "third-order (Seidel) model is far outside its validated range there")
 
 
 ThinLens = Lens

@@ -24,6 +24,7 @@ from .paper import PAPER_RHO0, PAPER_SNR_DB
 from .psf_bank import fft_size as choose_fft_size
 from .psf_bank import otf_quarter_spectrum, spectral_coefficients
 from .torch_utils import as_tensor
+from .validate import NumericalError, ResourceLimitError, check_memory
 
 __all__ = ["otf_criteria_bank", "evaluate"]
 
@@ -55,6 +56,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
         psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=coeffs.dtype, device=coeffs.device)
         pw = psd_q * quarter_weights(m, psd_q.dtype, psd_q.device)
         per_psf = 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
+        check_memory(per_psf, f"one OTF of {m} x {m} samples", setting="max_fft_size")
         step = max(1, int(numerics.chunk_bytes // per_psf))
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]
@@ -86,7 +88,13 @@ def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float
     A, K = coeffs64.shape[-3], coeffs64.shape[-2]
     flat = coeffs64.reshape(-1, K, N_TERMS)
     if fft_size is None:
-        sizes = choose_fft_size(camera, flat, numerics)
+        try:
+            sizes = choose_fft_size(camera, flat, numerics)
+        except ResourceLimitError as exc:
+            i = getattr(exc, "index", 0)
+            at = ", ".join(f"{k} = {float(v.reshape(-1)[i // A]):g}" for k, v in d64.values.items())
+            alpha = camera.lens.field_angles_deg[i % A]
+            raise ResourceLimitError(f"design {at} at {alpha:g} deg: {exc}", exc.setting) from None
     else:
         if isinstance(fft_size, bool) or not (isinstance(fft_size, int) and fft_size >= 16 and fft_size % 2 == 0):
             raise ValueError(f"fft_size={fft_size!r} is not allowed: an even integer >= 16")
@@ -107,4 +115,11 @@ def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float
     out["fft_size"] = sizes.reshape(shape + (A,))
     out["snr_db"] = snr
     out["alpha_deg"] = camera.lens.field_angles(dtype=torch.float64)
+    for name in CRITERIA:
+        if not bool(torch.isfinite(out[name]).all()):
+            i = int(torch.nonzero(~torch.isfinite(out[name].reshape(shape + (-1,)).amax(-1).reshape(-1)) |
+                                  ~torch.isfinite(out[name].reshape(shape + (-1,)).amin(-1).reshape(-1)))[0])
+            at = ", ".join(f"{k} = {float(v.reshape(-1)[i]):g}" for k, v in d64.values.items())
+            raise NumericalError(f"criterion {name} of the design {at} is not finite (numerical breakdown); "
+                                 "no result is reported")
     return out

@@ -24,6 +24,8 @@ class Numerics:
     supersample : sub-samples per axis for the anti-aliased pupil rim.
     cost_points : radii of the slope-departure cost quadrature.
     chunk_bytes : working memory per chunk of OTFs in the metrics (cache-sized on a CPU).
+    max_fft_size : largest FFT size a PSF may ask for (samples): a design whose wavefront slope needs
+        more is refused before any work (an oversampled OTF of 4096 points holds ~1.6 GB).
     """
 
     fill: float = 0.5
@@ -33,12 +35,13 @@ class Numerics:
     supersample: int = 8
     cost_points: int = 101
     chunk_bytes: int = 32 * 2**20
+    max_fft_size: int = 4096
 
     def __post_init__(self):
         if not (isinstance(self.fill, (int, float)) and 0 < self.fill <= 1):
             raise ValueError(f"fill={self.fill!r} is not allowed: must be in (0, 1]")
         for k, lo in (("margin_px", 0), ("min_size", 16), ("oversample", 1), ("supersample", 1), ("cost_points", 2),
-                      ("chunk_bytes", 1)):
+                      ("chunk_bytes", 1), ("max_fft_size", 16)):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{k}={v!r} is not allowed: an integer >= {lo}")

@@ -40,6 +40,7 @@ from .checks import check_shape
 from .design import Design
 from .numerics import DEFAULT_NUMERICS, Numerics
 from .torch_utils import as_tensor
+from .validate import NumericalError, ResourceLimitError, check_int
 
 __all__ = [
     "nice_fft_size",
@@ -126,6 +127,16 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
         n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
         nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype))
         need = nk if need is None else torch.maximum(need, nk)
+    if not bool(torch.isfinite(need).all()):
+        raise NumericalError("a wavefront slope is not finite: the coefficients hold NaN or infinite values")
+    worst = int(torch.argmax(need.reshape(-1)))
+    if float(need.reshape(-1)[worst]) > numerics.max_fft_size:
+        n_req = nice_fft_size(int(math.ceil(float(need.reshape(-1)[worst]))))
+        gib = 6 * (n_req * numerics.oversample) ** 2 / 2 * 8 / 2**30
+        err = ResourceLimitError(f"a PSF needs an FFT of {n_req} samples (about {gib:.1f} GiB for its OTF); the "
+                                 f"limit is max_fft_size = {numerics.max_fft_size}", "max_fft_size")
+        err.index = worst
+        raise err
     sizes = sorted({nice_fft_size(int(math.ceil(v))) for v in need.flatten().tolist()})
     table = torch.tensor(sizes, dtype=torch.float64)
     idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
@@ -277,6 +288,8 @@ def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, 
     azimuth = torch.rad2deg(torch.atan2(y, x)).flatten()
     if n is None:
         n = int(fft_size(camera, coeffs, numerics).max())
+    else:
+        n = check_int("n", n, 16, numerics.max_fft_size)
     out = psf(camera, coeffs, n, azimuth_deg=azimuth, centered=centered, dtype=dtype, numerics=numerics)
     return out.reshape(shape + (n, n)), n
 

@@ -18,6 +18,7 @@ import os
 import shutil
 import sys
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,18 +39,35 @@ from .paper import PAPER_GRID, PAPER_RHO0, PAPER_SNR_DB
 from .sensor import Sensor
 from .spectrum import Spectrum
 from .torch_utils import select_device
+from .validate import ResourceLimitError, ResumeWarning, check_memory
 
-__all__ = ["SweepConfig", "load_config", "grid_values", "run_sweep", "select_device"]
+__all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
+           "design_dims"]
 
 
-def grid_values(start: float, stop: float, step: float) -> np.ndarray:
-    """``start, start + step, ...`` up to ``stop`` inclusive (to 1e-9 of a step), rounded to 10 digits."""
+MAX_GRID_VALUES = 100_000
+"""Most values of one grid parameter (a sweep of more designs than that is refused before allocating)."""
+
+
+def grid_count(start: float, stop: float, step: float) -> int:
+    """Number of values of :func:`grid_values` (checked: finite, ``step > 0``, ``stop >= start``)."""
+    for k, v in (("start", start), ("stop", stop), ("step", step)):
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)):
+            raise ValueError(f"{k}={v!r} is not allowed: a finite number")
     if not step > 0:
         raise ValueError(f"step={step!r} is not allowed: must be > 0")
     if stop < start:
         raise ValueError(f"stop={stop!r} is below start={start!r}")
-    count = int(np.floor((stop - start) / step + 1e-9)) + 1
-    return np.round(start + step * np.arange(count), 10)
+    count = (stop - start) / step + 1e-9
+    if count >= MAX_GRID_VALUES:
+        raise ResourceLimitError(f"the grid [{start:g}, {stop:g}] in steps of {step:g} has {int(count) + 1} values; "
+                                 f"at most {MAX_GRID_VALUES} per parameter", "grid")
+    return int(np.floor(count)) + 1
+
+
+def grid_values(start: float, stop: float, step: float) -> np.ndarray:
+    """``start, start + step, ...`` up to ``stop`` inclusive (to 1e-9 of a step), rounded to 10 digits."""
+    return np.round(start + step * np.arange(grid_count(start, stop, step)), 10)
 
 
 @dataclass
@@ -94,6 +112,27 @@ class SweepConfig:
     def values(self, name: str) -> np.ndarray:
         return grid_values(*self.grid[parameter_name(name)])
 
+    def n_designs(self) -> int:
+        return int(np.prod([grid_count(*self.grid[d]) for d in self.dims]))
+
+    def result_bytes(self) -> int:
+        """Memory (bytes) of the assembled results: every criterion per design, angle and SNR, held about four
+        times over while the chunks are stacked into the dataset and written."""
+        A, S = len(self.lens.field_angles_deg), len(self.snr_db)
+        per_design = (2 * A * S + 2 * S + 2 * A + 3) * 8
+        return 4 * self.n_designs() * per_design
+
+    def check(self, memory_limit_bytes: float | None = None) -> None:
+        """Before any work: the results fit in memory and every design of the grid is a physical lens (checked one
+        value of the first parameter at a time, so memory stays that of one chunk)."""
+        check_memory(self.result_bytes(), f"a sweep of {self.n_designs()} designs", memory_limit_bytes)
+        rest = self.dims[1:]
+        axes = [torch.from_numpy(a) for a in np.meshgrid(*(self.values(d) for d in rest), indexing="ij")] if rest else []
+        for v in self.values(self.dims[0]):
+            vals = dict(zip(rest, axes))
+            vals[self.dims[0]] = torch.tensor(float(v), dtype=torch.float64)
+            self.lens.check_design(Design(vals))
+
     def grid_design(self) -> Design:
         """Every design of the grid, as a design of shape ``(len(dim0), len(dim1), ...)``."""
         axes = np.meshgrid(*(self.values(d) for d in self.dims), indexing="ij")
@@ -120,7 +159,7 @@ class SweepConfig:
                    numerics=Numerics(**d.get("numerics", {})))
 
 
-_NUMERICS_KEYS = ("fill", "margin_px", "min_size", "oversample", "supersample", "cost_points")
+_NUMERICS_KEYS = ("fill", "margin_px", "min_size", "oversample", "supersample", "cost_points", "max_fft_size")
 
 
 def load_config(path: str | os.PathLike) -> SweepConfig:
@@ -178,7 +217,9 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             kw[k] = numerics.pop(k)
     try:
         cfg = SweepConfig(camera=camera, grid=grid or dict(PAPER_GRID), numerics=Numerics(**numerics), **kw)
-        camera.lens.check_design(cfg.grid_design())
+        cfg.check()
+    except ResourceLimitError as exc:
+        raise ResourceLimitError(f"{where}: {exc}", exc.setting) from None
     except (LensError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
     return cfg
@@ -232,18 +273,76 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     return ds
 
 
+def _checksum(chunk: dict) -> str:
+    h = hashlib.sha256()
+    for k in _chunk_keys():
+        a = np.ascontiguousarray(chunk[k])
+        h.update(f"{k}|{a.dtype}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _write_chunk(path: Path, chunk: dict, cfg: SweepConfig, i: int) -> None:
+    meta = {"_index": np.int64(i), "_first_value": np.float64(cfg.values(cfg.dims[0])[i]),
+            "_digest": np.str_(cfg.digest()), "_checksum": np.str_(_checksum(chunk))}
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **chunk, **meta)
+    atomic_write(path, write)
+
+
+def _read_chunk(path: Path, cfg: SweepConfig, i: int):
+    """The chunk's arrays if ``path`` holds chunk ``i`` of this config intact, else the reason it does not."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
+        return f"cannot be read ({type(exc).__name__})"
+    meta = ("_index", "_first_value", "_digest", "_checksum")
+    if any(k not in data for k in _chunk_keys() + meta):
+        return "is incomplete (missing arrays or its stamp)"
+    first = float(cfg.values(cfg.dims[0])[i])
+    if int(data["_index"]) != i or float(data["_first_value"]) != first:
+        return (f"holds the chunk of {cfg.dims[0]} = {float(data['_first_value']):g} (index {int(data['_index'])}), "
+                f"not {cfg.dims[0]} = {first:g}")
+    if str(data["_digest"]) != cfg.digest():
+        return "belongs to another config"
+    chunk = {k: data[k] for k in _chunk_keys()}
+    if _checksum(chunk) != str(data["_checksum"]):
+        return "fails its checksum (corrupted)"
+    rest = tuple(len(cfg.values(d)) for d in cfg.dims[1:])
+    if chunk["cost"].shape != rest:
+        return f"has the shape {chunk['cost'].shape}, not {rest}"
+    return chunk
+
+
+def _remove_temporaries(out: Path, part: Path) -> None:
+    """Hidden temporaries of an earlier run that was killed (atomic writes in progress)."""
+    stale = list(out.parent.glob(f".{out.stem}.*{out.suffix}")) if out.parent.exists() else []
+    stale += list(part.glob(".*")) if part.exists() else []
+    for p in stale:
+        p.unlink(missing_ok=True)
+
+
 def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto", show_progress: bool = True,
-              keep_chunks: bool = False, max_chunks: int | None = None) -> xr.Dataset | None:
+              keep_chunks: bool = False, max_chunks: int | None = None,
+              memory_limit_bytes: float | None = None) -> xr.Dataset | None:
     """Run (or resume) a sweep and write ``out`` (NetCDF). Returns the dataset, or ``None`` if
     ``max_chunks`` stopped the run early (the finished chunks stay in ``out.partial/``).
 
     ``out`` must not be an existing file that is not a finished sweep of the same config: the
-    sweep refuses to overwrite anything else.
+    sweep refuses to overwrite anything else. Every finished chunk carries its index, its value of
+    the first grid parameter, the config digest and a SHA-256 of its arrays; on a restart each is
+    checked, and one that fails (truncated, corrupted, of another config or another position) is
+    reported with a :class:`ResumeWarning` naming the file and computed again. Temporaries of a
+    killed run are removed.
     """
     from tqdm import tqdm
 
     out = Path(out)
     dev = select_device(device)
+    cfg.check(memory_limit_bytes)
     if out.exists():
         try:
             with xr.open_dataset(out) as old:
@@ -254,11 +353,18 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
             return xr.load_dataset(out)
         raise FileExistsError(f"{str(out)!r} exists and is not a finished sweep of this config; "
                               "choose another output file or remove it")
+    if out.parent.exists() and not os.access(out.parent, os.W_OK):
+        raise PermissionError(f"cannot write the sweep into {str(out.parent)!r} (no write permission)")
     part = out.with_name(out.name + ".partial")
+    _remove_temporaries(out, part)
     part.mkdir(parents=True, exist_ok=True)
     meta = part / "config.json"
     if meta.exists():
-        if json.loads(meta.read_text()).get("digest") != cfg.digest():
+        try:
+            digest = json.loads(meta.read_text()).get("digest")
+        except (ValueError, OSError):
+            digest = None
+        if digest != cfg.digest():
             raise FileExistsError(f"{str(part)!r} holds chunks of a different config; remove it or choose "
                                   "another output file")
     else:
@@ -266,6 +372,12 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     n_first = len(cfg.values(cfg.dims[0]))
     per_chunk = int(np.prod([len(cfg.values(d)) for d in cfg.dims[1:]])) * len(cfg.lens.field_angles_deg)
     paths = [part / f"chunk_{i:05d}.npz" for i in range(n_first)]
+    for i, p in enumerate(paths):
+        if p.exists():
+            got = _read_chunk(p, cfg, i)
+            if isinstance(got, str):
+                warnings.warn(f"sweep chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
+                p.unlink()
     done = sum(p.exists() for p in paths)
     bar = tqdm(total=len(paths) * per_chunk, initial=done * per_chunk, unit="PSF", disable=not show_progress,
                file=sys.stderr, desc=f"sweep on {dev.type}")
@@ -276,18 +388,15 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         if max_chunks is not None and computed >= max_chunks:
             bar.close()
             return None
-        chunk = _compute_chunk(cfg, i, dev, bar.update)
-
-        def write(tmp, chunk=chunk):
-            with open(tmp, "wb") as fh:
-                np.savez(fh, **chunk)
-        atomic_write(p, write)
+        _write_chunk(p, _compute_chunk(cfg, i, dev, bar.update), cfg, i)
         computed += 1
     bar.close()
     chunks = []
-    for p in paths:
-        with np.load(p) as z:
-            chunks.append({k: z[k] for k in _chunk_keys()})
+    for i, p in enumerate(paths):
+        got = _read_chunk(p, cfg, i)
+        if isinstance(got, str):
+            raise ValueError(f"sweep chunk {str(p)!r} {got} after it was written; run the same command again")
+        chunks.append(got)
     ds = _dataset(cfg, chunks)
     atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
     if not keep_chunks:

@@ -20,15 +20,62 @@ from pathlib import Path
 import torch
 
 from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF, select_device
-from lenssim.files import atomic_write_text
+from lenssim.files import atomic_write_text, json_text
 from lenssim.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
+from pipeline.figures import mosaic_figure
 from pipeline.restoration import validate_method
 
 from .common import add_design_arguments, add_device_argument, design_from_args, designs
 
 DEFAULT_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 TABLE_ANGLES_DEG = (1.0, 5.0, 9.0)
+MIN_CROP_PX = 16
+MIN_IMAGE_PX = 32
+MAP_TILE_PX = 256
+FRAME_COPIES = 12
+"""Frame-sized float32 buffers a --full-frame run holds at its peak (measured 3.4 GiB at 24 MP, 3 channels)."""
+
+
+def _check_common(args) -> None:
+    """Arguments every camera command checks before any work."""
+    if getattr(args, "crop", None) is not None and args.crop < MIN_CROP_PX:
+        raise ValueError(f"--crop {args.crop} is not allowed: at least {MIN_CROP_PX} px")
+    if getattr(args, "seed", 0) < 0:
+        raise ValueError(f"--seed {args.seed} is not allowed: a whole number >= 0")
+    for a in getattr(args, "angles", None) or []:
+        if not (math.isfinite(a) and a >= 0):
+            raise ValueError(f"--angles {a:g} is not allowed: field angles are finite and >= 0 degrees")
+    tags = [f"{a:g}" for a in getattr(args, "angles", None) or []]
+    dup = sorted({t for t in tags if tags.count(t) > 1})
+    if dup:
+        raise ValueError(f"--angles holds {', '.join(dup)} deg more than once (as written in file names); give "
+                         "distinct angles")
+    isos = getattr(args, "isos", None)
+    for iso in isos or []:
+        PAPER_CAMERA.sensor.full_well_for_iso(iso)
+    if getattr(args, "iso", None) is not None and getattr(args, "full_well", None) is None:
+        PAPER_CAMERA.sensor.full_well_for_iso(args.iso)
+    select_device(args.device)
+
+
+def _inputs(photos) -> list[str]:
+    return [p for p in photos if p and not p.startswith("skimage:")]
+
+
+def _load(spec, device):
+    from pipeline.checks import check_scene
+
+    ideal, source = load_photo(spec)
+    check_scene(ideal, f"image {source!r}")
+    H, W = ideal.shape[-2:]
+    if min(H, W) < MIN_IMAGE_PX:
+        raise ValueError(f"image {source!r} is {W} x {H} px: at least {MIN_IMAGE_PX} x {MIN_IMAGE_PX} px")
+    return ideal.to(device), source
+
+
+def _memory_limit(args):
+    return None if getattr(args, "memory_limit", None) is None else args.memory_limit * 2**30
 
 
 def _methods(args) -> tuple[tuple[str, ...], dict]:
@@ -44,65 +91,74 @@ def _methods(args) -> tuple[tuple[str, ...], dict]:
     return tuple(methods), options
 
 
-def _mosaic(results, methods) -> torch.Tensor:
-    rows = [torch.cat([r.ideal, r.sensor] + [r.images[m] for m in methods], dim=-1) for r in results]
-    c = max(x.shape[1] for x in rows)
-    rows = [x.expand(-1, c, -1, -1) for x in rows]
-    return torch.cat(rows, dim=-2)
-
-
 def cmd_simulate(args) -> int:
+    from lenssim.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
-    from pipeline.colour_space import linear_to_srgb
     from pipeline.blur import WindowScheme
+    from pipeline.checks import check_full_well
+    from pipeline.colour_space import linear_to_srgb
 
+    # every argument and the output folder are checked before any work
+    _check_common(args)
     design = design_from_args(args)
     camera = PAPER_CAMERA
     psf = LensPSF(camera, design)
     if args.full_well is not None:
-        if not args.full_well > 0:
-            raise ValueError(f"--full-well {args.full_well!r} is not allowed: must be > 0 electrons")
-        fwc, args.iso = float(args.full_well), None
+        fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
     else:
         fwc = camera.sensor.full_well_for_iso(args.iso)
     scheme = WindowScheme(*args.scheme)
+    if args.rl < 0:
+        raise ValueError(f"--rl {args.rl} is not allowed: a number of iterations >= 0 (0: no Richardson-Lucy)")
+    if args.denoise and not 0 < args.denoise <= 2:
+        raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength in (0, 2], or 0 for none")
     methods, options = _methods(args)
+    if args.full_frame and len(methods) > 1:
+        raise ValueError("--full-frame restores with the adaptive Wiener filter only (Richardson-Lucy on 24 MP is "
+                         "hours on a CPU); use --rl and --restore on crops")
+    inputs = _inputs([args.photo])
+    out = check_output_dir(args.out, inputs)
     t0 = time.perf_counter()
-    ideal, source = load_photo(args.photo)
-    ideal = ideal.to(select_device(args.device))
+    ideal, source = _load(args.photo, select_device(args.device))
+    H, W = ideal.shape[-2:]
+    size = min(args.crop, H, W)
+    boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
+    if args.full_frame:
+        if min(H, W) < MAP_TILE_PX:
+            raise ValueError(f"--full-frame needs an image of at least {MAP_TILE_PX} x {MAP_TILE_PX} px (one tile of "
+                             f"the PSNR map); {source!r} is {W} x {H}: simulate crops instead")
+        from lenssim.validate import check_memory
+
+        check_memory(FRAME_COPIES * ideal.numel() * 4, f"--full-frame on a {W} x {H} image", _memory_limit(args))
     if args.denoise:
         from pipeline import gentle_denoise
 
         ideal = gentle_denoise(ideal, args.denoise)
         source += f" (gently denoised, strength {args.denoise:g})"
-    out = Path(args.out)
-    inputs = [args.photo] if args.photo and not args.photo.startswith("skimage:") else []
-    size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
-    boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
     params = design.complete().floats()
     report = {"source": source, "design": design.name or "custom", "parameters": params, **params,
               "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "methods": list(methods)}
-    if args.full_frame:
-        results = _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, methods)
-    else:
-        results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=methods, method_options=options,
-                                 scheme=scheme, sensor=camera.sensor)
-    report["crops"] = []
-    for a, r in zip(args.angles, results):
-        tag = f"crop_{a:g}deg"
-        for kind in ("ideal", "sensor") + methods:
-            name = "restored" if kind == "wiener" else ("restored_rl" if kind == "richardson_lucy" else f"restored_{kind}")
-            if kind in r.images:
-                write_image(out / f"{tag}_{name if kind not in ('ideal', 'sensor') else kind}.png",
-                            linear_to_srgb(r.images[kind].clamp(0, 1)), inputs=inputs)
-        report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3), "box_r0_r1_c0_c1": list(r.box),
-                                "scores": r.scores,
-                                "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
-                                "psnr_restored_db": r.scores["wiener"]["psnr_db"] if "wiener" in r.scores else None})
-    write_image(out / "mosaic.png", linear_to_srgb(_mosaic(results, [m for m in methods if m in results[0].images])
-                                                   .clamp(0, 1)), inputs=inputs)
-    atomic_write_text(out / "metrics.json", json.dumps(report, indent=2))
+    with staged_output_dir(out) as stage:
+        if args.full_frame:
+            results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, methods)
+        else:
+            results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=methods, method_options=options,
+                                     scheme=scheme, sensor=camera.sensor)
+        report["crops"] = []
+        for a, r in zip(args.angles, results):
+            tag = f"crop_{a:g}deg"
+            for kind in ("ideal", "sensor") + methods:
+                if kind in r.images:
+                    write_image(stage / f"{tag}_{_file_kind(kind)}.png", linear_to_srgb(r.images[kind].clamp(0, 1)))
+            report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3),
+                                    "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
+                                    "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
+                                    "psnr_restored_db": r.scores["wiener"]["psnr_db"] if "wiener" in r.scores else None})
+        mosaic_figure(results, [m for m in methods if m in results[0].images], stage / "mosaic.png",
+                      title=f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") +
+                      f"{fwc:g} e- full well")
+        atomic_write_text(stage / "metrics.json", json_text(report))
     print(f"{source}, {design.label()}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
     print("  field [deg]   PSNR [dB] / SSIM: sensor -> " + ", ".join(RESTORATION_METHODS[m].label for m in methods))
     for c in report["crops"]:
@@ -113,8 +169,15 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, methods):
-    """``simulate --full-frame``: the whole frame (resumable), whole-frame metrics, crops cut from it."""
+def _file_kind(kind: str) -> str:
+    """File-name part of an image kind: ideal, sensor, restored (Wiener), restored_rl, restored_METHOD."""
+    return {"wiener": "restored", "richardson_lucy": "restored_rl"}.get(kind, kind if kind in ("ideal", "sensor")
+                                                                        else f"restored_{kind}")
+
+
+def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, methods):
+    """``simulate --full-frame``: the whole frame (resumable from ``out/.checkpoint``), whole-frame metrics,
+    crops cut from it; files go to ``stage``."""
     import shutil
 
     from tqdm import tqdm
@@ -124,9 +187,6 @@ def _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, metho
     from pipeline.quality import encode_srgb, scores_encoded
     from pipeline.simulate import crops_from_frame, simulate_frame
 
-    if len(methods) > 1:
-        raise ValueError("--full-frame restores with the adaptive Wiener filter only (Richardson-Lucy on 24 MP is "
-                         "hours on a CPU); use other methods on crops")
     n = window_count(ideal.shape, scheme)
     checkpoint = out / ".checkpoint"
     with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
@@ -142,9 +202,9 @@ def _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, metho
         t0 = time.perf_counter()
         img = getattr(frame, kind)
         enc = encode_srgb(img)
-        write_image(out / f"{kind}.png", torch.from_numpy(enc).permute(2, 0, 1), bits=args.bits, inputs=inputs)
+        write_image(stage / f"{kind}.png", torch.from_numpy(enc).permute(2, 0, 1), bits=args.bits)
         if args.exr:
-            write_image(out / f"{kind}_linear.exr", img, bits="float", inputs=inputs)
+            write_image(stage / f"{kind}_linear.exr", img, bits="float")
         t1 = time.perf_counter()
         scores[kind] = scores_encoded(ref, enc, tile=256)
         frame.seconds["write"] += t1 - t0
@@ -158,7 +218,7 @@ def _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, metho
         "resumed": frame.resumed}
     maps = {"sensor_db": scores["sensor"]["psnr_map_db"], "restored_db": scores["restored"]["psnr_map_db"],
             "field_deg": tile_field_angles(ideal.shape, 256, psf.geometry)}
-    plot_field_psnr(maps, out / "field_psnr.png",
+    plot_field_psnr(maps, stage / "field_psnr.png",
                     title=f"{report['source']}: {psf.design.label()}, {fwc:g} e- full well")
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
         k: [[round(x, 3) if math.isfinite(x) else None for x in row] for row in v.tolist()] for k, v in maps.items()}
@@ -172,8 +232,10 @@ def _full_frame(ideal, psf, fwc, args, out, inputs, boxes, report, scheme, metho
 
 
 def cmd_psnr_table(args) -> int:
+    from lenssim.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
 
+    _check_common(args)
     named = designs(args.designs_file)
     for d in args.designs:
         if d not in named:
@@ -183,11 +245,11 @@ def cmd_psnr_table(args) -> int:
     method = args.method
     validate_method(method)
     photos = args.photos or [None]
+    out = check_output_dir(args.out, _inputs(photos))
     rows = []
     t0 = time.perf_counter()
     for photo in photos:
-        ideal, source = load_photo(photo)
-        ideal = ideal.to(select_device(args.device))
+        ideal, source = _load(photo, select_device(args.device))
         size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
         boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
         for name in args.designs:
@@ -196,12 +258,15 @@ def cmd_psnr_table(args) -> int:
                                      sensor=camera.sensor)
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
-                rows.append({"photo": source, "design": name, **d.floats(), "iso": iso, "method": method,
+                rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
                              "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
                              "ssim_restored": mean(method, "ssim")})
                 print(f"{source} | {name} | ISO {iso}: restored {rows[-1]['psnr_restored_db']:.2f} dB", file=sys.stderr)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    for r in rows:
+        for k in ("psnr_sensor_db", "psnr_restored_db", "ssim_restored"):
+            if not math.isfinite(r[k]):
+                raise ValueError(f"{k} of {r['photo']} / {r['design']} / ISO {r['iso']} is not finite (identical "
+                                 "images?): not written")
     keys = list(dict.fromkeys(k for r in rows for k in r))
     csv = "".join(",".join(str(r.get(k, "")) for k in keys) + "\n" for r in rows)
     md = (f"Mean over crops at {', '.join(f'{a:g}' for a in args.angles)} deg ({args.crop} px), sRGB PSNR/SSIM vs the "
@@ -209,22 +274,31 @@ def cmd_psnr_table(args) -> int:
           "| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |\n|---|---|---|---|---|---|\n"
           + "".join(f"| {r['photo']} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
                     f"{r['ssim_restored']:.3f} |\n" for r in rows))
-    for name, text in (("psnr_table.csv", ",".join(keys) + "\n" + csv), ("psnr_table.md", md)):
-        atomic_write_text(out / name, text)
+    with staged_output_dir(out) as stage:
+        for name, text in (("psnr_table.csv", ",".join(keys) + "\n" + csv), ("psnr_table.md", md)):
+            atomic_write_text(stage / name, text)
     print(md)
     print(f"wrote {out}/psnr_table.csv and psnr_table.md in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
 
 
 def cmd_fig8(args) -> int:
+    from lenssim.files import check_output_dir, staged_output_dir
     from pipeline.figure8 import figure8
 
-    ideal, source = load_photo(args.photo)
-    ideal = ideal.to(select_device(args.device))
+    _check_common(args)
+    out = check_output_dir(args.out, _inputs([args.photo]))
+    ideal, source = _load(args.photo, select_device(args.device))
+    for a in args.angles:  # every crop fits the image, before any work
+        from pipeline import crop_at_field_angle
+
+        crop_at_field_angle(ideal.shape, a, min(args.crop, *ideal.shape[-2:]), PAPER_CAMERA.geometry)
     t0 = time.perf_counter()
-    png, tiles = figure8(ideal, args.out, angles=tuple(args.angles), crop=args.crop, seed=args.seed)
-    atomic_write_text(Path(args.out) / "fig8_psnr.json", json.dumps({"source": source, "tiles": tiles}, indent=2))
-    print(f"wrote {png} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
+    with staged_output_dir(out) as stage:
+        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=min(args.crop, *ideal.shape[-2:]),
+                             seed=args.seed)
+        atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
+    print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
     return 0
 
 
@@ -253,6 +327,8 @@ def register(sub) -> None:
                         "2 CPU cores; resumes after an interruption) instead of crops only")
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="--full-frame PNG bit depth (sRGB)")
     p.add_argument("--exr", action="store_true", help="--full-frame: also write linear float EXRs")
+    p.add_argument("--memory-limit", type=float, metavar="GIB",
+                   help="memory a --full-frame run may plan to use (default: 80%% of the available memory)")
     add_device_argument(p)
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=cmd_simulate)

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
+import warnings
 
 from lenssim import LensError, __version__
+from lenssim.validate import ResourceLimitError
 
 from . import camera, optics
 
@@ -15,7 +18,13 @@ COMMAND_MODULES = (optics, camera)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
-                   PermissionError)
+                   PermissionError, OSError)
+
+OVERRIDE_FLAGS = {"max_fft_size": "--max-fft-size N", "memory_limit_gib": "--memory-limit GIB"}
+"""The command-line flag that raises each library limit (ResourceLimitError.setting)."""
+
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$|^-nan$", re.IGNORECASE)
+"""Negative numbers, exponents included (``--Q -1e6``), are values, not options."""
 
 DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the restored image.
 
@@ -30,20 +39,44 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     for module in COMMAND_MODULES:
         module.register(sub)
+    for parser in [p, *sub.choices.values()]:
+        parser._negative_number_matcher = NEGATIVE_NUMBER  # argparse's own matcher misses exponents
     return p
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except EXPECTED_ERRORS as exc:
-        print(f"lenssim {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"lenssim {args.command}: interrupted; run the same command again to resume", file=sys.stderr)
-        return 130
+    prefix = f"lenssim {args.command}"
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{prefix}: warning: {_one_line(message)}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        warnings.simplefilter("once")
+        try:
+            return args.func(args)
+        except ResourceLimitError as exc:
+            flag = OVERRIDE_FLAGS.get(exc.setting)
+            print(f"{prefix}: error: {_one_line(exc)}" + (f"; raise it with {flag}" if flag else ""), file=sys.stderr)
+            return 2
+        except (MemoryError, RuntimeError) as exc:
+            if isinstance(exc, RuntimeError) and "out of memory" not in str(exc).lower():
+                raise
+            print(f"{prefix}: error: out of memory ({_one_line(exc)[:200]}); use a smaller input, grid or window",
+                  file=sys.stderr)
+            return 2
+        except EXPECTED_ERRORS as exc:
+            print(f"{prefix}: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f"{prefix}: interrupted; run the same command again to resume", file=sys.stderr)
+            return 130
 
 
 def entry() -> None:

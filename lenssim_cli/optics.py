@@ -7,7 +7,9 @@ import sys
 import time
 from pathlib import Path
 
-from lenssim import CRITERIA, PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB, PARAMETERS, Design, evaluate, select_device
+from lenssim import (CRITERIA, DEFAULT_NUMERICS, PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB, PARAMETERS, Design, evaluate,
+                     select_device)
+from lenssim.files import json_text
 from lenssim.resources import builtin_configs, config_path
 
 from .common import add_design_arguments, add_device_argument, design_from_args, designs, table
@@ -17,9 +19,13 @@ DEMO_CONFIG = "small_grid"
 REPRODUCE_CONFIG = "paper_grid_fast"
 
 
-def evaluate_design(design: Design, snr, device: str = "auto") -> dict:
+def _numerics(args, base=DEFAULT_NUMERICS):
+    return base.replace(max_fft_size=args.max_fft_size) if getattr(args, "max_fft_size", None) else base
+
+
+def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS) -> dict:
     """Every registered criterion of one design, as JSON-ready values keyed by criterion name."""
-    res = evaluate(PAPER_CAMERA, design, snr, device=select_device(device))
+    res = evaluate(PAPER_CAMERA, design, snr, device=select_device(device), numerics=numerics)
     params = design.complete().floats()
     out = {"parameters": params, **params}
     for name, c in CRITERIA.items():
@@ -51,10 +57,11 @@ def design_table(results: list[tuple[str, dict]]) -> str:
 
 def cmd_evaluate(args) -> int:
     design = design_from_args(args)
+    select_device(args.device)
     t0 = time.perf_counter()
-    r = evaluate_design(design, args.snr, args.device)
+    r = evaluate_design(design, args.snr, args.device, _numerics(args))
     if args.json:
-        print(json.dumps({"design": design.name or "custom", **r}, indent=2))
+        print(json_text({"design": design.name or "custom", **r}))
     else:
         print(design_table([(design.name or "custom", r)]))
         print(f"\nFFT sizes per field angle {r['alpha_deg'][0]:g}..{r['alpha_deg'][-1]:g} deg: "
@@ -66,8 +73,12 @@ def cmd_sweep(args) -> int:
     from lenssim.sweep import load_config, run_sweep
 
     cfg = load_config(config_path(args.config))
+    if args.max_fft_size:
+        cfg.numerics = cfg.numerics.replace(max_fft_size=args.max_fft_size)
+    select_device(args.device)
     t0 = time.perf_counter()
-    run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks)
+    run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
+              memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None)
     sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
     print(f"wrote {args.out} ({sizes} x {len(cfg.lens.field_angles_deg)} angles) in {time.perf_counter() - t0:.1f} s",
           file=sys.stderr)
@@ -80,12 +91,17 @@ def cmd_optimum(args) -> int:
     from lenssim.tradeoff import find_optimum
 
     path = Path(args.file)
-    if not path.exists():
-        raise FileNotFoundError(f"sweep file {str(path)!r} does not exist")
-    with xr.open_dataset(path) as ds:
-        r = find_optimum(ds.load(), args.criterion, args.snr)
+    if not path.is_file():
+        raise FileNotFoundError(f"sweep file {str(path)!r} does not exist or is not a file")
+    try:
+        ds = xr.load_dataset(path, engine="scipy")
+    except Exception:  # noqa: BLE001 - whatever the reader says, the file is not a sweep
+        raise ValueError(f"{str(path)!r} is not a sweep file (NetCDF written by `lenssim sweep`)") from None
+    if "config_digest" not in ds.attrs:
+        raise ValueError(f"{str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
+    r = find_optimum(ds, args.criterion, args.snr)
     if args.json:
-        print(json.dumps(r, indent=2))
+        print(json_text(r))
     else:
         snr_txt = f" at {r['snr_db']:g} dB" if r["snr_db"] is not None else ""
         where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
@@ -102,6 +118,7 @@ def cmd_demo(args) -> int:
     from lenssim.tradeoff import find_optimum
 
     named = designs()
+    select_device(args.device)
     results = [(n, evaluate_design(named[n], PAPER_SNR_DB, args.device)) for n in DEMO_DESIGNS]
     lens = PAPER_CAMERA.lens
     print(f"The paper's two highlighted designs (f = {lens.focal_length_mm:g} mm, f/{lens.f_number:g}, "
@@ -131,7 +148,13 @@ def cmd_reproduce(args) -> int:
     from lenssim.report import reproduce
     from lenssim.sweep import load_config
 
+    from lenssim.files import check_output_dir
+
     cfg = load_config(config_path(args.config or REPRODUCE_CONFIG))
+    if args.max_fft_size:
+        cfg.numerics = cfg.numerics.replace(max_fft_size=args.max_fft_size)
+    check_output_dir(args.out)
+    select_device(args.device)
     t0 = time.perf_counter()
     report = reproduce(args.out, cfg, device=args.device, show_progress=not args.quiet)
     print(report.read_text())
@@ -151,6 +174,12 @@ def cmd_designs(args) -> int:
     return 0
 
 
+def add_fft_limit_argument(p) -> None:
+    p.add_argument("--max-fft-size", type=int, metavar="N",
+                   help=f"largest FFT size per PSF (default {DEFAULT_NUMERICS.max_fft_size}; larger designs are refused "
+                        "before any work)")
+
+
 def register(sub) -> None:
     from lenssim import REFERENCE_SNR_DB
 
@@ -160,6 +189,7 @@ def register(sub) -> None:
     e.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)})")
     add_device_argument(e)
+    add_fft_limit_argument(e)
     e.add_argument("--json", action="store_true", help="JSON output for scripts")
     e.set_defaults(func=cmd_evaluate)
 
@@ -168,6 +198,9 @@ def register(sub) -> None:
     s.add_argument("--out", required=True, help="output NetCDF file")
     add_device_argument(s)
     s.add_argument("--keep-chunks", action="store_true", help="keep OUT.partial/ after finishing")
+    add_fft_limit_argument(s)
+    s.add_argument("--memory-limit", type=float, metavar="GIB",
+                   help="memory the sweep's results may take (default: 80%% of the available memory)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
 
@@ -187,6 +220,7 @@ def register(sub) -> None:
     r = sub.add_parser("reproduce", help="the paper's figures 3-6, Table 1 and a claims report")
     r.add_argument("--out", required=True, help="output folder (a second run reuses what is there)")
     r.add_argument("--config", help=f"sweep config (default: {REPRODUCE_CONFIG}, ~10 min on 2 cores; built-in: {configs})")
+    add_fft_limit_argument(r)
     add_device_argument(r)
     r.add_argument("--quiet", action="store_true")
     r.set_defaults(func=cmd_reproduce)

@@ -25,7 +25,9 @@ from dataclasses import dataclass
 
 import torch
 
-from lenssim import PSFProvider, check_shape, frame_center
+from lenssim import PSFProvider, frame_center
+
+from .checks import check_image, check_provider
 
 __all__ = ["WindowScheme", "PAPER_SCHEME", "window_centres", "window_count", "tent_weights", "core_irfft2", "apply_windowed",
            "blur_windowed", "blur_exact"]
@@ -68,15 +70,6 @@ def tent_weights(core: int, dtype=torch.float64) -> torch.Tensor:
     return (1 - d.abs() / (core / 2)).clamp_min(0)
 
 
-def _check_image(image: torch.Tensor, name: str = "image") -> dict:
-    return check_shape(image, "B C H W", name)
-
-
-def _check_provider(psf) -> None:
-    if not isinstance(psf, PSFProvider):
-        raise ValueError(f"psf is a {type(psf).__name__}: expected a PSF provider (lenssim.LensPSF, lenssim.FunctionPSF)")
-
-
 def _pad(image: torch.Tensor, p: int) -> torch.Tensor:
     """Reflect padding (edge replication where the image is smaller than the pad)."""
     mode = "reflect" if p < min(image.shape[-2:]) else "replicate"
@@ -105,8 +98,8 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     their spectra (complex, ``rfft2`` layout), of which only the core is inverse transformed
     (:func:`core_irfft2`).
     """
-    _check_image(image)
-    _check_provider(psf)
+    check_image(image)
+    check_provider(psf)
     B, C, H, W = image.shape
     if psf.channels not in (1, C):
         raise ValueError(f"the PSF provider has {psf.channels} channels and the image {C}: expected 1 or {C}")
@@ -176,8 +169,8 @@ def blur_exact(image: torch.Tensor, psf: PSFProvider, rows, cols, *, n: int = 51
 
     ``out(p) = sum_d PSF_p(d) x(p - d)`` over the ``n x n`` PSF support, reflect padding at the edges.
     """
-    _check_image(image)
-    _check_provider(psf)
+    check_image(image)
+    check_provider(psf)
     B, C, H, W = image.shape
     center = optical_center if optical_center is not None else frame_center(image.shape)
     rows, cols = torch.as_tensor(rows), torch.as_tensor(cols)

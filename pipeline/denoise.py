@@ -11,6 +11,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from lenssim.validate import check_real
+
+from .checks import check_scene
 from .colour_space import linear_to_srgb, srgb_to_linear
 
 __all__ = ["gentle_denoise"]
@@ -20,10 +23,8 @@ def gentle_denoise(linear: torch.Tensor, strength: float = 0.5) -> torch.Tensor:
     """Denoise a linear ``(1, C, H, W)`` image in the sRGB domain; returns linear, same shape and dtype."""
     from skimage.restoration import denoise_wavelet, estimate_sigma
 
-    if not (0 < strength <= 2):
-        raise ValueError(f"strength={strength!r} is not allowed: in (0, 2]")
-    if linear.ndim != 4 or linear.shape[0] != 1:
-        raise ValueError(f"image has shape {tuple(linear.shape)}: expected (1, C, H, W)")
+    check_real("strength", strength, 0.0, 2.0, lo_open=True)
+    check_scene(linear, "image")
     enc = linear_to_srgb(linear.clamp(0, 1))[0].permute(1, 2, 0).double().cpu().numpy()
     multichannel = enc.shape[-1] > 1
     sig = np.atleast_1d(estimate_sigma(enc, channel_axis=-1) if multichannel else estimate_sigma(enc[..., 0]))

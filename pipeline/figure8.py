@@ -16,6 +16,8 @@ from lenssim.files import atomic_write
 from lenssim.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
 
 from .colour_space import linear_to_srgb
+from .figures import tile_label
+from .restoration import RESTORATION_METHODS
 from .simulate import crop_at_field_angle, simulate_crops
 
 __all__ = ["PAPER_FIG8_ANGLES", "figure8"]
@@ -62,11 +64,15 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             if i == 0:
                 ax.set_title(title, fontsize=7)
             if j == 0:
-                ax.set_ylabel(f"{runs[('e2e', low_noise)][i].field_deg:.1f} deg", fontsize=8)
+                ax.set_ylabel(f"field {runs[('e2e', low_noise)][i].field_deg:.1f} deg", fontsize=8)
             if key is not None:
-                p = runs[key][i].scores[method]["psnr_db"]
-                ax.text(3, 12, f"{p:.1f} dB", color="yellow", fontsize=7, backgroundcolor=(0, 0, 0, 0.4))
-                table.append({"field_deg": runs[key][i].field_deg, "design": key[0], "iso": key[1], "psnr_restored_db": p})
+                sc = runs[key][i].scores[method]
+                ax.text(0.02, 0.03, tile_label(sc), transform=ax.transAxes, color="yellow", fontsize=6,
+                        backgroundcolor=(0, 0, 0, 0.55))
+                table.append({"field_deg": runs[key][i].field_deg, "design": key[0], "iso": key[1],
+                              "psnr_restored_db": sc["psnr_db"], "ssim_restored": sc["ssim"]})
+    fig.suptitle(f"Fig. 8: RMS_W design ({rms_w.label()}) vs end-to-end design ({e2e.label()}); restoration: "
+                 f"{RESTORATION_METHODS[method].label}; PSNR / SSIM in sRGB against the ideal image", fontsize=8)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png = out / "fig8_mosaic.png"

@@ -15,6 +15,8 @@ import torch
 
 from lenssim import PAPER_SENSOR, Sensor
 
+from .checks import check_full_well, check_image
+
 __all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise", "read_out", "read_noise_variance"]
 
 ISO_FULL_WELL = dict(PAPER_SENSOR.full_well_e)
@@ -59,12 +61,8 @@ def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch
     """
     if (generator is None) == (seed is None):
         raise ValueError("give exactly one of generator= or seed= (noise must be reproducible)")
-    if not (full_well > 0):
-        raise ValueError(f"full_well={full_well!r} is not allowed: must be > 0 electrons")
-    if image.ndim != 4:
-        raise ValueError(f"image has shape {tuple(image.shape)}: expected (B, C, H, W)")
-    if (image < 0).any():
-        raise ValueError("image has negative values: Poisson noise needs a linear image >= 0")
+    full_well = check_full_well(full_well)
+    check_image(image, "image", nonnegative=True)
     if generator is None:
         generator = torch.Generator(device=image.device).manual_seed(int(seed))
     peak = image.amax()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .checks import check_image
 from .colour_space import linear_to_srgb
 
 __all__ = ["encode_srgb", "psnr_srgb", "ssim_srgb", "psnr_map_srgb", "scores_encoded"]
@@ -28,7 +29,9 @@ def encode_srgb(image: torch.Tensor, crop=None) -> np.ndarray:
 
 
 def _prep(ref: torch.Tensor, test: torch.Tensor, crop):
-    if ref.shape != test.shape or ref.ndim != 4 or ref.shape[0] != 1:
+    check_image(ref, "ref")
+    check_image(test, "test")
+    if ref.shape != test.shape or ref.shape[0] != 1:
         raise ValueError(f"shapes {tuple(ref.shape)} and {tuple(test.shape)}: expected two equal (1, C, H, W) tensors")
     return encode_srgb(ref, crop), encode_srgb(test, crop)
 

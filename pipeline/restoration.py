@@ -26,8 +26,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from lenssim import PAPER_RHO0, PSFProvider, image_psd
+from lenssim.validate import check_real
 
-from .blur import PAPER_SCHEME, WindowScheme, _check_image, apply_windowed
+from .blur import PAPER_SCHEME, WindowScheme, apply_windowed
+from .checks import check_image
 
 __all__ = ["wiener_windowed", "richardson_lucy_windowed", "RestorationMethod", "RESTORATION_METHODS",
            "validate_method", "restore"]
@@ -42,9 +44,11 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
     ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
     noise variance in squared image units. Returns the same shape.
     """
-    _check_image(observed, "observed")
-    if not electrons_per_unit > 0:
-        raise ValueError(f"electrons_per_unit={electrons_per_unit!r} is not allowed: must be > 0 (inf: no noise)")
+    check_image(observed, "observed")
+    if not (isinstance(electrons_per_unit, (int, float)) and not isinstance(electrons_per_unit, bool)
+            and electrons_per_unit > 0 and not math.isnan(electrons_per_unit)):
+        raise ValueError(f"electrons_per_unit={electrons_per_unit!r} is not allowed: a number > 0 (inf: no noise)")
+    check_real("read_noise_var", read_noise_var, 0.0)
     if not (isinstance(stats, int) and 2 <= stats <= scheme.window):
         raise ValueError(f"stats={stats!r} is not allowed: an integer in [2, window={scheme.window}]")
     win, half = scheme.window, scheme.window // 2
@@ -91,7 +95,7 @@ def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterat
     the same iteration as ``skimage.restoration.richardson_lucy`` (which the tests compare against).
     Non-negative input required; no regularisation (stop early with ``iterations``).
     """
-    _check_image(observed, "observed")
+    check_image(observed, "observed")
     if isinstance(iterations, bool) or not (isinstance(iterations, int) and iterations >= 1):
         raise ValueError(f"iterations={iterations!r} is not allowed: an integer >= 1")
     if (observed < 0).any():

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,8 +25,10 @@ import torch
 
 from lenssim import PAPER_CAMERA, PAPER_SENSOR, FieldGeometry, PSFProvider, Sensor, frame_center
 from lenssim.files import atomic_write_text
+from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
-from .blur import PAPER_SCHEME, WindowScheme, _check_image, _check_provider, blur_windowed, window_count
+from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count
+from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import add_poisson_noise, read_noise_variance, read_out
 from .quality import psnr_srgb, ssim_srgb
 from .restoration import restore, validate_method
@@ -67,11 +70,30 @@ def _score(ideal, img) -> dict:
     return {"psnr_db": psnr_srgb(ideal, img), "ssim": ssim_srgb(ideal, img)}
 
 
+CROP_SHIFT_WARN_DEG = 0.25
+"""A crop moved inside the frame by more than this (degrees of field) is reported with a warning."""
+
+
 def crop_at_field_angle(shape, alpha_deg: float, size: int = 256, geometry: FieldGeometry | None = None,
                         azimuth_deg: float | None = None) -> tuple[int, int, int, int]:
     """Box of ``size`` px centred at field angle ``alpha_deg`` (default: along the frame diagonal), in the
-    field geometry of ``geometry`` (default: the paper's camera)."""
-    return (geometry or PAPER_CAMERA.geometry).box_at_field_angle(shape, alpha_deg, size, azimuth_deg)
+    field geometry of ``geometry`` (default: the paper's camera).
+
+    The angle must lie within the frame (0 up to its corners' field angle) and the box inside it; a
+    box near the edge is moved inside, and if that moves its centre by more than
+    :data:`CROP_SHIFT_WARN_DEG` a :class:`lenssim.validate.ModelValidityWarning` gives its true angle.
+    """
+    geometry = geometry or PAPER_CAMERA.geometry
+    H, W = shape[-2:]
+    size = check_int("crop size", size, 1, min(H, W))
+    edge = geometry.max_field_angle_deg(shape)
+    alpha = check_real("field angle", alpha_deg, 0.0, edge, unit="deg")
+    box = geometry.box_at_field_angle(shape, alpha, size, azimuth_deg)
+    actual = geometry.box_field_angle(shape, box)
+    if abs(actual - alpha) > CROP_SHIFT_WARN_DEG:
+        warn_model(f"the {size}-px crop at {alpha:g} deg does not fit in the {W} x {H} frame there; it was moved "
+                   f"inside, to {actual:.2f} deg")
+    return box
 
 
 def _check_methods(methods, method_options) -> dict:
@@ -97,14 +119,12 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     restores the crop. ``dtype`` is the working precision (float32: ~1e-7 relative, far below the
     noise; float64 for reference runs); results come back in ``ideal``'s dtype.
     """
-    _check_image(ideal, "ideal")
-    _check_provider(psf)
+    check_scene(ideal, "ideal")
+    check_provider(psf)
     opts = _check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
-    wells = [float(f) for f in (full_well if several else [full_well])]
-    for f in wells:
-        if not f > 0:
-            raise ValueError(f"full_well={f!r} is not allowed: must be > 0 electrons")
+    wells = [check_full_well(f) for f in (full_well if several else [full_well])]
+    boxes = check_boxes(boxes, ideal.shape)
     H, W = ideal.shape[-2:]
     centre = frame_center(ideal.shape)
     margin = scheme.window // 2 + scheme.core
@@ -156,6 +176,14 @@ def _fingerprint(ideal: torch.Tensor, params: dict) -> str:
     return h.hexdigest()
 
 
+def _file_sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def _provider_key(psf: PSFProvider):
     """A stable description of the provider's PSFs, or None if it has none (no resuming then)."""
     key = getattr(psf, "fingerprint", None)
@@ -178,11 +206,10 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     """
     from .io import read_image, write_image
 
-    _check_image(ideal, "ideal")
-    _check_provider(psf)
+    check_scene(ideal, "ideal")
+    check_provider(psf)
     validate_method(method)
-    if ideal.shape[0] != 1:
-        raise ValueError(f"ideal has shape {tuple(ideal.shape)}: expected (1, C, H, W)")
+    full_well = check_full_well(full_well)
     seconds = {}
     pkey = _provider_key(psf)
     params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),
@@ -194,15 +221,24 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
         t0 = time.perf_counter()
         key = _fingerprint(ideal, params)
         seconds["fingerprint"] = time.perf_counter() - t0
+        for stale in ck.glob(".*") if ck.exists() else []:  # temporaries of a killed run
+            stale.unlink(missing_ok=True)
         if stamp_path.exists() and sensor_path.exists():
-            stamp = json.loads(stamp_path.read_text())
+            try:
+                stamp = json.loads(stamp_path.read_text())
+            except (ValueError, OSError):
+                stamp = {}
             if stamp.get("key") == key:
-                noisy, _ = read_image(sensor_path)
-                if tuple(noisy.shape) == tuple(ideal.shape):
-                    if progress is not None:
-                        progress(window_count(ideal.shape, scheme))
-                    return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, psf, method, sensor,
-                                          stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
+                if stamp.get("sensor_sha256") != _file_sha256(sensor_path):
+                    warnings.warn(f"checkpoint {str(sensor_path)!r} does not match its stamp (changed or corrupted); "
+                                  "computing the sensor image again", ResumeWarning, stacklevel=2)
+                else:
+                    noisy, _ = read_image(sensor_path)
+                    if tuple(noisy.shape) == tuple(ideal.shape):
+                        if progress is not None:
+                            progress(window_count(ideal.shape, scheme))
+                        return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, psf, method, sensor,
+                                              stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
     t0 = time.perf_counter()
     blurred = blur_windowed(ideal.to(dtype), psf, scheme=scheme, progress=progress)
     seconds["blur"] = time.perf_counter() - t0
@@ -213,7 +249,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     seconds["noise"] = time.perf_counter() - t0
     if sensor_path is not None:
         write_image(sensor_path, noisy, bits="float")
-        atomic_write_text(stamp_path, json.dumps({"key": key, "electrons_per_unit": e, **params}, indent=2))
+        atomic_write_text(stamp_path, json.dumps({"key": key, "electrons_per_unit": e,
+                                                  "sensor_sha256": _file_sha256(sensor_path), **params}, indent=2))
     return _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, seconds, resumed=False)
 
 

@@ -53,5 +53,5 @@ def test_noise_variance_from_snr():
     # the paper's linear (amplitude) SNR of 24 is 27.6 dB, i.e. sigma_w^2 = 1/24^2
     assert 20 * math.log10(24) == pytest.approx(27.6, abs=0.01)
     assert float(noise_variance(27.6)) == pytest.approx(1 / 24**2, rel=2e-3)
-    with pytest.raises(ValueError, match="snr_db"):
+    with pytest.raises(ValueError, match=r"SNR \[inf\] dB is not allowed"):
         noise_variance(float("inf"))

@@ -188,7 +188,7 @@ def test_simulate_any_full_well_and_window_scheme(tmp_path, capsys):
     assert m["full_well_electrons"] == 1600 and m["iso"] is None and m["scheme_window_stride_core"] == [256, 32, 64]
     assert "(1600 e- full well)" in capsys.readouterr().out
     assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--full-well", "0", "--out", str(out)]) == 2
-    assert "--full-well 0.0" in capsys.readouterr().err
+    assert "--full-well=0.0 is not allowed" in capsys.readouterr().err
     assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--scheme", "511", "32", "64",
                  "--out", str(out)]) == 2
     assert "window=511" in capsys.readouterr().err

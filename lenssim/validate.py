@@ -1,0 +1,126 @@
+"""Checks shared by every layer: numbers in their allowed ranges, finite tensors, resource limits.
+
+Rules (README, "Errors and limits"): every result that is printed or written is finite and means
+what its label says, or the computation stops with a ``ValueError`` naming the input and what is
+allowed; values that are legal but outside where the model was validated raise a
+:class:`ModelValidityWarning`; work that would not fit this machine is refused up front with a
+:class:`ResourceLimitError` naming the limit and the setting that overrides it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+
+import torch
+
+__all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "ResumeWarning", "check_real", "check_int", "check_finite",
+           "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
+           "FULL_WELL_RANGE_E", "MEMORY_FRACTION"]
+
+SNR_DB_RANGE = (-20.0, 100.0)
+"""SNR (dB per pixel) accepted by the criteria: beyond 100 dB the noise variance (1e-10) is below the
+float32 OTFs' resolution and MSE_R stops meaning what it says."""
+
+SNR_DB_VALIDATED = (10.0, 50.0)
+"""SNRs where the numerics' convergence was checked (around the paper's 21.6-33.6 dB); outside: a warning."""
+
+FULL_WELL_RANGE_E = (1.0, 1e9)
+"""Full-well capacities (electrons) accepted by the noise model (real sensors: 1e3-1e5)."""
+
+MEMORY_FRACTION = 0.8
+"""Share of the available memory one run may plan to use."""
+
+
+class ResourceLimitError(ValueError):
+    """Work refused before it starts because it would exceed a limit; ``setting`` names the override."""
+
+    def __init__(self, message: str, setting: str):
+        super().__init__(message)
+        self.setting = setting
+
+
+class NumericalError(ValueError):
+    """A result that is not a finite number (it is never printed or written)."""
+
+
+class ResumeWarning(UserWarning):
+    """A resumable piece (a sweep chunk, a checkpoint) failed its check and is computed again."""
+
+
+class ModelValidityWarning(UserWarning):
+    """A legal input outside the range where the model or its numerics were validated."""
+
+
+def warn_model(message: str) -> None:
+    warnings.warn(message, ModelValidityWarning, stacklevel=3)
+
+
+def check_real(name: str, value, lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+               hi_open: bool = False, unit: str = "") -> float:
+    """``value`` as a finite float in ``[lo, hi]`` (open ends as asked); ``ValueError`` naming it otherwise."""
+    u = f" {unit}" if unit else ""
+    lo_s = "" if lo is None else f"{'>' if lo_open else '>='} {lo:g}{u}"
+    hi_s = "" if hi is None else f"{'<' if hi_open else '<='} {hi:g}{u}"
+    allowed = "a finite number" + (f" {lo_s}" if lo_s else "") + (" and" if lo_s and hi_s else "") + (f" {hi_s}" if hi_s else "")
+    if isinstance(value, bool) or isinstance(value, torch.Tensor) and value.numel() != 1:
+        raise ValueError(f"{name}={value!r} is not allowed: {allowed}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={value!r} is not allowed: {allowed}") from None
+    ok = math.isfinite(v)
+    if ok and lo is not None:
+        ok = v > lo if lo_open else v >= lo
+    if ok and hi is not None:
+        ok = v < hi if hi_open else v <= hi
+    if not ok:
+        raise ValueError(f"{name}={value!r} is not allowed: {allowed}")
+    return v
+
+
+def check_int(name: str, value, lo: int | None = None, hi: int | None = None) -> int:
+    """``value`` as an int in ``[lo, hi]``; ``ValueError`` naming it otherwise."""
+    allowed = "a whole number" + (f" >= {lo}" if lo is not None else "") + (f" <= {hi}" if hi is not None else "")
+    if isinstance(value, bool) or not isinstance(value, int) and not (isinstance(value, float) and value.is_integer()):
+        raise ValueError(f"{name}={value!r} is not allowed: {allowed}")
+    v = int(value)
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise ValueError(f"{name}={value!r} is not allowed: {allowed}")
+    return v
+
+
+def check_finite(name: str, t: torch.Tensor, what: str = "values") -> torch.Tensor:
+    """``t`` itself if every element is finite; ``ValueError`` naming ``name`` and the first bad element otherwise."""
+    if t.is_floating_point() or t.is_complex():
+        bad = ~torch.isfinite(t)
+        if bool(bad.any()):
+            idx = tuple(int(i) for i in torch.nonzero(bad)[0])
+            raise ValueError(f"{name} holds NaN or infinite {what} (first at index {idx}: {t[idx].item()!r}); "
+                             "expected finite numbers")
+    return t
+
+
+def available_memory_bytes() -> int:
+    """Memory available to this process (bytes): /proc/meminfo's MemAvailable, else the physical memory."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
+def check_memory(nbytes: float, what: str, limit_bytes: float | None = None, setting: str = "memory_limit_gib") -> None:
+    """Refuse ``what`` (needing about ``nbytes``) if it exceeds ``limit_bytes`` (default: a share of the
+    available memory), with a :class:`ResourceLimitError` naming the limit and ``setting``."""
+    limit = MEMORY_FRACTION * available_memory_bytes() if limit_bytes is None else limit_bytes
+    if nbytes > limit:
+        raise ResourceLimitError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory; the limit is "
+                                 f"{limit / 2**30:.1f} GiB ({setting})", setting)
