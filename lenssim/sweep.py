@@ -295,7 +295,7 @@ def _write_chunk(path: Path, chunk: dict, cfg: SweepConfig, i: int) -> None:
 def _read_chunk(path: Path, cfg: SweepConfig, i: int):
     """The chunk's arrays if ``path`` holds chunk ``i`` of this config intact, else the reason it does not."""
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
         return f"cannot be read ({type(exc).__name__})"

@@ -1,0 +1,130 @@
+"""Class 1 (issue 9): no silent wrong numbers. Every result is finite and means what its label says,
+or the call stops with a ValueError naming the input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensError, LensPSF, Numerics, evaluate, noise_variance
+from lenssim.files import json_text
+from lenssim.validate import ModelValidityWarning, NumericalError
+from pipeline import (add_poisson_noise, blur_windowed, crop_at_field_angle, gentle_denoise, richardson_lucy_windowed,
+                      simulate_crops, wiener_windowed)
+from pipeline.blur import WindowScheme
+
+CAM2 = Camera(Lens(field_angles_deg=(0.0, 10.0)))
+FAST = Numerics(min_size=64, oversample=1)
+PSF = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
+SCHEME = WindowScheme(64, 16, 32)
+FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
+
+
+@settings(max_examples=40, deadline=None)
+@given(s=st.floats(-3.0, 3.0), Q=st.floats(-60.0, 60.0))
+def test_evaluate_is_finite_or_refuses(s, Q):
+    with _quiet():
+        try:
+            r = evaluate(CAM2, Design(s=s, Q_back=Q), [27.6], numerics=FAST.replace(max_fft_size=1024))
+        except (LensError, ValueError):
+            return
+    for k in ("rms_w", "mse_s", "mse_r", "cost"):
+        assert torch.isfinite(r[k]).all(), (s, Q, k)
+    assert float(r["mse_r"][0]) <= float(r["mse_s"][0]) + 1e-12  # restoration never worse than the sensor image
+
+
+class _quiet:
+    def __enter__(self):
+        import warnings
+
+        self._w = warnings.catch_warnings()
+        self._w.__enter__()
+        warnings.simplefilter("ignore", ModelValidityWarning)
+
+    def __exit__(self, *a):
+        return self._w.__exit__(*a)
+
+
+@settings(max_examples=60, deadline=None)
+@given(snr=FLOATS)
+def test_noise_variance_is_finite_positive_or_refuses(snr):
+    with _quiet():
+        try:
+            v = noise_variance(snr)
+        except ValueError as exc:
+            assert "SNR" in str(exc)
+            return
+    assert torch.isfinite(v).all() and float(v) > 0
+
+
+def test_the_cost_is_finite_up_to_the_conic_limit():
+    """Just inside the limit (Q_back < 48.5933 at s = -0.775) the cost was NaN; now finite and growing."""
+    from lenssim import PAPER_LENS, slope_departure_cost
+
+    with _quiet():
+        c = [float(slope_departure_cost(PAPER_LENS, Design(s=-0.775, Q_back=q))) for q in (40.0, 48.0, 48.59, 48.5932)]
+    assert all(math.isfinite(v) for v in c) and c == sorted(c)
+    with pytest.raises(LensError, match="Q_back must be < 48.59"):
+        slope_departure_cost(PAPER_LENS, Design(s=-0.775, Q_back=48.6))
+
+
+def test_json_never_holds_nan_and_writes_infinity_as_null():
+    assert json.loads(json_text({"psnr": math.inf, "x": [1.0, -math.inf]})) == {"psnr": None, "x": [1.0, None]}
+    with pytest.raises(NumericalError, match="crops\\[0\\].psnr is NaN"):
+        json_text({"crops": [{"psnr": math.nan}]})
+
+
+@pytest.mark.parametrize("value", [math.inf, math.nan, 1e30, 0.0, -5.0, 0.5])
+def test_full_well_outside_the_model_is_refused(value):
+    img = torch.rand(1, 1, 32, 32, dtype=torch.float64)
+    with pytest.raises(ValueError, match="full_well"):
+        add_poisson_noise(img, value, seed=0)
+    with pytest.raises(ValueError, match="full_well"):
+        simulate_crops(img, PSF, value, [(0, 16, 0, 16)], scheme=SCHEME)
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("fn", ["blur", "wiener", "rl", "denoise", "noise", "simulate"])
+def test_a_non_finite_pixel_is_refused_by_every_image_function(fn, bad):
+    img = torch.rand(1, 3, 40, 40, dtype=torch.float32, generator=torch.Generator().manual_seed(0)) + 0.1
+    img[0, 1, 7, 9] = float(bad)
+    call = {"blur": lambda: blur_windowed(img, PSF, scheme=SCHEME),
+            "wiener": lambda: wiener_windowed(img, PSF, electrons_per_unit=100.0, scheme=SCHEME),
+            "rl": lambda: richardson_lucy_windowed(img, PSF, iterations=2, scheme=SCHEME),
+            "denoise": lambda: gentle_denoise(img, 0.5),
+            "noise": lambda: add_poisson_noise(img, 800.0, seed=0),
+            "simulate": lambda: simulate_crops(img, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME)}[fn]
+    with pytest.raises(ValueError, match=r"NaN or infinite pixel values \(first at index \(0, 1, 7, 9\)"):
+        call()
+
+
+@pytest.mark.parametrize("fn, match", [
+    (lambda x: add_poisson_noise(-x, 800.0, seed=0), "negative values"),
+    (lambda x: simulate_crops(-x, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME), "negative values"),
+    (lambda x: simulate_crops(x * 0, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME), "black"),
+    (lambda x: blur_windowed((x * 255).to(torch.uint8), PSF, scheme=SCHEME), "dtype torch.uint8"),
+    (lambda x: wiener_windowed(x, PSF, electrons_per_unit=100.0, read_noise_var=-1.0, scheme=SCHEME), "read_noise_var"),
+    (lambda x: wiener_windowed(x, PSF, electrons_per_unit=math.nan, scheme=SCHEME), "electrons_per_unit"),
+    (lambda x: simulate_crops(x, PSF, 800.0, [(0, 99, 0, 16)], scheme=SCHEME), r"box \(0, 99, 0, 16\)"),
+])
+def test_nonsense_images_and_settings_are_refused(fn, match):
+    x = torch.rand(1, 1, 40, 40, dtype=torch.float64) + 0.1
+    with pytest.raises(ValueError, match=match):
+        fn(x)
+
+
+@pytest.mark.parametrize("angle, match", [(45.0, "field angle=45.0 is not allowed: a finite number >= 0 deg and <= 1.787"),
+                                          (-5.0, "field angle=-5.0"), (math.nan, "field angle=nan")])
+def test_crops_outside_the_frame_are_refused_not_moved(angle, match):
+    with pytest.raises(ValueError, match=match):
+        crop_at_field_angle((1, 3, 600, 800), angle, 64)
+
+
+def test_a_crop_moved_inside_the_frame_says_so():
+    with pytest.warns(ModelValidityWarning, match="moved inside, to 1.29 deg"):
+        crop_at_field_angle((1, 3, 600, 800), 1.63, 200)
