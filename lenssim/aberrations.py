@@ -37,6 +37,7 @@ from .checks import check_shape
 from .design import Design
 from .lens import Lens
 from .torch_utils import as_tensor
+from .validate import check_finite
 
 __all__ = [
     "Term",
@@ -83,6 +84,7 @@ N_TERMS = len(TERMS)
 
 def _check_coeffs(coeffs) -> None:
     check_shape(coeffs, f"* {N_TERMS}", f"coeffs ({', '.join(COEFFICIENT_NAMES)} in waves)")
+    check_finite("coeffs", coeffs.detach())
 
 
 def _design_and_angles(design: Design, alpha_deg):

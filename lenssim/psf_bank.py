@@ -40,7 +40,7 @@ from .checks import check_shape
 from .design import Design
 from .numerics import DEFAULT_NUMERICS, Numerics
 from .torch_utils import as_tensor
-from .validate import NumericalError, ResourceLimitError, check_int
+from .validate import NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
     "nice_fft_size",
@@ -103,6 +103,7 @@ def spectral_coefficients(camera: Camera, design: Design, alpha_deg=None, *, ele
 
 def _check_spectral(camera: Camera, coeffs: torch.Tensor) -> None:
     K = check_shape(coeffs, f"* K {N_TERMS}", "coeffs (waves per wavelength)")["K"]
+    check_finite("coeffs", coeffs.detach())
     if K != len(camera.spectrum):
         raise ValueError(f"coeffs has {K} wavelengths, the camera's spectrum {len(camera.spectrum)}: expected "
                          "(*, K, T) with one row per wavelength (see spectral_coefficients)")
@@ -372,6 +373,7 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
       even in both axes, so the quarter plane carries everything the MSE integrals need.
     """
     check_shape(coeffs, f"B {N_TERMS}", "coeffs (waves)")
+    check_finite("coeffs", coeffs.detach())
     if n % 2:
         raise ValueError(f"n={n} is not allowed: must be even")
     R = float(pupil_radius_px)

@@ -113,4 +113,29 @@ def reproduce(out_dir: str | os.PathLike, cfg: SweepConfig, *, device: str = "au
     _, _, rows = table1(ds, out, trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB))
     text = report_text(ds, trade, rows, trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB))
     atomic_write_text(out / "report.md", text)
+    write_index(out, ds, text, rows, trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB))
     return out / "report.md"
+
+
+FIGURE_CAPTIONS = {
+    "fig3_cost": "Fig. 3: the industrial cost C_a over the design grid, with the iso-cost levels.",
+    "fig4_landscapes": "Fig. 4: the RMS_W, MSE_S and MSE_R landscapes (red circles: grid optima).",
+    "fig5_tradeoff_configs": "Fig. 5: the best design of each criterion on every iso-cost curve.",
+    "fig6_performance_vs_cost": "Fig. 6: performance against cost, sequential vs end-to-end design.",
+}
+
+
+def write_index(out: Path, ds: xr.Dataset, report: str, rows: list[dict], snr: float) -> Path:
+    """``out/index.html``: the report (claims vs measured), Table 1 and Figures 3-6 in one self-contained page."""
+    from . import html
+
+    dims = design_dims(ds)
+    t1 = html.table(["design (optimises)", *dims, f"MSE_R at {snr:g} dB", "relative to best", "C_a"],
+                    [[r["design"], *(f"{r['parameters'][d]:g}" for d in dims), f"{r['mse_r']:.5f}",
+                      f"{r['mse_r_relative']:.3f}", f"{r['cost_Ca']:.3e}"] for r in rows],
+                    caption="Table 1: the designs that optimise each criterion, judged by MSE_R")
+    figs = [html.image(out / f"{name}.png", cap) for name, cap in FIGURE_CAPTIONS.items() if (out / f"{name}.png").exists()]
+    body = [html.markdown(report), "<h2>Table 1</h2>", t1, "<h2>Figures</h2>", *figs]
+    return html.write_page(out / "index.html", "lenssim: reproduction of the paper's cost-performance analysis", body,
+                           note=f"sweep config digest {ds.attrs.get('config_digest', '?')}; files beside this page: "
+                                "report.md, table1.csv/.md, fig3-6 .png/.svg, sweep.nc, tradeoff.nc")

@@ -155,18 +155,50 @@ def cmd_simulate(args) -> int:
                                     "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
                                     "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
                                     "psnr_restored_db": r.scores["wiener"]["psnr_db"] if "wiener" in r.scores else None})
-        mosaic_figure(results, [m for m in methods if m in results[0].images], stage / "mosaic.png",
-                      title=f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") +
-                      f"{fwc:g} e- full well")
+        title = f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
+        shown = [m for m in methods if m in results[0].images]
+        mosaic_figure(results, shown, stage / "mosaic.png", title=title)
         atomic_write_text(stage / "metrics.json", json_text(report))
+        _index_page(stage, title, report, results, shown)
     print(f"{source}, {design.label()}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
     print("  field [deg]   PSNR [dB] / SSIM: sensor -> " + ", ".join(RESTORATION_METHODS[m].label for m in methods))
     for c in report["crops"]:
         sc = c["scores"]
         restored = ", ".join(f"{sc[m]['psnr_db']:.2f} / {sc[m]['ssim']:.3f}" for m in methods if m in sc)
         print(f"  {c['field_deg']:10.2f}   {sc['sensor']['psnr_db']:.2f} / {sc['sensor']['ssim']:.3f} -> {restored}")
-    print(f"wrote {out}/ (crop PNGs, mosaic.png, metrics.json) in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    print(f"wrote {out}/ (index.html, crop PNGs, mosaic.png, metrics.json) in {time.perf_counter() - t0:.0f} s",
+          file=sys.stderr)
     return 0
+
+
+def _index_page(stage, title, report, results, methods) -> None:
+    """``index.html``: the mosaic, the scores of every crop, the whole-frame results; self-contained."""
+    from lenssim import html
+
+    header = ["field [deg]", "box (r0, r1, c0, c1)", "sensor PSNR [dB] / SSIM"] + \
+        [f"{RESTORATION_METHODS[m].label} PSNR [dB] / SSIM" for m in methods]
+    fmt = lambda sc: "identical" if sc is None else f"{sc['psnr_db']:.2f} / {sc['ssim']:.3f}"  # noqa: E731
+    rows = [[f"{r.field_deg:.2f}", str(r.box), fmt(r.scores["sensor"])] + [fmt(r.scores.get(m)) for m in methods]
+            for r in results]
+    body = [html.image(stage / "mosaic.png", "Crops across the field: ideal, sensor image and restorations "
+                       "(PSNR / SSIM in sRGB against the ideal image)"),
+            "<h2>Scores</h2>", html.table(header, rows)]
+    for r, c in zip(results, report["crops"]):
+        tag = f"crop_{c['requested_deg']:g}deg"
+        body.append(f"<h2>Crop at {r.field_deg:.2f} deg</h2>")
+        label = lambda k: "ideal (the reference)" if k == "ideal" else (  # noqa: E731
+            f"{RESTORATION_METHODS[k].label if k in RESTORATION_METHODS else k}: {fmt(r.scores.get(k))}")
+        body.append(html.row([html.image(stage / f"{tag}_{_file_kind(k)}.png", label(k))
+                              for k in ("ideal", "sensor", *methods) if (stage / f"{tag}_{_file_kind(k)}.png").exists()]))
+    if "full_frame" in report:
+        f = report["full_frame"]
+        body += ["<h2>Whole frame</h2>",
+                 html.table(["image", "PSNR [dB]", "SSIM"], [["sensor", f"{f['psnr_sensor_db']:.2f}", f"{f['ssim_sensor']:.3f}"],
+                                                            ["restored", f"{f['psnr_restored_db']:.2f}",
+                                                             f"{f['ssim_restored']:.3f}"]])]
+        if (stage / "field_psnr.png").exists():
+            body.append(html.image(stage / "field_psnr.png", "PSNR per 256-px tile and against field angle"))
+    html.write_page(stage / "index.html", title, body, note="lenssim simulate; numbers also in metrics.json")
 
 
 def _file_kind(kind: str) -> str:

@@ -128,3 +128,21 @@ def test_crops_outside_the_frame_are_refused_not_moved(angle, match):
 def test_a_crop_moved_inside_the_frame_says_so():
     with pytest.warns(ModelValidityWarning, match="moved inside, to 1.29 deg"):
         crop_at_field_angle((1, 3, 600, 800), 1.63, 200)
+
+
+@pytest.mark.parametrize("name", ["psf", "otf", "otf_quarter", "wavefront", "rms_wavefront", "max_wavefront_slope",
+                                  "fft_size", "field_rms_wavefront"])
+def test_every_coefficient_function_refuses_non_finite_coefficients(name):
+    import lenssim
+
+    c = torch.zeros(2, 1, 4, dtype=torch.float64)
+    c[1, 0, 2] = math.nan
+    calls = {"psf": lambda: lenssim.psf(PAPER_CAMERA, c, 64), "otf": lambda: lenssim.otf(PAPER_CAMERA, c, 64),
+             "otf_quarter": lambda: lenssim.otf_quarter(c[:, 0], 64, pupil_radius_px=16.0),
+             "wavefront": lambda: lenssim.wavefront(c[:, 0], torch.zeros(3), torch.zeros(3)),
+             "rms_wavefront": lambda: lenssim.rms_wavefront(c[:, 0]),
+             "max_wavefront_slope": lambda: lenssim.max_wavefront_slope(c[:, 0]),
+             "fft_size": lambda: lenssim.fft_size(PAPER_CAMERA, c),
+             "field_rms_wavefront": lambda: lenssim.field_rms_wavefront(c[:, 0])}
+    with pytest.raises(ValueError, match=r"coeffs holds NaN or infinite values \(first at index \(1, "):
+        calls[name]()
