@@ -45,6 +45,7 @@ __all__ = [
     "COEFFICIENT_NAMES",
     "N_TERMS",
     "seidel_sums",
+    "defocus_mm",
     "wavefront_coefficients",
     "pupil_monomials",
     "wavefront",
@@ -96,16 +97,17 @@ def _design_and_angles(design: Design, alpha_deg):
     return design.to(dtype=dtype, device=device), as_tensor(alpha_deg, dtype=dtype, device=device)
 
 
-def _seidel(lens: Lens, design: Design, alpha):
-    n, y, p = lens.refractive_index, lens.pupil_radius_mm, lens.position_factor
-    K = 1.0 / lens.focal_length_mm
+def _seidel(lens: Lens, design: Design, alpha, wavelength_um=None):
+    n = lens.refractive_index if wavelength_um is None else lens.glass.index(wavelength_um)
+    y, p = lens.pupil_radius_mm, lens.position_factor_at(wavelength_um)
+    K = lens.power(wavelength_um)
     s = design["s"]
     H = y * torch.tan(torch.deg2rad(alpha))
     bracket = (n / (n - 1)) ** 2 + (n + 2) / (n * (n - 1) ** 2) * s**2 \
         + 4 * (n + 1) / (n * (n - 1)) * s * p + (3 * n + 2) / n * p**2
     S1 = y**4 * K**3 / 4 * bracket
     n_before = 1.0
-    for surf in lens.surfaces(design):  # conic contributions (zero for spheres)
+    for surf in lens.surfaces(design, wavelength_um):  # conic contributions (zero for spheres)
         if surf.aspheric:
             S1 = S1 + (surf.n_after - n_before) * surf.conic * surf.curvature**3 * y**4
         n_before = surf.n_after
@@ -115,7 +117,8 @@ def _seidel(lens: Lens, design: Design, alpha):
     return torch.stack(torch.broadcast_tensors(S1, S2, S3, S4), dim=-1)
 
 
-def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
+def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool = False,
+                wavelength_um: float | None = None) -> torch.Tensor:
     """Seidel sums ``(S_I, S_II, S_III, S_IV)`` in mm.
 
     Parameters
@@ -127,6 +130,9 @@ def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool
     elementwise : bool
         If True, ``alpha_deg`` broadcasts with the design (one angle per design, e.g. one per
         image point) instead of adding a field axis.
+    wavelength_um : float, optional
+        With a dispersive glass: the index, power and position factor at this wavelength (the
+        curvatures stay those of the design); default the reference index.
 
     Returns
     -------
@@ -136,8 +142,21 @@ def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool
         alpha_deg = lens.field_angles_deg
     design, alpha = _design_and_angles(design, alpha_deg)
     if elementwise:
-        return _seidel(lens, design, alpha)
-    return _seidel(lens, design.unsqueeze(-1), alpha)
+        return _seidel(lens, design, alpha, wavelength_um)
+    return _seidel(lens, design.unsqueeze(-1), alpha, wavelength_um)
+
+
+def defocus_mm(lens: Lens, design: Design, wavelength_um: float | None = None) -> torch.Tensor:
+    """Defocus ``W020`` (mm of wavefront, coefficient of ``rho^2``) at ``wavelength_um``: ``delta y^2 / (2 t^2)``.
+
+    ``delta`` is the image plane's distance behind the focus at this wavelength: the design's
+    ``focus_shift_um`` plus the axial colour ``t_ref - t(lambda)``; ``t`` the focus distance. A ray
+    at pupil height ``y rho`` aimed at a focus ``t`` crosses the plane ``t + delta`` at
+    ``-y rho delta / t``, which is ``-(t / y) dW/drho`` for this ``W``.
+    """
+    t = lens.focus_distance_mm(wavelength_um)
+    delta = (lens.image_distance_mm - t) + design["focus_shift_um"] * 1e-3
+    return delta * lens.pupil_radius_mm**2 / (2 * t**2)
 
 
 def wavefront_coefficients(lens: Lens, design: Design, alpha_deg=None, *, wavelength_um: float,
@@ -149,9 +168,12 @@ def wavefront_coefficients(lens: Lens, design: Design, alpha_deg=None, *, wavele
 
     Returns a tensor of shape ``(*, A, T)``, or ``(*, T)`` if elementwise (see :func:`seidel_sums`).
     """
-    S = seidel_sums(lens, design, alpha_deg, elementwise=elementwise) / (wavelength_um * 1e-3)
+    lam_mm = wavelength_um * 1e-3
+    S = seidel_sums(lens, design, alpha_deg, elementwise=elementwise, wavelength_um=wavelength_um) / lam_mm
     S1, S2, S3, S4 = S.unbind(-1)
-    return torch.stack([S1 / 8, S2 / 2, S3 / 2, (S3 + S4) / 4], dim=-1)
+    d = design.to(dtype=S.dtype, device=S.device)
+    w020 = defocus_mm(lens, d if elementwise else d.unsqueeze(-1), wavelength_um) / lam_mm
+    return torch.stack(torch.broadcast_tensors(S1 / 8, S2 / 2, S3 / 2, (S3 + S4) / 4 + w020), dim=-1)
 
 
 def pupil_monomials(rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:

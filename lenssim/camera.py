@@ -2,8 +2,11 @@
 
 PSF sampling (Fraunhofer by FFT): with an ``N x N`` FFT, pixel pitch ``Delta`` and wavelength
 ``lambda``, the pupil radius spans ``R = N Delta / (2 lambda f#)`` samples (``N / 4`` at the
-Nyquist pitch ``lambda f# / 2``). A pitch coarser than Nyquist at the shortest wavelength would
-alias the OTF in this model and is refused where PSFs are computed.
+Nyquist pitch ``lambda f# / 2``). The FFT gives the PSF's values at the pixel centres (point
+sampling, as the paper's model): a pitch coarser than Nyquist at some wavelength (``R > N / 4``,
+e.g. the paper's sensor in blue light) makes those samples alias exactly as a real sensor's do, and
+is allowed with a :class:`lenssim.validate.ModelValidityWarning`; the pupil must still fit the
+grid, so a pitch coarser than ``lambda f#`` (``R > N / 2 - 2``) is refused.
 """
 
 from __future__ import annotations
@@ -25,11 +28,24 @@ class Camera:
     lens: Lens = field(default_factory=Lens)
     sensor: Sensor = field(default_factory=Sensor)
     spectrum: Spectrum = field(default_factory=Spectrum)
+    channels: tuple[Spectrum, ...] = ()
+    """Colour channels (e.g. :func:`lenssim.spectrum.channel_spectra`): each its own spectrum, PSF and
+    criteria; empty: one channel, ``spectrum``, shared by every colour (the paper)."""
 
     def __post_init__(self):
         for k, cls in (("lens", Lens), ("sensor", Sensor), ("spectrum", Spectrum)):
             if not isinstance(getattr(self, k), cls):
                 raise ValueError(f"{k}={getattr(self, k)!r} is not allowed: a {cls.__name__}")
+        object.__setattr__(self, "channels", tuple(self.channels))
+        for c in self.channels:
+            if not isinstance(c, Spectrum):
+                raise ValueError(f"channels holds {c!r}: expected Spectrum objects")
+
+    def channel_cameras(self) -> tuple["Camera", ...]:
+        """One single-spectrum camera per colour channel (just this one without channels)."""
+        if not self.channels:
+            return (self,)
+        return tuple(Camera(self.lens, self.sensor, c) for c in self.channels)
 
     @property
     def geometry(self) -> FieldGeometry:
@@ -40,12 +56,20 @@ class Camera:
         return self.sensor.pixel_pitch_um
 
     def check_sampling(self) -> None:
-        """Refuse a pitch coarser than ``lambda_min f# / 2`` (the FFT model's OTF would alias)."""
-        nyq = self.lens.nyquist_pitch_um(self.spectrum.shortest_um)
-        if not self.pixel_pitch_um <= nyq * (1 + 1e-12):
+        """Refuse a pitch coarser than ``lambda_min f#`` (the pupil would not fit the FFT grid); warn when it is
+        coarser than the Nyquist pitch ``lambda_min f# / 2`` (the sampled PSF aliases, as a real sensor's)."""
+        shortest = min(s.shortest_um for s in (self.spectrum, *self.channels))
+        nyq = self.lens.nyquist_pitch_um(shortest)
+        if not self.pixel_pitch_um < 2 * nyq:
             raise ValueError(f"pixel_pitch_um={self.pixel_pitch_um!r} is not allowed with this lens and spectrum: "
-                             f"must be in (0, {nyq}] um (coarser than lambda f#/2 at {self.spectrum.shortest_um:g} "
-                             "um aliases the OTF)")
+                             f"must be below lambda f# = {2 * nyq:.6g} um at {shortest:g} um (the pupil would not "
+                             "fit the FFT grid)")
+        if self.pixel_pitch_um > nyq * (1 + 1e-12):
+            from .validate import warn_model
+
+            warn_model(f"the {self.pixel_pitch_um:g} um pixels undersample wavelengths below "
+                       f"{2 * self.pixel_pitch_um / self.lens.f_number:.3g} um (Nyquist pitch {nyq:.4g} um at "
+                       f"{shortest:g} um): their sampled PSFs alias, as a real sensor's")
 
     def pupil_radius_px(self, n: int, wavelength_um: float) -> float:
         """Pupil radius in samples of an ``n``-point FFT at ``wavelength_um``: ``n Delta / (2 lambda f#)``."""
@@ -59,4 +83,7 @@ class Camera:
         return slope * wavelength_um * lens.focal_length_mm / (lens.pupil_radius_mm * self.pixel_pitch_um)
 
     def to_dict(self) -> dict:
-        return {"lens": self.lens.to_dict(), "sensor": self.sensor.to_dict(), "spectrum": self.spectrum.to_dict()}
+        d = {"lens": self.lens.to_dict(), "sensor": self.sensor.to_dict(), "spectrum": self.spectrum.to_dict()}
+        if self.channels:
+            d["channels"] = [c.to_dict() for c in self.channels]
+        return d

@@ -5,8 +5,10 @@ batch or grid of designs). Every optics function takes a design, so a new free p
 entry in :data:`PARAMETERS` plus the code that uses it (see docs/architecture.md); sweeps, optima,
 the trade-off, the autograd optimiser and the command line take their dimension names from here.
 
-Today's parameters (the paper's two): ``s`` (shape factor) and ``Q_back`` (conic constant of the
-back surface; alias ``Q``). A parameter not given takes its default (e.g. a spherical surface).
+The paper's two parameters are ``s`` (shape factor) and ``Q_back`` (conic constant of the back
+surface; alias ``Q``); beyond the paper, ``Q_front`` (conic of the front surface) and
+``focus_shift_um`` (image-plane position). A parameter not given takes its default (a spherical
+surface, the paraxial focus), so the paper's designs are unchanged.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ class Parameter:
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
     Parameter("s", "shape factor (c1 + c2) / (c1 - c2)", step=0.025),
     Parameter("Q_back", "conic constant of the back surface", aliases=("Q",), step=0.1),
+    Parameter("Q_front", "conic constant of the front surface (an asphere only when given)", step=0.1),
+    Parameter("focus_shift_um", "image plane behind the paraxial focus at the lens's reference wavelength",
+              unit="um", step=5.0),
 )}
 """The registry of design parameters, in their canonical order."""
 

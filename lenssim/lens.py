@@ -102,7 +102,10 @@ class Lens:
         if "refractive_index" in d:
             if "glass" in d:
                 raise LensError("give either glass or refractive_index, not both")
-            d["glass"] = d.pop("refractive_index")  # a number: a constant glass
+            n = d.pop("refractive_index")
+            if isinstance(n, bool) or not isinstance(n, (int, float)):
+                raise LensError(f"refractive_index={n!r} is not allowed: a finite number > 1 (or name a glass)")
+            d["glass"] = n  # a number: a constant glass
         allowed = {f.name for f in fields(cls)}
         bad = sorted(set(d) - allowed)
         if bad:
@@ -110,9 +113,10 @@ class Lens:
         return cls(**d)
 
     def to_dict(self) -> dict:
-        return {"focal_length_mm": self.focal_length_mm, "pupil_radius_mm": self.pupil_radius_mm,
-                "refractive_index": self.refractive_index, "position_factor": self.position_factor,
-                "field_angles_deg": list(self.field_angles_deg)}
+        glass = {"glass": self.glass.name} if getattr(self.glass, "dispersive", False) else \
+            {"refractive_index": self.refractive_index}
+        return {"focal_length_mm": self.focal_length_mm, "pupil_radius_mm": self.pupil_radius_mm, **glass,
+                "position_factor": self.position_factor, "field_angles_deg": list(self.field_angles_deg)}
 
     # ---- derived quantities -------------------------------------------------------------
     @property
@@ -139,16 +143,41 @@ class Lens:
         k = 2 * self.focal_length_mm * (self.refractive_index - 1)
         return (s + 1) / k, (s - 1) / k
 
-    def surfaces(self, design: Design) -> list[Surface]:
-        """The two surfaces (zero separation) for ``design``: a spherical front, the conic back.
+    def surfaces(self, design: Design, wavelength_um: float | None = None) -> list[Surface]:
+        """The two surfaces (zero separation) for ``design``: the front (a sphere unless the design gives
+        ``Q_front``) and the conic back, with the glass's index at ``wavelength_um`` (default: the reference).
 
         A surface whose conic constant is a free design parameter is ``aspheric``; its curvature
-        and conic are tensors broadcasting like the design.
+        and conic are tensors broadcasting like the design. The curvatures are fixed by the design
+        at the reference index, whatever the wavelength.
         """
         c1, c2 = self.curvatures(design["s"])
-        n = self.refractive_index
-        return [Surface(c1, 0.0, n, 0.0, aspheric=False),
-                Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back")]
+        n = self.refractive_index if wavelength_um is None else self.glass.index(wavelength_um)
+        front = (Surface(c1, design["Q_front"], n, 0.0, aspheric=True, conic_name="Q_front") if "Q_front" in design
+                 else Surface(c1, 0.0, n, 0.0, aspheric=False))
+        return [front, Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back")]
+
+    def power(self, wavelength_um: float | None = None) -> float:
+        """Paraxial power ``K = (n(lambda) - 1)(c1 - c2)`` (1/mm); ``1 / focal_length_mm`` at the reference index."""
+        if wavelength_um is None:
+            return 1.0 / self.focal_length_mm
+        n = self.glass.index(wavelength_um)
+        if n == self.refractive_index:
+            return 1.0 / self.focal_length_mm
+        return (n - 1) / ((self.refractive_index - 1) * self.focal_length_mm)
+
+    def focus_distance_mm(self, wavelength_um: float | None = None) -> float:
+        """Lens-to-focus distance (mm) at ``wavelength_um`` for the lens's object distance (axial colour)."""
+        if wavelength_um is None or self.glass.index(wavelength_um) == self.refractive_index:
+            return self.image_distance_mm
+        vergence = -(1 + self.position_factor) / (2 * self.focal_length_mm)  # object side, from the reference conjugates
+        return 1.0 / (self.power(wavelength_um) + vergence)
+
+    def position_factor_at(self, wavelength_um: float | None = None) -> float:
+        """Position factor ``p = 1 - 2 / (K t)`` at ``wavelength_um`` (-1 for an object at infinity at every wavelength)."""
+        if wavelength_um is None or self.glass.index(wavelength_um) == self.refractive_index:
+            return self.position_factor
+        return 1 - 2 / (self.power(wavelength_um) * self.focus_distance_mm(wavelength_um))
 
     def field_angles(self, *, dtype=None, device=None) -> torch.Tensor:
         """Field angles as a tensor of shape ``(A,)`` in degrees."""

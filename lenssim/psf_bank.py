@@ -162,11 +162,16 @@ def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: in
     return amp
 
 
+def _max_radius(n: int) -> float:
+    """Largest pupil radius (samples) whose anti-aliased box still fits an ``n``-point grid."""
+    return n / 2 - 2
+
+
 def _radius(camera: Camera, n: int, wavelength_um: float) -> float:
-    """:meth:`Camera.pupil_radius_px`, refused where it exceeds ``n / 4`` (the OTF would alias)."""
+    """:meth:`Camera.pupil_radius_px`, refused where the pupil would not fit the ``n``-point grid."""
     R = camera.pupil_radius_px(n, wavelength_um)
-    if R > n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples exceeds n/4 = {n / 4}: the OTF would alias")
+    if R > _max_radius(n):
+        raise ValueError(f"pupil radius {R:.3f} samples does not fit an FFT of n = {n} (at most n/2 - 2)")
     return R
 
 
@@ -359,7 +364,8 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     Frequencies are ``k / m`` cycles/pixel. Input ``(B, T)`` coefficients (waves) with the field
     along +y and the pupil radius in samples of the ``n``-point FFT (:meth:`Camera.pupil_radius_px`,
     at most ``n / 4``); output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With
-    ``oversample=1`` it equals the quarter of :func:`otf` to rounding; ``oversample > 1`` zero-pads
+    ``oversample=1`` it equals the quarter of :func:`otf` to rounding (above ``R = n / 4`` both are the
+    aliased OTF of the point-sampled PSF); ``oversample > 1`` zero-pads
     the ``n x n`` PSF (which :func:`fft_size` keeps inside the grid) to sample the same OTF on a
     finer frequency grid, for integrals whose integrand is not band-limited (the Wiener error).
     It exploits:
@@ -377,8 +383,9 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     if n % 2:
         raise ValueError(f"n={n} is not allowed: must be even")
     R = float(pupil_radius_px)
-    if not 0 < R <= n / 4 * (1 + 1e-9):
-        raise ValueError(f"pupil radius {R:.3f} samples is not allowed: in (0, n/4 = {n / 4}] (the OTF would alias)")
+    if not 0 < R <= _max_radius(n):
+        raise ValueError(f"pupil radius {R:.3f} samples is not allowed: in (0, n/2 - 2 = {_max_radius(n)}] (the "
+                         "pupil must fit the grid; above n/4 the sampled PSF aliases)")
     dtype, device = coeffs.dtype, coeffs.device
     a, basis, area = _quarter_basis_cached(int(n), R, int(supersample))
     a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["builtin_configs", "config_path", "designs_file"]
+__all__ = ["builtin_configs", "config_path", "designs_file", "glasses_file"]
 
 _PACKAGE = "lenssim.configs"
 
@@ -24,7 +24,7 @@ def _root() -> Path:
 
 def builtin_configs() -> list[str]:
     """Names of the built-in sweep configs."""
-    return sorted(p.stem for p in _root().glob("*.toml") if p.stem != "designs")
+    return sorted(p.stem for p in _root().glob("*.toml") if p.stem not in ("designs", "glasses"))
 
 
 def config_path(spec: str | Path) -> Path:
@@ -41,3 +41,8 @@ def config_path(spec: str | Path) -> Path:
 def designs_file() -> Path:
     """The built-in named designs file (``configs/designs.toml``)."""
     return _root() / "designs.toml"
+
+
+def glasses_file() -> Path:
+    """The built-in glass catalogue (``configs/glasses.toml``)."""
+    return _root() / "glasses.toml"

@@ -26,7 +26,7 @@ def test_6000x4000_sensor_spans_12p7_degrees():
 def test_the_sensor_pitch_does_not_move_with_the_wavelength():
     for lam in (0.45, 0.5, 0.65):
         assert Camera(spectrum=Spectrum.monochromatic(lam)).pixel_pitch_um == 1.5625
-    with pytest.raises(ValueError, match="pixel_pitch_um=1.5625 is not allowed.*aliases"):
+    with pytest.warns(UserWarning, match="undersample wavelengths below 0.5 um"):
         Camera(spectrum=Spectrum.monochromatic(0.45)).pupil_radius_px(256, 0.45)
     assert Camera(sensor=Sensor(pixel_pitch_um=1.0)).pupil_radius_px(256, 0.5) == pytest.approx(256 * 1.0 / 6.25)
 

@@ -43,8 +43,27 @@ def test_pupil_fills_half_the_grid_at_the_nyquist_pitch():
     assert float(amp.sum()) == pytest.approx(math.pi * 64**2, rel=1e-4)  # anti-aliased area
     from lenssim import Sensor
 
-    with pytest.raises(ValueError, match="pixel_pitch_um=2.0 .*coarser"):
-        Camera(sensor=Sensor(pixel_pitch_um=2.0)).pupil_radius_px(256, LAMBDA_UM)
+    with pytest.raises(ValueError, match="pixel_pitch_um=3.2 is not allowed.*would not fit"):
+        Camera(sensor=Sensor(pixel_pitch_um=3.2)).pupil_radius_px(256, LAMBDA_UM)
+    with pytest.warns(UserWarning, match="undersample wavelengths below 0.64 um"):
+        assert Camera(sensor=Sensor(pixel_pitch_um=2.0)).pupil_radius_px(256, LAMBDA_UM) == pytest.approx(81.92)
+
+
+def test_undersampled_psf_samples_are_the_continuous_psf_at_the_pixel_centres():
+    """A pitch coarser than Nyquist: the FFT still gives the Airy pattern's values at the pixel centres
+    (the aliasing is the sampling's, as a real sensor's), checked against the closed form."""
+    from lenssim import Sensor
+
+    with pytest.warns(UserWarning, match="undersample"):
+        cam = Camera(sensor=Sensor(pixel_pitch_um=2.2))
+        n = 256
+        p = psf(cam, ZERO, n)[0]
+    c = n // 2
+    yy, xx = torch.meshgrid(torch.arange(n, dtype=D) - c, torch.arange(n, dtype=D) - c, indexing="ij")
+    v = math.pi * torch.hypot(yy, xx) * 2.2 / (LAMBDA_UM * PAPER_LENS.f_number)
+    airy = torch.where(v > 0, (2 * torch.from_numpy(j1(v.numpy())) / v.clamp_min(1e-12)) ** 2, torch.ones(()))
+    win = torch.hypot(yy, xx) <= 6
+    assert ((p / p[c, c] - airy)[win]).abs().max() < 3e-3
 
 
 def test_diffraction_limited_psf_is_the_airy_pattern():
