@@ -68,8 +68,8 @@ class Camera:
             from .validate import warn_model
 
             warn_model(f"the {self.pixel_pitch_um:g} um pixels undersample wavelengths below "
-                       f"{2 * self.pixel_pitch_um / self.lens.f_number:.3g} um (Nyquist pitch {nyq:.4g} um at "
-                       f"{shortest:g} um): their sampled PSFs alias, as a real sensor's")
+                       f"{2 * self.pixel_pitch_um / self.lens.f_number:.3g} um at f/{self.lens.f_number:g}: their "
+                       "sampled PSFs alias, as a real sensor's")
 
     def pupil_radius_px(self, n: int, wavelength_um: float) -> float:
         """Pupil radius in samples of an ``n``-point FFT at ``wavelength_um``: ``n Delta / (2 lambda f#)``."""

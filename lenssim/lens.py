@@ -99,6 +99,8 @@ class Lens:
     def from_dict(cls, d: dict) -> "Lens":
         """From a config table: ``refractive_index`` (a constant glass) is accepted for ``glass``."""
         d = dict(d)
+        if d.get("refractive_index", 0) is None:
+            d.pop("refractive_index")
         if "refractive_index" in d:
             if "glass" in d:
                 raise LensError("give either glass or refractive_index, not both")

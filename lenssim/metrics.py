@@ -80,7 +80,24 @@ def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float
     ``rms_w_alpha`` ``(*, A)``; ``rms_w_piston_removed`` ``(*)``; ``fft_size`` ``(*, A)`` (the FFT size
     used for each PSF); ``snr_db`` ``(S,)``; ``alpha_deg`` ``(A,)``. ``fft_size`` overrides the
     automatic choice (:func:`lenssim.psf_bank.fft_size`). The OTFs are computed in ``dtype``.
+
+    A camera with colour ``channels`` is evaluated channel by channel: each result is then the mean
+    over the channels, and ``NAME_per_channel`` holds the channels' values on a leading axis
+    (``fft_size`` is the largest over the channels).
     """
+    if camera.channels:
+        parts = [evaluate(c, design, snr_db, rho0=rho0, psd_model=psd_model, fft_size=fft_size, numerics=numerics,
+                          dtype=dtype, device=device, progress=progress) for c in camera.channel_cameras()]
+        out = {}
+        for k, v in parts[0].items():
+            if k in ("snr_db", "alpha_deg"):
+                out[k] = v
+            elif k == "fft_size":
+                out[k] = torch.stack([p[k] for p in parts]).amax(dim=0)
+            else:
+                out[f"{k}_per_channel"] = torch.stack([p[k] for p in parts])
+                out[k] = out[f"{k}_per_channel"].mean(dim=0)
+        return out
     d64 = design.to(torch.float64, device).broadcast()
     camera.lens.check_design(d64)
     shape = d64.shape

@@ -59,6 +59,12 @@ class LensPSF(PSFProvider):
         self.camera.lens.check_design(d)
         d.floats()  # one design: every parameter a single value
         object.__setattr__(self, "design", d)
+        self.camera.check_sampling()
+
+    @property
+    def channels(self) -> int:
+        """1 (one PSF for every colour) or the camera's number of colour channels."""
+        return max(1, len(self.camera.channels))
 
     @property
     def geometry(self) -> FieldGeometry:
@@ -70,9 +76,10 @@ class LensPSF(PSFProvider):
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows).to(device), torch.as_tensor(cols).to(device),
                                               optical_center)
-        p, _ = psf_at(self.camera, self._design_like(y_mm), x_mm, y_mm, n=n, centered=centered, dtype=dtype,
-                      numerics=self.numerics)
-        return p
+        d = self._design_like(y_mm)
+        ps = [psf_at(cam, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=self.numerics)[0]
+              for cam in self.camera.channel_cameras()]
+        return ps[0] if not self.camera.channels else torch.stack(ps, dim=1)
 
     def fingerprint(self) -> str:
         """A stable description of these PSFs (camera, design, numerics), e.g. for checkpoints."""
@@ -83,9 +90,11 @@ class LensPSF(PSFProvider):
         """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
         x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
         a = self.geometry.field_angle_deg(x_mm, y_mm)
-        c = spectral_coefficients(self.camera, self._design_like(a), a, elementwise=True)
-        half = max(float(self.camera.geometric_radius_px(max_wavefront_slope(c[..., k, :]).max(), lam))
-                   for k, lam in enumerate(self.camera.spectrum.wavelengths_um))
+        half = 0.0
+        for cam in self.camera.channel_cameras():
+            c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)
+            half = max([half] + [float(cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]).max(), lam))
+                                 for k, lam in enumerate(cam.spectrum.wavelengths_um)])
         return int(math.ceil(2 * half)) + self.numerics.margin_px
 
 

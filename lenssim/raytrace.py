@@ -72,13 +72,15 @@ def trace_rays(surfaces: list[Surface], starts: torch.Tensor, direction: torch.T
 
 
 def transverse_aberration(lens: Lens, design: Design, alpha_deg: float, rho_r: torch.Tensor,
-                          rho_t: torch.Tensor, pupil_radius_mm: float | None = None):
+                          rho_t: torch.Tensor, pupil_radius_mm: float | None = None, wavelength_um: float | None = None):
     """Exact transverse ray aberration (mm) in the paraxial image plane of the thin lens.
 
     Object at infinity (``p = -1`` only), field angle ``alpha_deg`` in the y-z plane, stop at the
     lens. ``rho_r`` (meridional, along +y) and ``rho_t`` are pupil coordinates normalised to
     ``pupil_radius_mm`` (default ``lens.pupil_radius_mm``). Returns ``(eps_r, eps_t)`` relative to
-    the paraxial image point ``(0, f tan(alpha))``, along the same axes.
+    the paraxial image point ``(0, t tan(alpha))``, along the same axes, in the image plane ``t`` (the
+    lens's image distance plus the design's ``focus_shift_um``), at ``wavelength_um`` (default: the
+    reference index).
     """
     if lens.position_factor != -1.0:
         raise ValueError(f"position_factor={lens.position_factor}: the ray trace supports only p = -1 "
@@ -88,5 +90,6 @@ def transverse_aberration(lens: Lens, design: Design, alpha_deg: float, rho_r: t
     a = math.radians(alpha_deg)
     starts = torch.stack([rho_t * y, rho_r * y, torch.zeros_like(rho_r)], dim=-1)
     direction = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=dt)
-    img = trace_rays(lens.surfaces(design), starts, direction, lens.focal_length_mm)
-    return img[..., 1] - lens.focal_length_mm * math.tan(a), img[..., 0]
+    t = lens.image_distance_mm + float(design["focus_shift_um"]) * 1e-3
+    img = trace_rays(lens.surfaces(design, wavelength_um), starts, direction, t)
+    return img[..., 1] - t * math.tan(a), img[..., 0]

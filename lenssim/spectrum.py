@@ -12,10 +12,12 @@ from dataclasses import dataclass
 
 __all__ = ["Spectrum", "channel_spectra", "camera_sensitivity_names", "DEFAULT_WAVELENGTHS_PER_CHANNEL"]
 
-DEFAULT_WAVELENGTHS_PER_CHANNEL = 5
+DEFAULT_WAVELENGTHS_PER_CHANNEL = 16
 """Wavelengths per colour channel (equal-weight quadrature of sensitivity x illuminant); chosen by the
-convergence test in tests/lenssim/test_colour.py: MSE_R of the paper's end-to-end design with N-BK7
-within 0.5% of the 15-wavelength value."""
+convergence test in tests/lenssim/test_colour.py: per-channel MSE_R of the paper's end-to-end design in N-BK7
+focused at the d line (the harshest case: blue and red 1-2 waves out of focus) within 0.7% of the 32-wavelength
+value (measured 0.23 / 0.19 / 0.64% for R / G / B; against 48 wavelengths 0.26 / 0.21 / 0.50%; with 5
+wavelengths up to 4%)."""
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ from pipeline import RESTORATION_METHODS, load_photo, write_image
 from pipeline.figures import mosaic_figure
 from pipeline.restoration import validate_method
 
-from .common import add_design_arguments, add_device_argument, design_from_args, designs
+from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
+                     design_from_args, designs)
 
 DEFAULT_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 TABLE_ANGLES_DEG = (1.0, 5.0, 9.0)
@@ -101,7 +102,7 @@ def cmd_simulate(args) -> int:
     # every argument and the output folder are checked before any work
     _check_common(args)
     design = design_from_args(args)
-    camera = PAPER_CAMERA
+    camera = camera_from_args(args)
     psf = LensPSF(camera, design)
     if args.full_well is not None:
         fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
@@ -120,6 +121,9 @@ def cmd_simulate(args) -> int:
     out = check_output_dir(args.out, inputs)
     t0 = time.perf_counter()
     ideal, source = _load(args.photo, select_device(args.device))
+    if psf.channels not in (1, ideal.shape[1]):
+        raise ValueError(f"--spectrum {args.spectrum!r} has {psf.channels} colour channels but {source!r} has "
+                         f"{ideal.shape[1]}: use an RGB image, or --spectrum paper")
     H, W = ideal.shape[-2:]
     size = min(args.crop, H, W)
     boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
@@ -137,6 +141,8 @@ def cmd_simulate(args) -> int:
         source += f" (gently denoised, strength {args.denoise:g})"
     params = design.complete().floats()
     report = {"source": source, "design": design.name or "custom", "parameters": params, **params,
+              "glass": camera.lens.glass.name,
+              "spectrum": [c.name for c in camera.channels] if camera.channels else camera.spectrum.name,
               "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "methods": list(methods)}
     with staged_output_dir(out) as stage:
@@ -340,6 +346,7 @@ def register(sub) -> None:
     p = sub.add_parser("simulate", help="photo -> sensor image -> restored image, at crops across the field")
     p.add_argument("photo", nargs="?", help="image file (JPEG/PNG/TIFF/EXR) or skimage:NAME; default: generated scene")
     add_design_arguments(p)
+    add_camera_arguments(p)
     p.add_argument("--iso", type=int, default=100, help="one of " + ", ".join(
         f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos))
     p.add_argument("--full-well", type=float, metavar="E", help="any full-well capacity (electrons) instead of --iso")

@@ -7,7 +7,8 @@ import argparse
 from lenssim import PARAMETERS, Design, load_designs
 from lenssim.torch_utils import DEVICE_CHOICES
 
-__all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument"]
+__all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
+           "add_camera_arguments", "camera_from_args"]
 
 
 def add_design_arguments(p: argparse.ArgumentParser, *, named: bool = True) -> None:
@@ -50,3 +51,32 @@ def table(rows: list[list[str]], header: list[str]) -> str:
 
 def add_device_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", help=DEVICE_CHOICES)
+
+
+def add_camera_arguments(p: argparse.ArgumentParser) -> None:
+    """``--glass NAME``, ``--spectrum NAME``, ``--illuminant NAME``, ``--wavelengths-per-channel N``."""
+    from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
+
+    p.add_argument("--glass", help="a glass of the catalogue (configs/glasses.toml: paper, N-BK7, N-SF5, PMMA); "
+                                   "default: the paper's non-dispersive n = 1.5")
+    p.add_argument("--spectrum", default="paper",
+                   help="paper (one wavelength, 0.5 um, every colour) or a camera's RGB sensitivities from "
+                        "colour-science, e.g. \"Nikon 5100 (NPL)\" (one spectrum per colour channel)")
+    p.add_argument("--illuminant", default="D65", help="CIE illuminant of a colour --spectrum (default D65)")
+    p.add_argument("--wavelengths-per-channel", type=int, default=DEFAULT_WAVELENGTHS_PER_CHANNEL, metavar="N",
+                   help=f"wavelengths sampled per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
+
+
+def camera_from_args(args):
+    """The paper's camera, with the glass and spectrum the arguments name."""
+    from lenssim import PAPER_CAMERA, Camera, Lens
+    from lenssim.spectrum import channel_spectra
+
+    lens = PAPER_CAMERA.lens if not getattr(args, "glass", None) else Lens.from_dict({**PAPER_CAMERA.lens.to_dict(),
+                                                                                       "glass": args.glass,
+                                                                                       "refractive_index": None})
+    spec = getattr(args, "spectrum", "paper") or "paper"
+    if spec == "paper":
+        return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum)
+    return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum,
+                  channels=channel_spectra(spec, args.illuminant, args.wavelengths_per_channel))

@@ -12,7 +12,8 @@ from lenssim import (CRITERIA, DEFAULT_NUMERICS, PAPER_CAMERA, PAPER_DESIGNS, PA
 from lenssim.files import json_text
 from lenssim.resources import builtin_configs, config_path
 
-from .common import add_design_arguments, add_device_argument, design_from_args, designs, table
+from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
+                     design_from_args, designs, table)
 
 DEMO_DESIGNS = tuple(PAPER_DESIGNS)
 DEMO_CONFIG = "small_grid"
@@ -23,15 +24,20 @@ def _numerics(args, base=DEFAULT_NUMERICS):
     return base.replace(max_fft_size=args.max_fft_size) if getattr(args, "max_fft_size", None) else base
 
 
-def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS) -> dict:
-    """Every registered criterion of one design, as JSON-ready values keyed by criterion name."""
-    res = evaluate(PAPER_CAMERA, design, snr, device=select_device(device), numerics=numerics)
+def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS, camera=PAPER_CAMERA) -> dict:
+    """Every registered criterion of one design, as JSON-ready values keyed by criterion name (with colour
+    channels: their mean, and ``NAME_per_channel``)."""
+    res = evaluate(camera, design, snr, device=select_device(device), numerics=numerics)
     params = design.complete().floats()
     out = {"parameters": params, **params}
     for name, c in CRITERIA.items():
         v = res[name]
         out[name] = [float(x) for x in v] if c.per_snr else float(v)
+        if f"{name}_per_channel" in res:
+            out[f"{name}_per_channel"] = res[f"{name}_per_channel"].tolist()
     out["units"] = {name: c.units for name, c in CRITERIA.items()}
+    out["camera"] = {"glass": camera.lens.glass.name, "spectrum": camera.spectrum.name if not camera.channels
+                     else [c.name for c in camera.channels]}
     out["rms_w_waves"], out["cost_Ca"] = out["rms_w"], out["cost"]  # names of lenssim 0.1
     out["rms_w_piston_removed_waves"] = float(res["rms_w_piston_removed"])
     out["snr_db"] = [float(v) for v in res["snr_db"]]
@@ -59,10 +65,23 @@ def cmd_evaluate(args) -> int:
     design = design_from_args(args)
     select_device(args.device)
     t0 = time.perf_counter()
-    r = evaluate_design(design, args.snr, args.device, _numerics(args))
+    camera = camera_from_args(args)
+    if args.best_focus:
+        from lenssim.focus import best_focus
+
+        crit = args.best_focus
+        fr = best_focus(camera, design, crit, args.snr[len(args.snr) // 2], numerics=_numerics(args))
+        print(f"best focus for {crit} at {args.snr[len(args.snr) // 2]:g} dB: focus_shift_um = {fr.focus_shift_um:.1f} "
+              f"({fr.evaluations} evaluations)", file=sys.stderr)
+        design = design.replace(focus_shift_um=round(fr.focus_shift_um, 2))
+    r = evaluate_design(design, args.snr, args.device, _numerics(args), camera)
     if args.json:
         print(json_text({"design": design.name or "custom", **r}))
     else:
+        if camera.channels or getattr(camera.lens.glass, "dispersive", False):
+            print(f"glass {camera.lens.glass.name}; " + (f"{len(camera.channels)} colour channels (the criteria are "
+                  f"their mean): {'; '.join(c.name for c in camera.channels)}" if camera.channels else
+                  f"spectrum {camera.spectrum.name}"))
         print(design_table([(design.name or "custom", r)]))
         print(f"\nFFT sizes per field angle {r['alpha_deg'][0]:g}..{r['alpha_deg'][-1]:g} deg: "
               f"{r['fft_size_per_angle']}  ({time.perf_counter() - t0:.1f} s)")
@@ -186,6 +205,9 @@ def register(sub) -> None:
     configs = ", ".join(builtin_configs())
     e = sub.add_parser("evaluate", help="criteria of one design")
     add_design_arguments(e)
+    add_camera_arguments(e)
+    e.add_argument("--best-focus", metavar="CRITERION", help="first move the image plane (focus_shift_um) to the "
+                   "position that minimises CRITERION (e.g. mse_r) at the middle --snr")
     e.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)})")
     add_device_argument(e)

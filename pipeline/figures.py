@@ -56,7 +56,9 @@ def mosaic_figure(results, methods, path, *, title: str = "", dpi: int = 110) ->
                 ax.text(0.02, 0.03, tile_label(r.scores[kind]), transform=ax.transAxes, color="yellow", fontsize=7,
                         backgroundcolor=(0, 0, 0, 0.55))
     if title:
-        fig.suptitle(title, fontsize=9)
+        import textwrap
+
+        fig.suptitle("\n".join(textwrap.wrap(title, 30 * len(kinds))), fontsize=9)
     out = Path(path)
     atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=dpi))
     plt.close(fig)

@@ -119,7 +119,7 @@ def test_cli_evaluate_json_and_errors(capsys):
     assert main(["evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
     assert r["s"] == -0.775 and r["Q_back"] == -2.4 and len(r["mse_r"]) == 1
-    assert r["parameters"] == {"s": -0.775, "Q_back": -2.4} and r["units"]["rms_w"] == "waves"
+    assert r["parameters"] == {"s": -0.775, "Q_back": -2.4, "Q_front": 0.0, "focus_shift_um": 0.0} and r["units"]["rms_w"] == "waves"
     assert r["mse_r"][0] < r["mse_s"][0] and len(r["fft_size_per_angle"]) == 15
     assert main(["evaluate", "--s", "-0.5", "--Q", "-1", "--snr", "27.6"]) == 0
     assert "MSE_R@27.6dB" in capsys.readouterr().out

@@ -45,7 +45,7 @@ def test_simulate_command_writes_images_and_metrics(tmp_path, capsys):
     assert c["psnr_restored_db"] > c["psnr_sensor_db"]
     assert c["scores"]["wiener"]["psnr_db"] == c["psnr_restored_db"]
     assert c["scores"]["richardson_lucy"]["psnr_db"] > 0 and 0 < c["scores"]["richardson_lucy"]["ssim"] <= 1
-    assert m["methods"] == ["wiener", "richardson_lucy"] and m["parameters"] == {"s": -0.775, "Q_back": -2.4}
+    assert m["methods"] == ["wiener", "richardson_lucy"] and m["parameters"] == {"s": -0.775, "Q_back": -2.4, "Q_front": 0.0, "focus_shift_um": 0.0}
     for kind in ("ideal", "sensor", "restored", "restored_rl"):
         assert (out / f"crop_0deg_{kind}.png").exists()
     assert (out / "mosaic.png").exists()
@@ -67,11 +67,11 @@ def test_psnr_table(tmp_path, capsys):
                "--angles", "0", "--crop", "64", "--out", str(out)])
     assert rc == 0
     lines = (out / "psnr_table.csv").read_text().strip().splitlines()
-    assert lines[0].startswith("photo,design,s,Q_back,iso,method") and len(lines) == 1 + 4
+    assert lines[0].startswith("photo,design,s,Q_back,Q_front,focus_shift_um,iso,method") and len(lines) == 1 + 4
     md = (out / "psnr_table.md").read_text()
     assert "| skimage:camera | end_to_end_paper | 25 |" in md
     rows = [ln.split(",") for ln in lines[1:]]
-    by = {(r[1], int(r[4])): float(r[7]) for r in rows}
+    by = {(r[1], int(r[6])): float(r[9]) for r in rows}
     assert by[("end_to_end_paper", 25)] > by[("end_to_end_paper", 100)]  # less noise, better restoration
     assert main(["psnr-table", "--designs", "nope", "--out", str(out)]) == 2
 
