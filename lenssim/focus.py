@@ -17,7 +17,7 @@ from .numerics import DEFAULT_NUMERICS, Numerics
 from .paper import REFERENCE_SNR_DB
 from .validate import check_real
 
-__all__ = ["FocusResult", "best_focus", "FOCUS_BOUNDS_UM"]
+__all__ = ["FocusResult", "best_focus", "best_focus_batch", "FOCUS_BOUNDS_UM"]
 
 FOCUS_BOUNDS_UM = (-500.0, 500.0)
 """Default search interval of the focus shift (um): the F-C axial colour of a 25 mm singlet in N-SF5 (~0.64 mm)
@@ -60,3 +60,42 @@ def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db:
         warn_model(f"the best focus for {criterion} is at the search bound ({res.x:+.1f} um of [{lo:g}, {hi:g}] um); "
                    "widen the bounds")
     return FocusResult(float(res.x), float(res.fun), criterion, count[0])
+
+
+def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", snr_db: float = REFERENCE_SNR_DB, *,
+                     bounds_um=FOCUS_BOUNDS_UM, tol_um: float = 1.0, numerics: Numerics = DEFAULT_NUMERICS, **kw):
+    """Best focus of every design of a batch at once: golden-section search in lock step (one batched
+    :func:`evaluate` per step, ``ceil(log(tol / width) / log(0.618))`` steps).
+
+    Returns ``(focus_shift_um, value)``, tensors of the design's shape (float64). ``kw`` goes to
+    :func:`evaluate` (e.g. ``device``, ``rho0``, ``psd_model``).
+    """
+    import math
+
+    import torch
+
+    crit = validate_criterion(criterion)
+    lo = check_real("focus bound", bounds_um[0], unit="um")
+    hi = check_real("focus bound", bounds_um[1], lo, unit="um", lo_open=True)
+    check_real("tol_um", tol_um, 0.0, lo_open=True, unit="um")
+    d = design.to(torch.float64).broadcast()
+    shape = d.shape
+
+    def f(z):
+        r = evaluate(camera, d.replace(focus_shift_um=z), [snr_db], numerics=numerics, **kw)[criterion]
+        return (r[..., 0] if crit.per_snr else r).to(torch.float64).cpu()
+
+    g = (math.sqrt(5) - 1) / 2
+    a, b = torch.full(shape, lo, dtype=torch.float64), torch.full(shape, hi, dtype=torch.float64)
+    c, e = b - g * (b - a), a + g * (b - a)
+    fc, fe = f(c), f(e)
+    for _ in range(max(1, math.ceil(math.log(tol_um / (hi - lo)) / math.log(g)))):
+        left = fc < fe  # the minimum lies in [a, e] (else in [c, b])
+        b = torch.where(left, e, b)
+        a = torch.where(left, a, c)
+        new = torch.where(left, b - g * (b - a), a + g * (b - a))  # the one new point of each interval
+        fn = f(new)
+        c, fc, e, fe = (torch.where(left, new, e), torch.where(left, fn, fe),
+                        torch.where(left, c, new), torch.where(left, fc, fn))
+    best = torch.where(fc < fe, c, e)
+    return best, torch.minimum(fc, fe)

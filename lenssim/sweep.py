@@ -80,6 +80,10 @@ class SweepConfig:
     rho0: float = PAPER_RHO0
     psd_model: str = "discrete"
     numerics: Numerics = DEFAULT_NUMERICS
+    focus: dict | None = None
+    """Optimise the image plane at every design instead of gridding it: ``{"criterion": "mse_r", "snr_db":
+    27.6, "bounds_um": [-500, 500], "tol_um": 1.0}`` (:func:`lenssim.focus.best_focus_batch`); the sweep then
+    stores the best ``focus_shift_um`` of each design, and every criterion there."""
 
     def __post_init__(self):
         grid = {}
@@ -97,6 +101,21 @@ class SweepConfig:
             raise ValueError("the grid names no design parameter; e.g. s = [start, stop, step]")
         self.grid = grid
         self.snr_db = tuple(float(x) for x in self.snr_db)
+        if self.focus is not None:
+            from .focus import FOCUS_BOUNDS_UM
+
+            f = dict(self.focus)
+            bad = set(f) - {"criterion", "snr_db", "bounds_um", "tol_um"}
+            if bad:
+                raise ValueError(f"[focus]: unknown key(s) {sorted(bad)}; allowed: criterion, snr_db, bounds_um, tol_um")
+            if "focus_shift_um" in grid:
+                raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
+            crit = f.get("criterion", "mse_r")
+            if crit not in CRITERIA:
+                raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(CRITERIA)}")
+            self.focus = {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
+                          "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
+                          "tol_um": float(f.get("tol_um", 1.0))}
         if self.psd_model not in PSD_MODELS:
             raise ValueError(f"psd_model={self.psd_model!r} is not allowed: one of {', '.join(PSD_MODELS)}")
 
@@ -139,9 +158,12 @@ class SweepConfig:
         return Design({d: torch.from_numpy(a) for d, a in zip(self.dims, axes)})
 
     def to_dict(self) -> dict:
-        return {**self.camera.to_dict(), "grid": {k: list(v) for k, v in self.grid.items()},
-                "snr_db": list(self.snr_db), "rho0": self.rho0, "psd_model": self.psd_model,
-                "numerics": self.numerics.to_dict()}
+        d = {**self.camera.to_dict(), "grid": {k: list(v) for k, v in self.grid.items()},
+             "snr_db": list(self.snr_db), "rho0": self.rho0, "psd_model": self.psd_model,
+             "numerics": self.numerics.to_dict()}
+        if self.focus is not None:
+            d["focus"] = dict(self.focus)
+        return d
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
@@ -156,7 +178,7 @@ class SweepConfig:
         return cls(camera=Camera(Lens.from_dict(d.get("lens", {})), Sensor(**sens),
                                  Spectrum(**spec) if spec else Spectrum()),
                    grid=d["grid"], snr_db=tuple(d["snr_db"]), rho0=d["rho0"], psd_model=d["psd_model"],
-                   numerics=Numerics(**d.get("numerics", {})))
+                   numerics=Numerics(**d.get("numerics", {})), focus=d.get("focus"))
 
 
 _NUMERICS_KEYS = ("fill", "margin_px", "min_size", "oversample", "supersample", "cost_points", "max_fft_size")
@@ -178,7 +200,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
         raise FileNotFoundError(f"{where} does not exist") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{where} is not valid TOML: {exc}") from None
-    sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "grid", "numerics")}
+    sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "grid", "numerics", "focus")}
     if raw:
         raise ValueError(f"{where}: unknown section(s) {sorted(raw)}; allowed: {', '.join(f'[{k}]' for k in sections)}")
     lens_kw, grid, numerics = dict(sections["lens"]), dict(sections["grid"]), dict(sections["numerics"])
@@ -216,7 +238,8 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
         if k in numerics:
             kw[k] = numerics.pop(k)
     try:
-        cfg = SweepConfig(camera=camera, grid=grid or dict(PAPER_GRID), numerics=Numerics(**numerics), **kw)
+        cfg = SweepConfig(camera=camera, grid=grid or dict(PAPER_GRID), numerics=Numerics(**numerics),
+                          focus=sections["focus"] or None, **kw)
         cfg.check()
     except ResourceLimitError as exc:
         raise ResourceLimitError(f"{where}: {exc}", exc.setting) from None
@@ -225,11 +248,12 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
     return cfg
 
 
-def _chunk_keys() -> tuple[str, ...]:
+def _chunk_keys(cfg: SweepConfig | None = None) -> tuple[str, ...]:
     keys = []
     for name, c in CRITERIA.items():
         keys += [name, f"{name}_alpha"] if c.from_otf is not None else [name]
-    return tuple(keys) + ("rms_w_alpha", "rms_w_piston_removed", "fft_size")
+    extra = ("focus_shift_um",) if cfg is not None and cfg.focus is not None else ()
+    return tuple(keys) + ("rms_w_alpha", "rms_w_piston_removed", "fft_size") + extra
 
 
 def _compute_chunk(cfg: SweepConfig, i: int, device, progress) -> dict:
@@ -239,13 +263,23 @@ def _compute_chunk(cfg: SweepConfig, i: int, device, progress) -> dict:
     vals = {d: torch.from_numpy(np.ascontiguousarray(a)) for d, a in zip(rest, axes)}
     shape = axes[0].shape if rest else ()
     vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64)
+    if cfg.focus is not None:
+        from .focus import best_focus_batch
+
+        f = cfg.focus
+        z, _ = best_focus_batch(cfg.camera, Design(vals), f["criterion"], f["snr_db"], bounds_um=f["bounds_um"],
+                                tol_um=f["tol_um"], numerics=cfg.numerics, device=device, rho0=cfg.rho0,
+                                psd_model=cfg.psd_model)
+        vals["focus_shift_um"] = z
     res = evaluate(cfg.camera, Design(vals), cfg.snr_db, rho0=cfg.rho0, psd_model=cfg.psd_model,
                    numerics=cfg.numerics, device=device, progress=progress)
-    return {k: res[k].cpu().numpy() for k in _chunk_keys()}
+    if cfg.focus is not None:
+        res["focus_shift_um"] = vals["focus_shift_um"]
+    return {k: res[k].cpu().numpy() for k in _chunk_keys(cfg)}
 
 
 def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
-    st = {k: np.stack([c[k] for c in chunks]) for k in _chunk_keys()}
+    st = {k: np.stack([c[k] for c in chunks]) for k in _chunk_keys(cfg)}
     dims = cfg.dims
     coords = {d: cfg.values(d) for d in dims}
     coords.update({"alpha": np.asarray(cfg.lens.field_angles_deg), "snr": np.asarray(cfg.snr_db, dtype=np.float64)})
@@ -263,6 +297,9 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     data["rms_w_piston_removed"] = (dims, st["rms_w_piston_removed"], {"units": "waves"})
     data["fft_size"] = (dims + ("alpha",), st["fft_size"].astype(np.int32),
                         {"units": "samples", "long_name": "FFT size used per PSF"})
+    if cfg.focus is not None:
+        data["focus_shift_um"] = (dims, st["focus_shift_um"], {"units": "um", "long_name": (
+            f"best image plane behind the paraxial focus, for {cfg.focus['criterion']} at {cfg.focus['snr_db']:g} dB")})
     ds = xr.Dataset(data, coords=coords)
     for d in dims:
         ds[d].attrs = {"long_name": PARAMETERS[d].description, "units": PARAMETERS[d].unit}
@@ -275,7 +312,7 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
 
 def _checksum(chunk: dict) -> str:
     h = hashlib.sha256()
-    for k in _chunk_keys():
+    for k in sorted(chunk):
         a = np.ascontiguousarray(chunk[k])
         h.update(f"{k}|{a.dtype}|{a.shape}|".encode())
         h.update(a.tobytes())
@@ -300,7 +337,7 @@ def _read_chunk(path: Path, cfg: SweepConfig, i: int):
     except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
         return f"cannot be read ({type(exc).__name__})"
     meta = ("_index", "_first_value", "_digest", "_checksum")
-    if any(k not in data for k in _chunk_keys() + meta):
+    if any(k not in data for k in _chunk_keys(cfg) + meta):
         return "is incomplete (missing arrays or its stamp)"
     first = float(cfg.values(cfg.dims[0])[i])
     if int(data["_index"]) != i or float(data["_first_value"]) != first:
@@ -308,7 +345,7 @@ def _read_chunk(path: Path, cfg: SweepConfig, i: int):
                 f"not {cfg.dims[0]} = {first:g}")
     if str(data["_digest"]) != cfg.digest():
         return "belongs to another config"
-    chunk = {k: data[k] for k in _chunk_keys()}
+    chunk = {k: data[k] for k in _chunk_keys(cfg)}
     if _checksum(chunk) != str(data["_checksum"]):
         return "fails its checksum (corrupted)"
     rest = tuple(len(cfg.values(d)) for d in cfg.dims[1:])

@@ -158,3 +158,26 @@ def test_windowed_colour_blur_matches_the_exact_per_pixel_reference_above_70_db(
     snr_db = 10 * math.log10(float((ref**2).sum() / ((ref - got) ** 2).sum()))
     assert snr_db > 70
     assert not torch.allclose(ref[:, 0], ref[:, 2], rtol=1e-3)  # the channels really are blurred differently
+
+
+def test_a_sweep_can_optimise_the_focus_at_every_design(tmp_path):
+    from lenssim.focus import best_focus
+    from lenssim.sweep import load_config, run_sweep
+
+    cfg = tmp_path / "focus.toml"
+    cfg.write_text('[lens]\nfield_angles_deg = [0, 7, 14]\n[grid]\ns = [-0.8, -0.7, 0.1]\nQ = [-3.0, -2.0, 1.0]\n'
+                   'snr_db = [27.6]\n[numerics]\nmin_size = 128\noversample = 1\n'
+                   '[focus]\ncriterion = "mse_r"\nbounds_um = [-300, 300]\ntol_um = 1.0\n')
+    c = load_config(cfg)
+    ds = run_sweep(c, tmp_path / "f.nc", show_progress=False)
+    assert ds["focus_shift_um"].dims == ("s", "Q_back") and ds["focus_shift_um"].attrs["units"] == "um"
+    z = float(ds["focus_shift_um"].sel(s=-0.8, Q_back=-3.0))
+    ref = best_focus(c.camera, Design(s=-0.8, Q_back=-3.0), "mse_r", 27.6, bounds_um=(-300, 300), tol_um=0.5,
+                     numerics=c.numerics)
+    assert z == pytest.approx(ref.focus_shift_um, abs=2.0)
+    at0 = evaluate(c.camera, Design(s=-0.8, Q_back=-3.0), [27.6], numerics=c.numerics)["mse_r"][0]
+    assert float(ds["mse_r"].sel(s=-0.8, Q_back=-3.0, snr=27.6)) <= float(at0)
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[grid]\nfocus_shift_um = [-10, 10, 5]\n[focus]\ncriterion = "mse_r"\n')
+    with pytest.raises(ValueError, match="both gridded and optimised"):
+        load_config(bad)
