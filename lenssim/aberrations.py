@@ -48,6 +48,7 @@ __all__ = [
     "defocus_mm",
     "wavefront_coefficients",
     "pupil_monomials",
+    "monomial_gradients",
     "wavefront",
     "wavefront_rotated",
     "wavefront_gradient",
@@ -176,10 +177,28 @@ def wavefront_coefficients(lens: Lens, design: Design, alpha_deg=None, *, wavele
     return torch.stack(torch.broadcast_tensors(S1 / 8, S2 / 2, S3 / 2, (S3 + S4) / 4 + w020), dim=-1)
 
 
-def pupil_monomials(rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:
-    """The monomials of :data:`TERMS` at pupil points, stacked: ``(T, *P)`` for points of shape ``P``."""
+def pupil_monomials(rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS) -> torch.Tensor:
+    """The monomials of ``terms`` (default :data:`TERMS`) at pupil points, stacked: ``(T, *P)``."""
     r2 = rho_r**2 + rho_t**2
-    return torch.stack(torch.broadcast_tensors(*(t(r2, rho_r) for t in TERMS)))
+    return torch.stack(torch.broadcast_tensors(*(t(r2, rho_r) for t in terms)))
+
+
+def monomial_gradients(rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS):
+    """``(d/drho_r, d/drho_t)`` of each monomial of ``terms``, each stacked ``(T, *P)``."""
+    r2 = rho_r**2 + rho_t**2
+    gr, gt = [], []
+    for t in terms:
+        g_r = torch.zeros_like(r2)
+        g_t = torch.zeros_like(r2)
+        if t.a:
+            common = 2 * t.a * r2 ** (t.a - 1) * rho_r**t.b
+            g_r = g_r + common * rho_r
+            g_t = g_t + common * rho_t
+        if t.b:
+            g_r = g_r + t.b * r2**t.a * rho_r ** (t.b - 1)
+        gr.append(g_r)
+        gt.append(g_t)
+    return torch.stack(gr), torch.stack(gt)
 
 
 def wavefront(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:

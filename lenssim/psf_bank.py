@@ -322,7 +322,7 @@ def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
     return out.reshape(lead + (n, n))
 
 
-def _quarter_basis_compute(n: int, radius: float, supersample: int):
+def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
     """Half-pupil amplitude and monomial basis for :func:`otf_quarter` (float64, CPU).
 
     Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..n/2``.
@@ -334,7 +334,7 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int):
     xv = torch.arange(0, h + 1, dtype=torch.float64)
     a = _coverage(yv, xv, radius, supersample)
     area = 2 * a.sum() - a[:, 0].sum()  # the x < 0 half mirrors x > 0
-    basis = pupil_monomials((yv / radius)[:, None], (xv / radius)[None, :])
+    basis = pupil_monomials((yv / radius)[:, None], (xv / radius)[None, :], *(() if terms is None else (terms,)))
     return a, basis, float(area)
 
 
@@ -342,14 +342,14 @@ _BASIS_CACHE: OrderedDict = OrderedDict()
 _BASIS_CACHE_BYTES = 1 << 30
 
 
-def _quarter_basis_cached(n: int, radius: float, supersample: int):
+def _quarter_basis_cached(n: int, radius: float, supersample: int, terms=None):
     """:func:`_quarter_basis_compute`, cached (LRU) up to 1 GiB in total: sweeps cycle through ~30
     FFT sizes per chunk, while 4x-size checks make single entries of hundreds of MB."""
-    key = (n, radius, supersample)
+    key = (n, radius, supersample, terms)
     if key in _BASIS_CACHE:
         _BASIS_CACHE.move_to_end(key)
         return _BASIS_CACHE[key]
-    val = _quarter_basis_compute(n, radius, supersample)
+    val = _quarter_basis_compute(n, radius, supersample, terms)
     _BASIS_CACHE[key] = val
     size = lambda v: v[0].nbytes + v[1].nbytes  # noqa: E731
     while len(_BASIS_CACHE) > 1 and sum(size(v) for v in _BASIS_CACHE.values()) > _BASIS_CACHE_BYTES:
@@ -358,10 +358,12 @@ def _quarter_basis_cached(n: int, radius: float, supersample: int):
 
 
 def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversample: int = 1,
-                supersample: int = DEFAULT_NUMERICS.supersample) -> torch.Tensor:
+                supersample: int = DEFAULT_NUMERICS.supersample, terms=None) -> torch.Tensor:
     """Fast OTF bank for field-axis PSFs at one wavelength: ``H[fy, fx]`` for ``fy, fx = 0..m/2``, ``m = oversample n``.
 
-    Frequencies are ``k / m`` cycles/pixel. Input ``(B, T)`` coefficients (waves) with the field
+    Frequencies are ``k / m`` cycles/pixel. ``terms``: the pupil monomials of the coefficients (default
+    :data:`lenssim.aberrations.TERMS`; e.g. a higher-order table for fitted exact wavefronts). Input
+    ``(B, T)`` coefficients (waves) with the field
     along +y and the pupil radius in samples of the ``n``-point FFT (:meth:`Camera.pupil_radius_px`,
     at most ``n / 4``); output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With
     ``oversample=1`` it equals the quarter of :func:`otf` to rounding (above ``R = n / 4`` both are the
@@ -378,7 +380,8 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     * Hermitian symmetry ``H(-f) = conj H(f)`` with evenness in ``fx``: ``|H|^2`` and ``Re H`` are
       even in both axes, so the quarter plane carries everything the MSE integrals need.
     """
-    check_shape(coeffs, f"B {N_TERMS}", "coeffs (waves)")
+    n_terms = N_TERMS if terms is None else len(terms)
+    check_shape(coeffs, f"B {n_terms}", "coeffs (waves)")
     check_finite("coeffs", coeffs.detach())
     if n % 2:
         raise ValueError(f"n={n} is not allowed: must be even")
@@ -387,11 +390,11 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
         raise ValueError(f"pupil radius {R:.3f} samples is not allowed: in (0, n/2 - 2 = {_max_radius(n)}] (the "
                          "pupil must fit the grid; above n/4 the sampled PSF aliases)")
     dtype, device = coeffs.dtype, coeffs.device
-    a, basis, area = _quarter_basis_cached(int(n), R, int(supersample))
+    a, basis, area = _quarter_basis_cached(int(n), R, int(supersample), None if terms is None else tuple(terms))
     a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)
     h = n // 2
     B = coeffs.shape[0]
-    W = (coeffs @ basis.reshape(N_TERMS, -1)).reshape(B, *a.shape)
+    W = (coeffs @ basis.reshape(n_terms, -1)).reshape(B, *a.shape)
     phase = (-2 * math.pi) * W
     re_im = torch.stack([a * torch.cos(phase), a * torch.sin(phase)], dim=1)  # (B, 2, rows, h+1)
     row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
