@@ -14,7 +14,6 @@ surface, the paraxial focus), so the paper's designs are unchanged.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,13 +178,10 @@ def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] 
     designs = dict(builtins)
     if path is None:
         return designs
+    from .files import read_toml
+
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"designs file {str(path)!r} does not exist") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"designs file {str(path)!r} is not valid TOML: {exc}") from None
+    raw = read_toml(path, "designs file")
     for name, t in raw.items():
         if not isinstance(t, dict):
             raise ValueError(f"designs file {str(path)!r}: [{name}] must be a table of parameter values")

@@ -13,7 +13,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_write_text", "json_text", "check_output_dir", "staged_output_dir"]
+__all__ = ["atomic_write", "atomic_write_text", "json_text", "check_output_dir", "staged_output_dir", "read_toml"]
 
 
 def _default_mode() -> int:
@@ -108,3 +108,15 @@ def staged_output_dir(path):
                 os.replace(f, dest)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def read_toml(path, what: str) -> dict:
+    """The TOML file ``path`` as a dict; ``what`` names it in the errors (missing file, invalid TOML)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {str(path)!r} does not exist") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{what} {str(path)!r} is not valid TOML: {exc}") from None

@@ -98,14 +98,13 @@ class SellmeierGlass:
 def load_glasses(path=None) -> dict:
     """The glass catalogue (default: the built-in ``configs/glasses.toml``): name -> glass, with the
     data-sheet ``n_d`` / ``V_d`` of each dispersive glass in ``catalogue_values`` order (see the file)."""
-    import tomllib
-    from pathlib import Path
+    from .files import read_toml
 
     if path is None:
         from .resources import glasses_file
 
         path = glasses_file()
-    raw = tomllib.loads(Path(path).read_text())
+    raw = read_toml(path, "glass catalogue")
     out = {}
     for name, t in raw.items():
         if "n" in t:

@@ -240,6 +240,18 @@ def _azimuth(azimuth_deg, flat: torch.Tensor):
     return torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
 
 
+def _wavelength_fields(camera: Camera, coeffs: torch.Tensor, n: int, azimuth_deg, dtype, numerics: Numerics):
+    """For each wavelength of the spectrum: ``(lambda, weight, pupil field (B, box, box), coeffs (B, K, T), lead shape)``."""
+    _check_spectral(camera, coeffs)
+    lead = coeffs.shape[:-2]
+    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
+    az = _azimuth(azimuth_deg, flat)
+    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, dtype or flat.dtype,
+                       flat.device)
+        yield lam, w, field, flat, lead
+
+
 def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, centered: bool = True,
         dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
     """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, K, T)`` (waves per wavelength).
@@ -250,14 +262,8 @@ def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, cente
     ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
     ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak).
     """
-    _check_spectral(camera, coeffs)
-    lead = coeffs.shape[:-2]
-    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
-    az = _azimuth(azimuth_deg, flat)
     out = None
-    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, dtype or flat.dtype,
-                       flat.device)
+    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics):
         p = _intensity(field, int(n))
         p = p / p.sum(dim=(-2, -1), keepdim=True)
         out = p if len(camera.spectrum) == 1 else (w * p if out is None else out.add_(p, alpha=w))
@@ -308,13 +314,8 @@ def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
     :func:`_area_normalise`), weighted over the spectrum. Frequencies are ``k / n`` cycles/pixel.
     This is the general (reference) path.
     """
-    _check_spectral(camera, coeffs)
-    lead = coeffs.shape[:-2]
-    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
-    az = _azimuth(azimuth_deg, flat)
     out = None
-    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, flat.dtype, flat.device)
+    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, None, numerics):
         H = torch.fft.fft2(_intensity(field, int(n)))
         amp, _ = pupil_amplitude(camera, n, lam, numerics=numerics, dtype=flat.dtype, device=flat.device)
         H = _area_normalise(H, amp)

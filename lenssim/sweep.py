@@ -17,7 +17,6 @@ import json
 import os
 import shutil
 import sys
-import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +29,7 @@ from . import __version__
 from .camera import Camera
 from .criteria import CRITERIA
 from .design import PARAMETERS, Design, parameter_name
-from .files import atomic_write
+from .files import atomic_write, read_toml
 from .image_model import PSD_MODELS
 from .lens import Lens, LensError
 from .metrics import evaluate
@@ -194,12 +193,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
     """
     path = Path(path)
     where = f"sweep config {str(path)!r}"
-    try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{where} does not exist") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{where} is not valid TOML: {exc}") from None
+    raw = read_toml(path, "sweep config")
     sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "grid", "numerics", "focus")}
     if raw:
         raise ValueError(f"{where}: unknown section(s) {sorted(raw)}; allowed: {', '.join(f'[{k}]' for k in sections)}")
