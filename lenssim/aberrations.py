@@ -214,11 +214,11 @@ def wavefront(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) ->
     return sum(t.weighted(c[..., k], r2, rho_r) for k, t in enumerate(TERMS))
 
 
-def wavefront_rotated(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor) -> torch.Tensor:
-    """``W`` (waves) for coefficients ``(B, T)`` and per-row pupil points ``(B or 1, *P)``: ``(B, *P)``."""
+def wavefront_rotated(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS) -> torch.Tensor:
+    """``W`` (waves) for coefficients ``(B, T)`` of ``terms`` and per-row pupil points ``(B or 1, *P)``: ``(B, *P)``."""
     r2 = rho_r**2 + rho_t**2
     extra = (None,) * (rho_r.ndim - 1)
-    return sum(t.weighted(coeffs[(slice(None), k) + extra], r2, rho_r) for k, t in enumerate(TERMS))
+    return sum(t.weighted(coeffs[(slice(None), k) + extra], r2, rho_r) for k, t in enumerate(terms))
 
 
 def wavefront_gradient(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor):

@@ -101,8 +101,8 @@ def spectral_coefficients(camera: Camera, design: Design, alpha_deg=None, *, ele
                         for lam in camera.spectrum.wavelengths_um], dim=-2)
 
 
-def _check_spectral(camera: Camera, coeffs: torch.Tensor) -> None:
-    K = check_shape(coeffs, f"* K {N_TERMS}", "coeffs (waves per wavelength)")["K"]
+def _check_spectral(camera: Camera, coeffs: torch.Tensor, n_terms: int = N_TERMS) -> None:
+    K = check_shape(coeffs, f"* K {n_terms}", "coeffs (waves per wavelength)")["K"]
     check_finite("coeffs", coeffs.detach())
     if K != len(camera.spectrum):
         raise ValueError(f"coeffs has {K} wavelengths, the camera's spectrum {len(camera.spectrum)}: expected "
@@ -205,7 +205,7 @@ def _pupil_box_cached(radius: float, supersample: int):
     return _coverage(x, x, radius, supersample), x / radius
 
 
-def _field(coeffs, radius, azimuth_rad, supersample, dtype, device):
+def _field(coeffs, radius, azimuth_rad, supersample, dtype, device, terms=None):
     """Complex pupil field ``(B, 2m+1, 2m+1)`` on the pupil's bounding box, coefficients ``(B, T)``.
 
     Only the box is evaluated (the rest of the ``n x n`` grid is zero); :func:`_intensity`
@@ -224,7 +224,7 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device):
         azimuth_rad = azimuth_rad.to(dtype)
         c, s = torch.cos(azimuth_rad)[:, None, None], torch.sin(azimuth_rad)[:, None, None]
         rho_r, rho_t = rx * c + ry * s, -rx * s + ry * c
-    W = wavefront_rotated(coeffs, rho_r, rho_t)  # (B, rows, cols)
+    W = wavefront_rotated(coeffs, rho_r, rho_t, *(() if terms is None else (terms,)))  # (B, rows, cols)
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 
@@ -240,30 +240,33 @@ def _azimuth(azimuth_deg, flat: torch.Tensor):
     return torch.deg2rad(as_tensor(azimuth_deg, like=flat)).reshape(-1).expand(flat.shape[0])
 
 
-def _wavelength_fields(camera: Camera, coeffs: torch.Tensor, n: int, azimuth_deg, dtype, numerics: Numerics):
+def _wavelength_fields(camera: Camera, coeffs: torch.Tensor, n: int, azimuth_deg, dtype, numerics: Numerics,
+                       terms=None):
     """For each wavelength of the spectrum: ``(lambda, weight, pupil field (B, box, box), coeffs (B, K, T), lead shape)``."""
-    _check_spectral(camera, coeffs)
+    n_terms = N_TERMS if terms is None else len(terms)
+    _check_spectral(camera, coeffs, n_terms)
     lead = coeffs.shape[:-2]
-    flat = coeffs.reshape(-1, coeffs.shape[-2], N_TERMS)
+    flat = coeffs.reshape(-1, coeffs.shape[-2], n_terms)
     az = _azimuth(azimuth_deg, flat)
     for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
         field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, dtype or flat.dtype,
-                       flat.device)
+                       flat.device, terms)
         yield lam, w, field, flat, lead
 
 
 def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, centered: bool = True,
-        dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+        dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
     """Intensity PSFs ``(*, n, n)`` normalised to unit sum, from coefficients ``(*, K, T)`` (waves per wavelength).
 
     ``azimuth_deg`` ``(*)`` gives, per PSF, the direction (deg, from +x towards +y) of the image
     point seen from the optical axis; the pupil coordinates are rotated exactly (no resampling).
     ``None`` puts the field along +y (rows). With ``centered`` the paraxial image point is at
     ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
-    ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak).
+    ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak). ``terms``: the
+    coefficients' monomial table (default :data:`lenssim.aberrations.TERMS`).
     """
     out = None
-    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics):
+    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics, terms):
         p = _intensity(field, int(n))
         p = p / p.sum(dim=(-2, -1), keepdim=True)
         out = p if len(camera.spectrum) == 1 else (w * p if out is None else out.add_(p, alpha=w))
