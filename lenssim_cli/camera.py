@@ -103,7 +103,7 @@ def cmd_simulate(args) -> int:
     _check_common(args)
     design = design_from_args(args)
     camera = camera_from_args(args)
-    psf = LensPSF(camera, design)
+    psf = LensPSF(camera, design, wavefront=args.wavefront)
     if args.full_well is not None:
         fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
     else:
@@ -141,7 +141,7 @@ def cmd_simulate(args) -> int:
         source += f" (gently denoised, strength {args.denoise:g})"
     params = design.complete().floats()
     report = {"source": source, "design": design.name or "custom", "parameters": params, **params,
-              "glass": camera.lens.glass.name,
+              "glass": camera.lens.glass.name, "wavefront": args.wavefront,
               "spectrum": [c.name for c in camera.channels] if camera.channels else camera.spectrum.name,
               "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "methods": list(methods)}

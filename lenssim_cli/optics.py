@@ -74,7 +74,18 @@ def cmd_evaluate(args) -> int:
         print(f"best focus for {crit} at {args.snr[len(args.snr) // 2]:g} dB: focus_shift_um = {fr.focus_shift_um:.1f} "
               f"({fr.evaluations} evaluations)", file=sys.stderr)
         design = design.replace(focus_shift_um=round(fr.focus_shift_um, 2))
+    if args.wavefront == "exact" and (camera.channels or len(camera.spectrum) != 1):
+        raise ValueError("--wavefront exact takes a one-wavelength spectrum (--spectrum paper)")
     r = evaluate_design(design, args.snr, args.device, _numerics(args), camera)
+    if args.wavefront == "exact":
+        from lenssim.exact_wavefront import exact_criteria
+
+        ex = exact_criteria(camera, design, args.snr, numerics=_numerics(args))
+        for name in ("mse_s", "mse_r"):
+            r[name] = [float(x) for x in ex[name]]
+        r["fft_size_per_angle"] = [int(v) for v in ex["fft_size"]]
+        r["wavefront"] = "exact: MSE_S and MSE_R from the wavefront fitted to an exact ray trace (RMS_W stays the " \
+                         "third-order one; C_a is exact either way)"
     if args.json:
         print(json_text({"design": design.name or "custom", **r}))
     else:

@@ -77,3 +77,15 @@ def test_the_console_script_prints_one_line_and_no_teardown_noise(tmp_path):
     ok = subprocess.run([sys.executable, "-m", "lenssim_cli.main", "evaluate", "--design", "end_to_end_paper", "--snr",
                          "27.6", "--json"], capture_output=True, text=True, cwd=tmp_path)
     assert ok.returncode == 0 and json.loads(ok.stdout)["mse_r"][0] > 0 and "leaked" not in ok.stderr
+
+
+def test_the_exact_wavefront_flags(capsys, tmp_path):
+    assert main(["evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--wavefront", "exact", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["mse_r"][0] == pytest.approx(0.03891, rel=2e-3) and r["wavefront"].startswith("exact")
+    assert main(["evaluate", "--design", "end_to_end_paper", "--wavefront", "exact", "--spectrum",
+                 "Nikon 5100 (NPL)"]) == 2
+    assert "one-wavelength spectrum" in capsys.readouterr().err
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--wavefront", "exact", "--spectrum",
+                 "Nikon 5100 (NPL)", "--out", str(tmp_path / "o")]) == 2
+    assert "one-wavelength camera" in capsys.readouterr().err
