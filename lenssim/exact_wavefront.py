@@ -18,12 +18,11 @@ import torch
 
 from .aberrations import Term, monomial_gradients
 from .camera import Camera
-from .criteria import CRITERIA, quarter_weights
 from .design import Design
-from .image_model import image_psd_quarter, noise_variance
+from .metrics import otf_criteria_bank
 from .numerics import DEFAULT_NUMERICS, Numerics
 from .paper import PAPER_RHO0, PAPER_SNR_DB
-from .psf_bank import _polar_probe, nice_fft_size, otf_quarter
+from .psf_bank import fft_size
 from .raytrace import transverse_aberration
 
 __all__ = ["EXACT_TERMS", "exact_wavefront_coefficients", "exact_criteria"]
@@ -53,15 +52,6 @@ def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: floa
     return c_mm / (lam * 1e-3)
 
 
-def _fft_size(camera: Camera, coeffs: torch.Tensor, lam: float, numerics: Numerics) -> int:
-    rr, rt = _polar_probe()
-    gr, gt = monomial_gradients(rr, rt, EXACT_TERMS)
-    G = float(torch.sqrt((coeffs @ gr) ** 2 + (coeffs @ gt) ** 2).max())
-    n_phase = G / (0.5 * numerics.fill) / camera.pupil_radius_px(1, lam)
-    n_psf = 2 * camera.geometric_radius_px(G, lam) / numerics.fill + numerics.margin_px
-    return nice_fft_size(int(math.ceil(max(n_phase, n_psf, numerics.min_size))))
-
-
 def exact_criteria(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float = PAPER_RHO0,
                    numerics: Numerics = DEFAULT_NUMERICS) -> dict:
     """The OTF criteria (``mse_s``, ``mse_r``; field averages, ``(S,)`` float64) of one design with the exact
@@ -70,25 +60,13 @@ def exact_criteria(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0:
     if len(camera.spectrum) != 1 or camera.channels:
         raise ValueError("exact_criteria takes a one-wavelength camera")
     lam = camera.spectrum.wavelengths_um[0]
-    sigma2 = noise_variance(snr_db).reshape(-1)
-    names = [k for k, c in CRITERIA.items() if c.from_otf is not None]
-    per = {k: [] for k in names}
-    sizes = []
-    for a in camera.lens.field_angles_deg:
-        c = exact_wavefront_coefficients(camera, design, a, lam)
-        n = _fft_size(camera, c, lam, numerics)
-        sizes.append(n)
-        m = n * numerics.oversample
-        H = otf_quarter(c[None].to(torch.float32), n, pupil_radius_px=camera.pupil_radius_px(n, lam),
-                        oversample=numerics.oversample, supersample=numerics.supersample, terms=EXACT_TERMS)
-        psd = image_psd_quarter(m, rho0, dtype=torch.float32)
-        pw = psd * quarter_weights(m, psd.dtype, psd.device)
-        H2 = H.real.square() + H.imag.square()
-        for k in names:
-            per[k].append(CRITERIA[k].from_otf(H, H2, psd, pw, sigma2)[0])
+    A = len(camera.lens.field_angles_deg)
+    c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
+    sizes = fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS)
+    per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
+                            terms=EXACT_TERMS)
     out = {}
-    for k in names:
-        v = torch.stack(per[k])
-        out[k], out[f"{k}_alpha"] = v.mean(dim=0), v
-    out["fft_size"] = torch.tensor(sizes)
+    for k, v in per.items():
+        out[k], out[f"{k}_alpha"] = v.reshape(A, -1).mean(dim=0), v.reshape(A, -1)
+    out["fft_size"] = sizes
     return out

@@ -31,8 +31,10 @@ __all__ = ["otf_criteria_bank", "evaluate"]
 
 def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db=PAPER_SNR_DB, *,
                       rho0: float = PAPER_RHO0, psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS,
-                      criteria=None, progress: Callable[[int], None] | None = None) -> dict[str, torch.Tensor]:
-    """OTF criteria ``{name: (P, S)}`` (float64) for field-axis coefficient sets ``(P, K, T)``.
+                      criteria=None, progress: Callable[[int], None] | None = None,
+                      terms=None) -> dict[str, torch.Tensor]:
+    """OTF criteria ``{name: (P, S)}`` (float64) for field-axis coefficient sets ``(P, K, T)`` (``terms``: their
+    monomial table, default :data:`lenssim.aberrations.TERMS`).
 
     PSFs are grouped by FFT size ``sizes`` ``(P,)`` and processed in chunks of at most
     ``numerics.chunk_bytes`` of working memory, so memory stays bounded whatever ``P``. The
@@ -40,7 +42,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
     integrand is not band-limited and needs them). ``progress`` is called with the number of PSFs
     finished after each chunk.
     """
-    check_shape(coeffs, f"P K {N_TERMS}", "coeffs (waves per wavelength)")
+    check_shape(coeffs, f"P K {N_TERMS if terms is None else len(terms)}", "coeffs (waves per wavelength)")
     names = otf_criteria() if criteria is None else tuple(criteria)
     for c in names:
         if validate_criterion(c).from_otf is None:
@@ -60,7 +62,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
         step = max(1, int(numerics.chunk_bytes // per_psf))
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]
-            H = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics)
+            H = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics, terms=terms)
             H2 = H.real.square() + H.imag.square()
             for c in names:
                 out[c][sel] = CRITERIA[c].from_otf(H, H2, psd_q, pw, sigma2)

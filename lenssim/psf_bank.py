@@ -33,8 +33,8 @@ from functools import lru_cache
 
 import torch
 
-from .aberrations import (N_TERMS, _check_coeffs, pupil_monomials, wavefront_coefficients, wavefront_gradient,
-                          wavefront_rotated)
+from .aberrations import (N_TERMS, _check_coeffs, monomial_gradients, pupil_monomials, wavefront_coefficients,
+                          wavefront_gradient, wavefront_rotated)
 from .camera import Camera
 from .checks import check_shape
 from .design import Design
@@ -77,19 +77,29 @@ def _polar_probe(n_r: int = 33, n_t: int = 72):
     return (R * torch.cos(T)).flatten(), (R * torch.sin(T)).flatten()
 
 
-def max_wavefront_slope(coeffs: torch.Tensor) -> torch.Tensor:
+def max_wavefront_slope(coeffs: torch.Tensor, terms=None) -> torch.Tensor:
     """Largest ``|grad_rho W|`` over the unit pupil (waves per unit radius), shape ``(*)``.
 
-    Evaluated on a 33 x 72 polar probe of the disc (the maximum of these quartic polynomials lies
-    on the rim or at an interior critical point; the probe's step is 1/32 in radius).
+    Evaluated on a 33 x 72 polar probe of the disc (the maximum of these polynomials lies on the
+    rim or at an interior critical point; the probe's step is 1/32 in radius). ``terms``: the
+    coefficients' monomial table (default :data:`lenssim.aberrations.TERMS`).
     """
-    _check_coeffs(coeffs)
+    n_terms = N_TERMS if terms is None else len(terms)
+    if terms is None:
+        _check_coeffs(coeffs)
+    else:
+        check_shape(coeffs, f"* {n_terms}", "coeffs (waves)")
+        check_finite("coeffs", coeffs.detach())
     rr, rt = _polar_probe()
     rr, rt = rr.to(coeffs.device), rt.to(coeffs.device)
-    flat = coeffs.reshape(-1, N_TERMS).to(torch.float64)
+    flat = coeffs.reshape(-1, n_terms).to(torch.float64)
+    grads = None if terms is None else monomial_gradients(rr, rt, terms)
     out = torch.empty(flat.shape[0], dtype=torch.float64, device=coeffs.device)
     for i in range(0, flat.shape[0], 4096):  # bounded memory for any batch
-        g_r, g_t = wavefront_gradient(flat[i:i + 4096], rr, rt)
+        if grads is None:
+            g_r, g_t = wavefront_gradient(flat[i:i + 4096], rr, rt)
+        else:
+            g_r, g_t = flat[i:i + 4096] @ grads[0], flat[i:i + 4096] @ grads[1]
         out[i:i + 4096] = torch.sqrt(g_r**2 + g_t**2).amax(dim=-1)
     return out.reshape(coeffs.shape[:-1])
 
@@ -109,20 +119,22 @@ def _check_spectral(camera: Camera, coeffs: torch.Tensor, n_terms: int = N_TERMS
                          "(*, K, T) with one row per wavelength (see spectral_coefficients)")
 
 
-def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_NUMERICS, *,
+             terms=None) -> torch.Tensor:
     """FFT size ``N`` for each coefficient set ``(*, K, T)`` (waves at each wavelength); int64 ``(*)``.
 
     ``N`` is the smallest :func:`nice_fft_size` with, at every wavelength, (i) at most
     ``numerics.fill`` x 0.5 wave of pupil phase per sample and (ii) the geometric PSF diameter
     ``2 G lambda f / (y Delta)`` plus ``numerics.margin_px`` pixels inside the grid (``G`` =
-    :func:`max_wavefront_slope`), and ``N >= numerics.min_size``.
+    :func:`max_wavefront_slope`), and ``N >= numerics.min_size``. ``terms``: the coefficients'
+    monomial table (default :data:`lenssim.aberrations.TERMS`).
     """
-    _check_spectral(camera, coeffs)
+    _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     camera.check_sampling()
     fill = numerics.fill
     need = None
     for k, lam in enumerate(camera.spectrum.wavelengths_um):
-        G = max_wavefront_slope(coeffs[..., k, :]).cpu()
+        G = max_wavefront_slope(coeffs[..., k, :], terms).cpu()
         r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
         n_phase = G / (0.5 * fill) / r_per_n
         n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
@@ -427,13 +439,13 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
 
 
 def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
-                         numerics: Numerics = DEFAULT_NUMERICS) -> torch.Tensor:
+                         numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
     """:func:`otf_quarter` for coefficients ``(B, K, T)`` at the camera's wavelengths, weighted over the spectrum."""
-    _check_spectral(camera, coeffs)
+    _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     out = None
     for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
         H = otf_quarter(coeffs[:, k], n, pupil_radius_px=_radius(camera, n, lam), oversample=oversample,
-                        supersample=numerics.supersample)
+                        supersample=numerics.supersample, terms=terms)
         if len(camera.spectrum) == 1:
             return H
         out = w * H if out is None else out.add_(H, alpha=w)

@@ -75,6 +75,15 @@ def _load(spec, device):
     return ideal.to(device), source
 
 
+def _crop_size(args, ideal, source) -> int:
+    """``--crop``, or the image's smaller side when the image is smaller (said on stderr, not done silently)."""
+    size = min(args.crop, *ideal.shape[-2:])
+    if size < args.crop:
+        print(f"lenssim {args.command}: note: --crop {args.crop} is larger than {source!r} "
+              f"({ideal.shape[-1]} x {ideal.shape[-2]} px); crops of {size} px", file=sys.stderr)
+    return size
+
+
 def _memory_limit(args):
     return None if getattr(args, "memory_limit", None) is None else args.memory_limit * 2**30
 
@@ -125,7 +134,7 @@ def cmd_simulate(args) -> int:
         raise ValueError(f"--spectrum {args.spectrum!r} has {psf.channels} colour channels but {source!r} has "
                          f"{ideal.shape[1]}: use an RGB image, or --spectrum paper")
     H, W = ideal.shape[-2:]
-    size = min(args.crop, H, W)
+    size = _crop_size(args, ideal, source)
     boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
     if args.full_frame:
         if min(H, W) < MAP_TILE_PX:
@@ -288,7 +297,7 @@ def cmd_psnr_table(args) -> int:
     t0 = time.perf_counter()
     for photo in photos:
         ideal, source = _load(photo, select_device(args.device))
-        size = min(args.crop, ideal.shape[-2], ideal.shape[-1])
+        size = _crop_size(args, ideal, source)
         boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
         for name in args.designs:
             d = named[name]
@@ -327,13 +336,14 @@ def cmd_fig8(args) -> int:
     _check_common(args)
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
+    size = _crop_size(args, ideal, source)
     for a in args.angles:  # every crop fits the image, before any work
         from pipeline import crop_at_field_angle
 
-        crop_at_field_angle(ideal.shape, a, min(args.crop, *ideal.shape[-2:]), PAPER_CAMERA.geometry)
+        crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry)
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
-        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=min(args.crop, *ideal.shape[-2:]),
+        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=size,
                              seed=args.seed)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
