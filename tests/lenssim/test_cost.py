@@ -83,3 +83,21 @@ def test_the_cost_counts_every_aspheric_surface():
 
     c = torch.as_tensor(aspheres[0].curvature, dtype=D)
     assert float(_cost(PAPER_LENS, d)) == float(surface_cost(c, torch.as_tensor(-2.4, dtype=D), 2.0))
+
+
+@pytest.mark.parametrize("Q", [48.0, 48.59, 48.5932])
+def test_cost_near_the_conic_limit_matches_a_bounded_brute_force_fit(Q):
+    """s = -0.775: the conic is defined for Q < 48.5933. The safeguarded Gauss-Newton (the plain one gave NaN
+    here) must find the same best-fit sphere as a bounded scalar minimisation over |k| y < 1."""
+    import warnings
+
+    y, n = 2.0, 101
+    r = np.linspace(0, y, n)
+    _, c = PAPER_LENS.curvatures(-0.775)
+    conic = c * r / np.sqrt(1 - (1 + Q) * c**2 * r**2)
+    f = lambda k: np.mean((conic - k * r / np.sqrt(1 - k**2 * r**2)) ** 2)  # noqa: E731
+    ref = optimize.minimize_scalar(f, bounds=(-0.4999999, 0.4999999), method="bounded", options={"xatol": 1e-14})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the third-order-validity warning of a conic this strong
+        got = float(slope_departure_cost(PAPER_LENS, -0.775, Q, n))
+    assert got == pytest.approx(math.sqrt(ref.fun), rel=1e-6)
