@@ -48,16 +48,22 @@ def _even_dft_quarter(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
     return torch.fft.irfft(x, n=n, dim=dim).narrow(dim, 0, n // 2 + 1) * n
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=2)
+def _lattice_correlation(rho0: float):
+    """``rho0^|m|`` on the integer lattice ``|m_i| <= L`` with ``rho0^L < 1e-13`` (float64, CPU), and ``L``."""
+    L = int(math.ceil(math.log(1e-13) / math.log(rho0)))
+    m = torch.arange(-L, L + 1, dtype=torch.float64)
+    return rho0 ** torch.hypot(m[:, None], m[None, :]), L
+
+
+@lru_cache(maxsize=32)
 def _psd_quarter_cached(n: int, rho0: float, model: str) -> torch.Tensor:
     """``P_x`` on the quarter plane ``0..n/2`` x ``0..n/2`` (float64, CPU); memory ``O(n^2 / 4)``."""
     h = n // 2
     if model == "continuous":
         k = torch.arange(h + 1, dtype=torch.float64) / n
         return psd_continuous(torch.hypot(k[:, None], k[None, :]), rho0)
-    L = int(math.ceil(math.log(1e-13) / math.log(rho0)))
-    m = torch.arange(-L, L + 1, dtype=torch.float64)
-    corr = rho0 ** torch.hypot(m[:, None], m[None, :])
+    corr, L = _lattice_correlation(rho0)
     # fold the lattice correlation modulo n (it is even, so the folded one is too) and keep 0..n/2
     r = torch.remainder(torch.arange(-L, L + 1), n)
     keep = r <= h

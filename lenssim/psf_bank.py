@@ -356,20 +356,26 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
 
 _BASIS_CACHE: OrderedDict = OrderedDict()
 _BASIS_CACHE_BYTES = 1 << 30
+_basis_cache_used = 0
 
 
-def _quarter_basis_cached(n: int, radius: float, supersample: int, terms=None):
-    """:func:`_quarter_basis_compute`, cached (LRU) up to 1 GiB in total: sweeps cycle through ~30
-    FFT sizes per chunk, while 4x-size checks make single entries of hundreds of MB."""
-    key = (n, radius, supersample, terms)
+def _quarter_basis_cached(n: int, radius: float, supersample: int, terms=None, dtype=torch.float64, device=None):
+    """:func:`_quarter_basis_compute` in ``dtype`` on ``device``, cached (LRU) up to 1 GiB in total: sweeps
+    cycle through ~30 FFT sizes per chunk (times the wavelengths of a spectrum), while 4x-size checks make
+    single entries of hundreds of MB. The copies are the float64 values converted, so every dtype sees the
+    same numbers as converting at use."""
+    global _basis_cache_used
+    key = (n, radius, supersample, terms, dtype, str(device) if device is not None else "cpu")
     if key in _BASIS_CACHE:
         _BASIS_CACHE.move_to_end(key)
         return _BASIS_CACHE[key]
-    val = _quarter_basis_compute(n, radius, supersample, terms)
+    a, basis, area = _quarter_basis_compute(n, radius, supersample, terms)
+    val = (a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device), area)
     _BASIS_CACHE[key] = val
-    size = lambda v: v[0].nbytes + v[1].nbytes  # noqa: E731
-    while len(_BASIS_CACHE) > 1 and sum(size(v) for v in _BASIS_CACHE.values()) > _BASIS_CACHE_BYTES:
-        _BASIS_CACHE.popitem(last=False)
+    _basis_cache_used += val[0].nbytes + val[1].nbytes
+    while len(_BASIS_CACHE) > 1 and _basis_cache_used > _BASIS_CACHE_BYTES:
+        _, old = _BASIS_CACHE.popitem(last=False)
+        _basis_cache_used -= old[0].nbytes + old[1].nbytes
     return val
 
 
@@ -396,6 +402,15 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     * Hermitian symmetry ``H(-f) = conj H(f)`` with evenness in ``fx``: ``|H|^2`` and ``Re H`` are
       even in both axes, so the quarter plane carries everything the MSE integrals need.
     """
+    p_half, area = _psf_half(coeffs, n, pupil_radius_px, supersample, terms)
+    H = _otf_from_psf_half(p_half, n, oversample, area)
+    H[..., 0, 0] = 1
+    return H
+
+
+def _psf_half(coeffs: torch.Tensor, n: int, pupil_radius_px: float, supersample: int, terms=None):
+    """Stage 1 of :func:`otf_quarter`: the un-normalised PSF on ``u >= 0``, ``(B, n, n/2+1)`` (rows in DFT
+    order; it carries ``1/n^2``), and the pupil area (samples)."""
     n_terms = N_TERMS if terms is None else len(terms)
     check_shape(coeffs, f"B {n_terms}", "coeffs (waves)")
     check_finite("coeffs", coeffs.detach())
@@ -406,8 +421,8 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
         raise ValueError(f"pupil radius {R:.3f} samples is not allowed: in (0, n/2 - 2 = {_max_radius(n)}] (the "
                          "pupil must fit the grid; above n/4 the sampled PSF aliases)")
     dtype, device = coeffs.dtype, coeffs.device
-    a, basis, area = _quarter_basis_cached(int(n), R, int(supersample), None if terms is None else tuple(terms))
-    a, basis = a.to(dtype=dtype, device=device), basis.to(dtype=dtype, device=device)
+    a, basis, area = _quarter_basis_cached(int(n), R, int(supersample), None if terms is None else tuple(terms),
+                                           dtype, device)
     h = n // 2
     B = coeffs.shape[0]
     W = (coeffs @ basis.reshape(n_terms, -1)).reshape(B, *a.shape)
@@ -416,7 +431,15 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
     field_x = torch.complex(row_dft[:, 0], row_dft[:, 1])
     amp_img = torch.fft.fft(field_x, n=n, dim=-2)  # (B, n, h+1)
-    p_half = amp_img.real.square() + amp_img.imag.square()  # PSF for u >= 0 (up to n^2 scaling)
+    return amp_img.real.square() + amp_img.imag.square(), area  # PSF for u >= 0 (up to n^2 scaling)
+
+
+def _otf_from_psf_half(p_half: torch.Tensor, n: int, oversample: int, area: float) -> torch.Tensor:
+    """Stage 2 of :func:`otf_quarter`: the quarter-plane OTF of half-PSFs ``(B, n, n/2+1)`` (linear in
+    them), on an ``m = oversample n`` grid, divided by ``area`` (one wavelength's pupil area in samples;
+    1 for a sum of half-PSFs already divided by theirs). ``H[0, 0]`` is left as computed."""
+    h = n // 2
+    B = p_half.shape[0]
     m = n * int(oversample)
     if m != n:  # zero-pad the PSF from n to m; the Nyquist row/column splits between +h and -h
         p_half = p_half.clone()
@@ -433,23 +456,27 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     g_re = torch.fft.irfft(g.real, n=m, dim=-1)[..., : hm + 1].mul_(scale)
     g_im = torch.fft.irfft(g.imag, n=m, dim=-1)[..., : hm + 1].mul_(scale)
     del g
-    H = torch.complex(g_re, g_im)
-    H[..., 0, 0] = 1
-    return H
+    return torch.complex(g_re, g_im)
 
 
 def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
                          numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
-    """:func:`otf_quarter` for coefficients ``(B, K, T)`` at the camera's wavelengths, weighted over the spectrum."""
+    """:func:`otf_quarter` for coefficients ``(B, K, T)`` at the camera's wavelengths, weighted over the spectrum.
+
+    The PSF -> OTF transform is linear, so a spectrum's PSFs (each normalised by its own pupil area) are
+    summed first and transformed once: the cost per wavelength is the pupil -> PSF stage only.
+    """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
-    out = None
+    if len(camera.spectrum) == 1:
+        return otf_quarter(coeffs[:, 0], n, pupil_radius_px=_radius(camera, n, camera.spectrum.wavelengths_um[0]),
+                           oversample=oversample, supersample=numerics.supersample, terms=terms)
+    acc = None
     for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        H = otf_quarter(coeffs[:, k], n, pupil_radius_px=_radius(camera, n, lam), oversample=oversample,
-                        supersample=numerics.supersample, terms=terms)
-        if len(camera.spectrum) == 1:
-            return H
-        out = w * H if out is None else out.add_(H, alpha=w)
-    return out
+        p, area = _psf_half(coeffs[:, k], n, _radius(camera, n, lam), numerics.supersample, terms)
+        acc = p.mul_(w / area) if acc is None else acc.add_(p, alpha=w / area)
+    H = _otf_from_psf_half(acc, n, oversample, 1.0)
+    H[..., 0, 0] = 1
+    return H
 
 
 def _area_normalise(H: torch.Tensor, amp: torch.Tensor) -> torch.Tensor:

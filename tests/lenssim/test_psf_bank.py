@@ -242,3 +242,26 @@ def test_monochromatic_spectrum_gives_back_the_single_wavelength_psf_exactly():
     p1 = psf(CAM, c, 256)
     p2 = psf(two, c.expand(1, 2, 4), 256)
     torch.testing.assert_close(p2, p1, rtol=0, atol=1e-15)
+
+
+def test_a_spectrum_otf_summed_before_its_transform_equals_the_weighted_per_wavelength_otfs():
+    """otf_quarter_spectrum sums the wavelengths' PSFs and transforms once; the reference transforms each
+    wavelength on its own (otf_quarter) and weights the OTFs."""
+    import warnings
+
+    from lenssim import PAPER_CAMERA, Camera, Design, Lens, Spectrum
+    from lenssim.psf_bank import otf_quarter, otf_quarter_spectrum, spectral_coefficients
+    from lenssim.validate import ModelValidityWarning
+
+    spec = Spectrum((0.46, 0.52, 0.61), (0.2, 0.5, 0.3))
+    cam = Camera(Lens(glass="N-BK7"), PAPER_CAMERA.sensor, spec)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ModelValidityWarning)
+        c = spectral_coefficients(cam, Design(s=-0.775, Q_back=-2.4), [0.0, 9.0]).to(torch.float64)  # (A, K, T)
+        n = 384
+        for oversample in (1, 2):
+            got = otf_quarter_spectrum(cam, c, n, oversample=oversample)
+            ref = sum(w * otf_quarter(c[:, k], n, pupil_radius_px=cam.pupil_radius_px(n, lam), oversample=oversample)
+                      for k, (lam, w) in enumerate(zip(spec.wavelengths_um, spec.weights)))
+            assert torch.allclose(got, ref, atol=1e-12, rtol=0)
+            assert float(got[..., 0, 0].real.min()) == 1.0
