@@ -38,7 +38,7 @@ from .paper import PAPER_GRID, PAPER_RHO0, PAPER_SNR_DB
 from .sensor import Sensor
 from .spectrum import Spectrum
 from .torch_utils import select_device
-from .validate import ResourceLimitError, ResumeWarning, check_memory
+from .validate import ResourceLimitError, ResumeWarning, check_memory, check_real
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
            "design_dims"]
@@ -83,6 +83,8 @@ class SweepConfig:
     """Optimise the image plane at every design instead of gridding it: ``{"criterion": "mse_r", "snr_db":
     27.6, "bounds_um": [-500, 500], "tol_um": 1.0}`` (:func:`lenssim.focus.best_focus_batch`); the sweep then
     stores the best ``focus_shift_um`` of each design, and every criterion there."""
+    fixed: dict = field(default_factory=dict)
+    """Design parameters held at one value for the whole grid, e.g. ``{"focus_shift_um": -270.0}``."""
 
     def __post_init__(self):
         grid = {}
@@ -99,6 +101,13 @@ class SweepConfig:
         if not grid:
             raise ValueError("the grid names no design parameter; e.g. s = [start, stop, step]")
         self.grid = grid
+        fixed = {}
+        for k, v in dict(self.fixed).items():
+            name = parameter_name(k)
+            if name in grid or name in fixed:
+                raise ValueError(f"design parameter {name} is both fixed and gridded (or fixed twice)")
+            fixed[name] = check_real(f"fixed {name}", v)
+        self.fixed = fixed
         self.snr_db = tuple(float(x) for x in self.snr_db)
         if self.focus is not None:
             from .focus import FOCUS_BOUNDS_UM
@@ -107,7 +116,7 @@ class SweepConfig:
             bad = set(f) - {"criterion", "snr_db", "bounds_um", "tol_um"}
             if bad:
                 raise ValueError(f"[focus]: unknown key(s) {sorted(bad)}; allowed: criterion, snr_db, bounds_um, tol_um")
-            if "focus_shift_um" in grid:
+            if "focus_shift_um" in grid or "focus_shift_um" in self.fixed:
                 raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
             crit = f.get("criterion", "mse_r")
             if crit not in CRITERIA:
@@ -147,14 +156,16 @@ class SweepConfig:
         rest = self.dims[1:]
         axes = [torch.from_numpy(a) for a in np.meshgrid(*(self.values(d) for d in rest), indexing="ij")] if rest else []
         for v in self.values(self.dims[0]):
-            vals = dict(zip(rest, axes))
+            vals = {**{k: torch.tensor(x, dtype=torch.float64) for k, x in self.fixed.items()}, **dict(zip(rest, axes))}
             vals[self.dims[0]] = torch.tensor(float(v), dtype=torch.float64)
             self.lens.check_design(Design(vals))
 
     def grid_design(self) -> Design:
         """Every design of the grid, as a design of shape ``(len(dim0), len(dim1), ...)``."""
         axes = np.meshgrid(*(self.values(d) for d in self.dims), indexing="ij")
-        return Design({d: torch.from_numpy(a) for d, a in zip(self.dims, axes)})
+        vals = {d: torch.from_numpy(a) for d, a in zip(self.dims, axes)}
+        vals.update({k: torch.full(axes[0].shape, v, dtype=torch.float64) for k, v in self.fixed.items()})
+        return Design(vals)
 
     def to_dict(self) -> dict:
         d = {**self.camera.to_dict(), "grid": {k: list(v) for k, v in self.grid.items()},
@@ -162,6 +173,8 @@ class SweepConfig:
              "numerics": self.numerics.to_dict()}
         if self.focus is not None:
             d["focus"] = dict(self.focus)
+        if self.fixed:
+            d["fixed"] = dict(self.fixed)
         return d
 
     def digest(self) -> str:
@@ -175,9 +188,11 @@ class SweepConfig:
             sens["full_well_e"] = tuple(tuple(p) for p in sens["full_well_e"])
         spec = dict(d.get("spectrum", {}))
         return cls(camera=Camera(Lens.from_dict(d.get("lens", {})), Sensor(**sens),
-                                 Spectrum(**spec) if spec else Spectrum()),
+                                 Spectrum(**spec) if spec else Spectrum(),
+                                 channels=tuple(Spectrum(**c) for c in d.get("channels", ()))),
                    grid=d["grid"], snr_db=tuple(d["snr_db"]), rho0=d["rho0"], psd_model=d["psd_model"],
-                   numerics=Numerics(**d.get("numerics", {})), focus=d.get("focus"))
+                   numerics=Numerics(**d.get("numerics", {})), focus=d.get("focus"),
+                   fixed=d.get("fixed", {}))
 
 
 _NUMERICS_KEYS = ("fill", "margin_px", "min_size", "oversample", "supersample", "cost_points", "max_fft_size")
@@ -188,13 +203,17 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
 
     Sections: ``[lens]`` (:class:`lenssim.lens.Lens` fields; ``refractive_index`` for a constant
     glass; a legacy ``wavelength_um`` sets a one-line spectrum), ``[sensor]``, ``[spectrum]``
-    (``wavelengths_um``, ``weights``), ``[grid]`` (``PARAMETER = [start, stop, step]`` for design
-    parameters, ``snr_db``) and ``[numerics]`` (``rho0``, ``psd_model`` and :class:`Numerics` fields).
+    (``wavelengths_um``, ``weights``), ``[channels]`` (a colour camera: ``camera`` = RGB sensitivities of
+    colour-science, e.g. "Nikon 5100 (NPL)", ``illuminant`` (default D65), ``per_channel`` wavelengths; the
+    sweep then stores the criteria's means over the channels), ``[grid]`` (``PARAMETER = [start, stop, step]`` for design
+    parameters, ``snr_db``), ``[fixed]`` (``PARAMETER = value``, held for every design) and ``[numerics]``
+    (``rho0``, ``psd_model`` and :class:`Numerics` fields).
     """
     path = Path(path)
     where = f"sweep config {str(path)!r}"
     raw = read_toml(path, "sweep config")
-    sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "grid", "numerics", "focus")}
+    sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "channels", "grid", "fixed", "numerics",
+                                            "focus")}
     if raw:
         raise ValueError(f"{where}: unknown section(s) {sorted(raw)}; allowed: {', '.join(f'[{k}]' for k in sections)}")
     lens_kw, grid, numerics = dict(sections["lens"]), dict(sections["grid"]), dict(sections["numerics"])
@@ -208,7 +227,17 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
         sensor_kw = dict(sections["sensor"])
         if "full_well_e" in sensor_kw:  # TOML table {"25" = 12800.0, ...}
             sensor_kw["full_well_e"] = tuple((int(k), v) for k, v in dict(sensor_kw["full_well_e"]).items())
-        camera = Camera(Lens.from_dict(lens_kw), Sensor(**sensor_kw), spectrum or Spectrum())
+        channels = ()
+        if sections["channels"]:
+            from .spectrum import channel_spectra
+
+            ch = dict(sections["channels"])
+            bad = set(ch) - {"camera", "illuminant", "per_channel"}
+            if bad or "camera" not in ch:
+                raise ValueError(f"[channels]: give camera (and optionally illuminant, per_channel); unknown key(s) "
+                                 f"{sorted(bad)}" if bad else "[channels]: camera = NAME is missing")
+            channels = channel_spectra(**ch)
+        camera = Camera(Lens.from_dict(lens_kw), Sensor(**sensor_kw), spectrum or Spectrum(), channels=channels)
     except TypeError as exc:
         raise ValueError(f"{where}: {exc}") from None
     except (LensError, ValueError) as exc:
@@ -233,7 +262,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             kw[k] = numerics.pop(k)
     try:
         cfg = SweepConfig(camera=camera, grid=grid or dict(PAPER_GRID), numerics=Numerics(**numerics),
-                          focus=sections["focus"] or None, **kw)
+                          focus=sections["focus"] or None, fixed=sections["fixed"], **kw)
         cfg.check()
     except ResourceLimitError as exc:
         raise ResourceLimitError(f"{where}: {exc}", exc.setting) from None
@@ -257,6 +286,7 @@ def _compute_chunk(cfg: SweepConfig, i: int, device, progress) -> dict:
     vals = {d: torch.from_numpy(np.ascontiguousarray(a)) for d, a in zip(rest, axes)}
     shape = axes[0].shape if rest else ()
     vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64)
+    vals.update({k: torch.full(shape, v, dtype=torch.float64) for k, v in cfg.fixed.items()})
     if cfg.focus is not None:
         from .focus import best_focus_batch
 

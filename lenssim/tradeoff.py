@@ -124,6 +124,9 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
     if lens is None:
         lens = cfg.lens if cfg is not None else Lens()
     cost_points = cost_points or (cfg.numerics.cost_points if cfg is not None else DEFAULT_COST_POINTS)
+    if cfg is not None and set(cfg.fixed) - {"focus_shift_um"}:
+        raise ValueError(f"the trade-off's iso-cost curves are those of the two gridded parameters alone; this sweep "
+                         f"also fixes {sorted(set(cfg.fixed) - {'focus_shift_um'})}, which may add cost")
     s_grid, q_grid = ds[dims[0]].values, ds[dims[1]].values
     s_fine = np.arange(s_grid[0], s_grid[-1] + 1e-12, ds_step)
     crits = criteria_of(ds)
