@@ -28,7 +28,7 @@ NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$|^-nan$
 
 DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the restored image.
 
-optics:  evaluate, sweep, optimum, reproduce, designs, demo
+optics:  evaluate, sweep, optimum, reproduce, study, designs, demo
 camera:  simulate, psnr-table, fig8        (lenssim COMMAND --help for each)"""
 
 
