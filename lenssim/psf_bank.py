@@ -130,7 +130,16 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     monomial table (default :data:`lenssim.aberrations.TERMS`).
     """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
-    need = _size_needed(camera, coeffs, numerics, terms).amax(dim=0)
+    camera.check_sampling()
+    fill = numerics.fill
+    need = None
+    for k, lam in enumerate(camera.spectrum.wavelengths_um):
+        G = max_wavefront_slope(coeffs[..., k, :], terms).cpu()
+        r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
+        n_phase = G / (0.5 * fill) / r_per_n
+        n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
+        nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype))
+        need = nk if need is None else torch.maximum(need, nk)
     if not bool(torch.isfinite(need).all()):
         raise NumericalError("a wavefront slope is not finite: the coefficients hold NaN or infinite values")
     worst = int(torch.argmax(need.reshape(-1)))
@@ -145,20 +154,6 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     table = torch.tensor(sizes, dtype=torch.float64)
     idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
     return table[idx].to(torch.int64).reshape(need.shape)
-
-
-def _size_needed(camera: Camera, coeffs: torch.Tensor, numerics: Numerics, terms=None) -> torch.Tensor:
-    """The FFT size each wavelength needs (the rules of :func:`fft_size`, before rounding), ``(K, *)`` float64."""
-    camera.check_sampling()
-    fill = numerics.fill
-    out = []
-    for k, lam in enumerate(camera.spectrum.wavelengths_um):
-        G = max_wavefront_slope(coeffs[..., k, :], terms).cpu()
-        r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
-        n_phase = G / (0.5 * fill) / r_per_n
-        n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
-        out.append(torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype)))
-    return torch.stack(out)
 
 
 def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: int) -> torch.Tensor:
