@@ -37,6 +37,10 @@ class PSFProvider:
 
     geometry: FieldGeometry
     channels: int = 1
+    mirror_symmetric: bool = False
+    """True if the PSF at the mirror image of a field position, about a line through the optical axis along the
+    rows, the columns or the diagonal, is the mirror image of the PSF (a rotationally symmetric lens on square
+    pixels); the windowed blur then computes one PSF for up to 8 windows."""
 
     def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None,
                       device=None) -> torch.Tensor:
@@ -69,6 +73,11 @@ class LensPSF(PSFProvider):
         d.floats()  # one design: every parameter a single value
         object.__setattr__(self, "design", d)
         self.camera.check_sampling()
+
+    @property
+    def mirror_symmetric(self) -> bool:
+        """True: the model's lens is rotationally symmetric (third order or exact) and its pixels square."""
+        return True
 
     @property
     def channels(self) -> int:
@@ -127,13 +136,16 @@ class FunctionPSF(PSFProvider):
 
     ``x_mm``, ``y_mm`` ``(P,)`` are image-plane positions from the optical axis; ``geometry`` maps
     pixels to mm (e.g. ``Camera().geometry``); ``channels`` is 1 or the number of channels of ``fn``'s
-    output; ``extent`` (px) the PSF support diameter, if known (checked against the windows).
+    output; ``extent`` (px) the PSF support diameter, if known (checked against the windows);
+    ``mirror_symmetric``: declare it only for PSFs of a rotationally symmetric system (see
+    :class:`PSFProvider`).
     """
 
     fn: Callable
     geometry: FieldGeometry
     channels: int = 1
     extent: int = 0
+    mirror_symmetric: bool = False
 
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
         x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)

@@ -23,6 +23,7 @@ from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF, select_device
 from lenssim.files import atomic_write_text, json_text
 from lenssim.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
+from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.figures import mosaic_figure
 from pipeline.restoration import validate_method
 
@@ -117,7 +118,7 @@ def cmd_simulate(args) -> int:
         fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
     else:
         fwc = camera.sensor.full_well_for_iso(args.iso)
-    scheme = WindowScheme(*args.scheme)
+    scheme = WindowScheme(*args.scheme, anchor=args.window_grid)
     if args.rl < 0:
         raise ValueError(f"--rl {args.rl} is not allowed: a number of iterations >= 0 (0: no Richardson-Lucy)")
     if args.denoise and not 0 < args.denoise <= 2:
@@ -153,7 +154,8 @@ def cmd_simulate(args) -> int:
               "glass": camera.lens.glass.name, "wavefront": args.wavefront,
               "spectrum": [c.name for c in camera.channels] if camera.channels else camera.spectrum.name,
               "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
-              "scheme_window_stride_core": list(args.scheme), "methods": list(methods)}
+              "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
+              "methods": list(methods)}
     with staged_output_dir(out) as stage:
         if args.full_frame:
             results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, methods)
@@ -362,6 +364,9 @@ def register(sub) -> None:
     p.add_argument("--full-well", type=float, metavar="E", help="any full-well capacity (electrons) instead of --iso")
     p.add_argument("--scheme", type=int, nargs=3, default=[512, 32, 64], metavar=("WINDOW", "STRIDE", "CORE"),
                    help="local-convolution windows (px): window, stride, blended core (paper: 512 32 64)")
+    p.add_argument("--window-grid", choices=WINDOW_ANCHORS, default=PAPER_SCHEME.anchor,
+                   help="where the windows lie: 'axis' (symmetric about the optical axis, one PSF per mirror group "
+                        "of up to 8 windows; default) or 'origin' (from pixel 0, the first version's grid)")
     p.add_argument("--angles", type=float, nargs="+", default=list(DEFAULT_ANGLES_DEG), help="crop field angles (deg)")
     p.add_argument("--crop", type=int, default=256, help="crop size (px)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
