@@ -23,7 +23,7 @@ from .numerics import DEFAULT_NUMERICS, Numerics
 from .paper import PAPER_RHO0, PAPER_SNR_DB
 from .psf_bank import fft_size as choose_fft_size
 from .psf_bank import otf_quarter_spectrum, spectral_coefficients
-from .torch_utils import as_tensor
+from .torch_utils import as_tensor, chunk_budget_bytes
 from .validate import NumericalError, ResourceLimitError, check_memory
 
 __all__ = ["otf_criteria_bank", "evaluate"]
@@ -37,7 +37,8 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
     monomial table, default :data:`lenssim.aberrations.TERMS`).
 
     PSFs are grouped by FFT size ``sizes`` ``(P,)`` and processed in chunks of at most
-    ``numerics.chunk_bytes`` of working memory, so memory stays bounded whatever ``P``. The
+    ``numerics.chunk_bytes`` of working memory on a CPU (a share of the free memory on a GPU:
+    :func:`lenssim.torch_utils.chunk_budget_bytes`), so memory stays bounded whatever ``P``. The
     frequency integrals use ``numerics.oversample`` x finer grids than the FFT (the Wiener-error
     integrand is not band-limited and needs them). ``progress`` is called with the number of PSFs
     finished after each chunk.
@@ -59,7 +60,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
         pw = psd_q * quarter_weights(m, psd_q.dtype, psd_q.device)
         per_psf = 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
         check_memory(per_psf, f"one OTF of {m} x {m} samples", setting="max_fft_size")
-        step = max(1, int(numerics.chunk_bytes // per_psf))
+        step = max(1, int(chunk_budget_bytes(coeffs.device, numerics.chunk_bytes) // per_psf))
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]
             H = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics, terms=terms)

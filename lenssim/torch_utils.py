@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["as_tensor", "select_device", "DEVICE_CHOICES"]
+__all__ = ["as_tensor", "select_device", "DEVICE_CHOICES", "GPU_MEMORY_FRACTION", "chunk_budget_bytes"]
 
 DEVICE_CHOICES = "auto (CUDA if present, else CPU), cpu, cuda or cuda:N"
 
@@ -34,3 +34,18 @@ def select_device(name: str = "auto") -> torch.device:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device={name!r} is not available: no CUDA device; use 'cpu' or 'auto'")
     return dev
+
+
+GPU_MEMORY_FRACTION = 0.25
+"""Share of a GPU's free memory one batch of work may hold (its temporaries come on top)."""
+
+
+def chunk_budget_bytes(device, cpu_bytes: int) -> int:
+    """Working memory (bytes) of one batch of work on ``device``: ``cpu_bytes`` on a CPU (sized to its caches, so
+    the batch's data stays warm), and on a GPU :data:`GPU_MEMORY_FRACTION` of its free memory (at least
+    ``cpu_bytes``), so a batch fills the device. The one rule of the metrics' and the image windows' chunks."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        free, _ = torch.cuda.mem_get_info(device)
+        return int(max(cpu_bytes, GPU_MEMORY_FRACTION * free))
+    return int(cpu_bytes)

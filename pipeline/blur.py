@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import torch
 
 from lenssim import PSFProvider, frame_center
+from lenssim.torch_utils import chunk_budget_bytes
 
 from .checks import check_image, check_provider
 
@@ -135,23 +136,21 @@ CPU_CACHE_BYTES = 32 * 2**20
 2-core CPU with 32 MiB of L3, paper scheme, three channels: chunks of 2-4 windows ran at 3.1 ms per
 window, 8 at 3.9 ms, 16 at 7.1 ms)."""
 
-GPU_MEMORY_FRACTION = 0.25
-"""Share of a GPU's free memory one chunk of windows may use (the op's temporaries come on top)."""
+PSF_BATCH = 16
+"""Windows whose PSFs are computed together (whole mirror groups; a few PSFs per batch)."""
 
 
 def window_chunk(image: torch.Tensor, window: int) -> int:
     """Windows per batch: enough to fill a GPU, few enough for a CPU's caches.
 
     A window holds about ``3 B C window^2`` values of ``image``'s dtype (its patch and the patch's
-    spectrum); a CPU chunk fits :data:`CPU_CACHE_BYTES` (3 windows of 512 px in three float32 channels;
-    with a mirror-symmetric provider the windows sharing a PSF, up to 8, are never split), a GPU chunk
-    :data:`GPU_MEMORY_FRACTION` of the free memory (at most 256 windows).
+    spectrum); a batch gets :func:`lenssim.torch_utils.chunk_budget_bytes` (:data:`CPU_CACHE_BYTES` on a CPU:
+    3 windows of 512 px in three float32 channels; a share of the free memory on a GPU, at most 256
+    windows). With a mirror-symmetric provider the windows sharing a PSF (up to 8) are never split.
     """
     per_window = 3 * image.shape[0] * image.shape[1] * window * window * image.element_size()
-    if image.device.type == "cuda":
-        free, _ = torch.cuda.mem_get_info(image.device)
-        return int(min(256, max(1, GPU_MEMORY_FRACTION * free // per_window)))
-    return int(min(64, max(1, CPU_CACHE_BYTES // per_window)))
+    most = 256 if image.device.type == "cuda" else 64
+    return int(min(most, max(1, chunk_budget_bytes(image.device, CPU_CACHE_BYTES) // per_window)))
 
 
 class _WindowOTFs:
@@ -265,22 +264,24 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
     wsum = torch.zeros(H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
     tent2 = (tent_weights(core, image.dtype, shift_y)[:, None] * tent_weights(core, image.dtype, shift_x)[None, :]).to(image.device)
-    for ys, xs in otfs.chunks(Y, X, chunk):
-        otf = otfs(ys, xs)  # (k, 1, 1 or C, win, win/2+1)
-        anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(), torch.ceil(xs).to(torch.int64).tolist()))
-        patches = torch.stack([padded[:, :, y + pad - half: y + pad + half, x + pad - half: x + pad + half]
-                               for y, x in anchors])  # (k, B, C, win, win)
-        res = op(patches, otf)
-        if res.is_complex():
-            cores = core_irfft2(res, win, core)
-        else:
-            cores = res[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
-        for j, (y, x) in enumerate(anchors):
-            sl = (slice(y + core - core // 2, y + core + core // 2), slice(x + core - core // 2, x + core + core // 2))
-            out[:, :, sl[0], sl[1]] += cores[j] * tent2
-            wsum[sl[0], sl[1]] += tent2
-        if progress is not None:
-            progress(len(ys))
+    for gy, gx in otfs.chunks(Y, X, PSF_BATCH):
+        group_otf = otfs(gy, gx)  # (k, 1, 1 or C, win, win/2+1): the PSFs of a few mirror groups at once
+        for k in range(0, gy.numel(), chunk):  # the transforms in cache-sized batches
+            ys, xs, otf = gy[k:k + chunk], gx[k:k + chunk], group_otf[k:k + chunk]
+            anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(), torch.ceil(xs).to(torch.int64).tolist()))
+            patches = torch.stack([padded[:, :, y + pad - half: y + pad + half, x + pad - half: x + pad + half]
+                                   for y, x in anchors])  # (k, B, C, win, win)
+            res = op(patches, otf)
+            if res.is_complex():
+                cores = core_irfft2(res, win, core)
+            else:
+                cores = res[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2]
+            for j, (y, x) in enumerate(anchors):
+                sl = (slice(y + core - core // 2, y + core + core // 2), slice(x + core - core // 2, x + core + core // 2))
+                out[:, :, sl[0], sl[1]] += cores[j] * tent2
+                wsum[sl[0], sl[1]] += tent2
+            if progress is not None:
+                progress(len(ys))
     out = out[:, :, core:core + H, core:core + W]
     wsum = wsum[core:core + H, core:core + W]
     result = torch.zeros_like(image)
