@@ -388,9 +388,13 @@ def _remove_temporaries(out: Path, part: Path) -> None:
 
 def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto", show_progress: bool = True,
               keep_chunks: bool = False, max_chunks: int | None = None,
-              memory_limit_bytes: float | None = None) -> xr.Dataset | None:
+              memory_limit_bytes: float | None = None, scheduler: str | None = None,
+              workers: int | None = None) -> xr.Dataset | None:
     """Run (or resume) a sweep and write ``out`` (NetCDF). Returns the dataset, or ``None`` if
     ``max_chunks`` stopped the run early (the finished chunks stay in ``out.partial/``).
+
+    ``scheduler`` (a dask scheduler's address) or ``workers`` (a local cluster of that many processes) runs
+    the chunks as dask tasks (:mod:`lenssim.cluster`); the file written is the same, byte for byte.
 
     ``out`` must not be an existing file that is not a finished sweep of the same config: the
     sweep refuses to overwrite anything else. Every finished chunk carries its index, its value of
@@ -403,6 +407,10 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
 
     out = Path(out)
     dev = select_device(device)
+    if scheduler is not None and workers is not None:
+        raise ValueError("give either a scheduler address or a number of local workers, not both")
+    if workers is not None and not (isinstance(workers, int) and not isinstance(workers, bool) and workers >= 1):
+        raise ValueError(f"workers={workers!r} is not allowed: a number of processes >= 1")
     cfg.check(memory_limit_bytes)
     if out.exists():
         try:
@@ -440,18 +448,25 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
                 warnings.warn(f"sweep chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
                 p.unlink()
     done = sum(p.exists() for p in paths)
+    where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
     bar = tqdm(total=len(paths) * per_chunk, initial=done * per_chunk, unit="PSF", disable=not show_progress,
-               file=sys.stderr, desc=f"sweep on {dev.type}")
-    computed = 0
-    for i, p in enumerate(paths):
-        if p.exists():
-            continue
-        if max_chunks is not None and computed >= max_chunks:
-            bar.close()
-            return None
-        _write_chunk(p, _compute_chunk(cfg, i, dev, bar.update), cfg, i)
-        computed += 1
+               file=sys.stderr, desc=f"sweep on {where}")
+    todo = [i for i, p in enumerate(paths) if not p.exists()]
+    stopped = max_chunks is not None and len(todo) > max_chunks
+    todo = todo[:max_chunks] if max_chunks is not None else todo
+    if scheduler is not None or workers is not None:
+        from .cluster import compute_chunks, dask_client
+
+        with dask_client(scheduler, workers) as client:
+            for i, chunk in compute_chunks(client, cfg, todo, device=device):
+                _write_chunk(paths[i], chunk, cfg, i)
+                bar.update(per_chunk)
+    else:
+        for i in todo:
+            _write_chunk(paths[i], _compute_chunk(cfg, i, dev, bar.update), cfg, i)
     bar.close()
+    if stopped:
+        return None
     chunks = []
     for i, p in enumerate(paths):
         got = _read_chunk(p, cfg, i)

@@ -107,8 +107,11 @@ def cmd_sweep(args) -> int:
         cfg.numerics = cfg.numerics.replace(max_fft_size=args.max_fft_size)
     select_device(args.device)
     t0 = time.perf_counter()
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
     run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
-              memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None)
+              memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None,
+              scheduler=args.scheduler, workers=args.workers)
     sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
     print(f"wrote {args.out} ({sizes} x {len(cfg.lens.field_angles_deg)} angles) in {time.perf_counter() - t0:.1f} s",
           file=sys.stderr)
@@ -269,6 +272,10 @@ def register(sub) -> None:
     add_fft_limit_argument(s)
     s.add_argument("--memory-limit", type=float, metavar="GIB",
                    help="memory the sweep's results may take (default: 80%% of the available memory)")
+    where = s.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="run the chunks as tasks on the dask scheduler at ADDRESS "
+                       "(e.g. tcp://10.0.0.5:8786; see docs/scale-out.md); same output file, byte for byte")
+    where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local dask cluster of N processes")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
 

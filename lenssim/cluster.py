@@ -1,0 +1,99 @@
+"""Sweeps on a dask.distributed cluster: every chunk of a sweep is one dask task.
+
+The cluster is any running dask scheduler (``scheduler="tcp://host:8786"``: started by hand, over SSH, by
+SLURM/PBS through dask-jobqueue, on Kubernetes; see docs/scale-out.md) or a ``LocalCluster`` of ``workers``
+processes on this machine. The client (the process that runs :func:`lenssim.sweep.run_sweep`) submits one
+task per missing chunk and writes each finished chunk as it arrives, into the same checked chunk files
+as a run in one process; the final file is assembled from those files in the same way. So:
+
+* the output is byte-identical to the single-process run, provided the workers compute with the same
+  number of torch threads (the last bits of torch's parallel reductions depend on it): each task sets
+  the client's count (``threads``, default ``torch.get_num_threads()`` here);
+* an interrupted client loses only the chunks in flight; the same command continues from the files;
+* a worker that dies mid-task is survived: the scheduler gives its task to another worker (dask's
+  ``distributed.scheduler.allowed-failures``); a task that raises is retried :data:`TASK_RETRIES` times;
+* every chunk travels with the SHA-256 of its arrays, checked by the client before it is written.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+import torch
+
+__all__ = ["TASK_RETRIES", "dask_client", "compute_chunks"]
+
+TASK_RETRIES = 2
+"""Times a chunk task that raised is tried again (a lost worker's task is re-run by the scheduler anyway)."""
+
+CONNECT_TIMEOUT_S = 30
+"""Seconds to wait for a scheduler at a given address."""
+
+
+def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int) -> tuple[int, dict, str]:
+    """On a worker: chunk ``index`` of the sweep ``config`` -> ``(index, arrays, sha256 of the arrays)``."""
+    from .sweep import SweepConfig, _checksum, _compute_chunk
+    from .torch_utils import select_device
+
+    cfg = SweepConfig.from_dict(config)
+    if cfg.digest() != digest:
+        raise RuntimeError(f"the worker's lenssim reads this sweep config differently (digest {cfg.digest()} != "
+                           f"{digest}): install the client's lenssim version on every worker")
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        chunk = _compute_chunk(cfg, index, select_device(device), None)
+    finally:
+        torch.set_num_threads(before)
+    return index, chunk, _checksum(chunk)
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None):
+    """A ``distributed.Client``: of the scheduler at ``scheduler``, or of a new ``LocalCluster`` of ``workers``
+    processes (one task at a time each), closed on exit."""
+    from distributed import Client, LocalCluster
+
+    if (scheduler is None) == (workers is None):
+        raise ValueError("give either a scheduler address or a number of local workers")
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except OSError as exc:
+            raise ConnectionError(f"no dask scheduler answers at {scheduler!r} within {CONNECT_TIMEOUT_S} s "
+                                  f"({type(exc).__name__})") from None
+        with client:
+            yield client
+        return
+    if not (isinstance(workers, int) and not isinstance(workers, bool) and workers >= 1):
+        raise ValueError(f"workers={workers!r} is not allowed: a number of processes >= 1")
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+def compute_chunks(client, cfg, indices, *, device: str = "auto", threads: int | None = None) -> Iterator[tuple[int, dict]]:
+    """Chunks ``indices`` of the sweep ``cfg`` as dask tasks on ``client``'s cluster; yields ``(index, arrays)``
+    in the order they finish, each checked against the checksum computed where it was made."""
+    from distributed import as_completed
+
+    from .sweep import _checksum
+
+    threads = int(threads or torch.get_num_threads())
+    config, digest = cfg.to_dict(), cfg.digest()
+    futures = [client.submit(_chunk_task, config, digest, i, device, threads, key=f"lenssim-sweep-{digest}-{i:05d}",
+                             pure=False, retries=TASK_RETRIES) for i in indices]
+    try:
+        for fut in as_completed(futures):
+            i, chunk, sha = fut.result()
+            chunk = {k: np.asarray(v) for k, v in chunk.items()}
+            if _checksum(chunk) != sha:
+                raise ValueError(f"sweep chunk {i} arrived from its worker corrupted (checksum mismatch)")
+            fut.release()
+            yield i, chunk
+    finally:
+        for fut in futures:
+            fut.cancel()
