@@ -389,12 +389,13 @@ def _remove_temporaries(out: Path, part: Path) -> None:
 def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto", show_progress: bool = True,
               keep_chunks: bool = False, max_chunks: int | None = None,
               memory_limit_bytes: float | None = None, scheduler: str | None = None,
-              workers: int | None = None) -> xr.Dataset | None:
+              workers: int | None = None, worker_threads: int | None = None) -> xr.Dataset | None:
     """Run (or resume) a sweep and write ``out`` (NetCDF). Returns the dataset, or ``None`` if
     ``max_chunks`` stopped the run early (the finished chunks stay in ``out.partial/``).
 
     ``scheduler`` (a dask scheduler's address) or ``workers`` (a local cluster of that many processes) runs
-    the chunks as dask tasks (:mod:`lenssim.cluster`); the file written is the same, byte for byte.
+    the chunks as dask tasks (:mod:`lenssim.cluster`); the file written is the same, byte for byte, when the
+    tasks compute with this process's number of torch threads (``worker_threads``, the default).
 
     ``out`` must not be an existing file that is not a finished sweep of the same config: the
     sweep refuses to overwrite anything else. Every finished chunk carries its index, its value of
@@ -409,8 +410,9 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     dev = select_device(device)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
-    if workers is not None and not (isinstance(workers, int) and not isinstance(workers, bool) and workers >= 1):
-        raise ValueError(f"workers={workers!r} is not allowed: a number of processes >= 1")
+    for name, v in (("workers", workers), ("worker_threads", worker_threads)):
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise ValueError(f"{name}={v!r} is not allowed: an integer >= 1")
     cfg.check(memory_limit_bytes)
     if out.exists():
         try:
@@ -458,7 +460,7 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         from .cluster import compute_chunks, dask_client
 
         with dask_client(scheduler, workers) as client:
-            for i, chunk in compute_chunks(client, cfg, todo, device=device):
+            for i, chunk in compute_chunks(client, cfg, todo, device=device, threads=worker_threads):
                 _write_chunk(paths[i], chunk, cfg, i)
                 bar.update(per_chunk)
     else:

@@ -109,9 +109,11 @@ def cmd_sweep(args) -> int:
     t0 = time.perf_counter()
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
+    if args.worker_threads is not None and args.worker_threads < 1:
+        raise ValueError(f"--worker-threads {args.worker_threads} is not allowed: a number of threads >= 1")
     run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
               memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None,
-              scheduler=args.scheduler, workers=args.workers)
+              scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
     sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
     print(f"wrote {args.out} ({sizes} x {len(cfg.lens.field_angles_deg)} angles) in {time.perf_counter() - t0:.1f} s",
           file=sys.stderr)
@@ -276,6 +278,9 @@ def register(sub) -> None:
     where.add_argument("--scheduler", metavar="ADDRESS", help="run the chunks as tasks on the dask scheduler at ADDRESS "
                        "(e.g. tcp://10.0.0.5:8786; see docs/scale-out.md); same output file, byte for byte")
     where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local dask cluster of N processes")
+    s.add_argument("--worker-threads", type=int, metavar="K", help="torch threads per dask task (default: this "
+                   "process's count, which keeps the file byte-identical to a run in one process; the last bits of "
+                   "torch's reductions depend on it)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
 
