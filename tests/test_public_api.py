@@ -71,6 +71,27 @@ def test_image_pipeline_follows_device_and_dtype(device_dtype):
     assert n.device.type == dev.type and n.dtype == dt
 
 
+def test_mirror_groups_on_the_device_match_every_window_s_own_psf(device_dtype):
+    """The axis-symmetric window grid's shared PSFs (flipped and transposed spectra) on the device and in the
+    dtype, against each window's own PSF (a provider that declares no symmetry), and the window-chunk rule."""
+    from lenssim import FunctionPSF
+    from pipeline.blur import window_chunk
+
+    dev, dt = device_dtype
+    g = torch.Generator().manual_seed(1)
+    img = (torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float64) * 0.8 + 0.1).to(device=dev, dtype=dt)
+    lens = LensPSF(PAPER_CAMERA, E2E)
+    pitch = lens.geometry.pitch_mm
+    own = FunctionPSF(lambda x, y, n: lens.psf_at_pixels(y / pitch, x / pitch, (0.0, 0.0), n, dtype=torch.float64),
+                      lens.geometry, extent=60)
+    kw = dict(scheme=WindowScheme(128, 32, 64), optical_center=(47.5, 63.5))
+    shared = blur_windowed(img, lens, **kw)
+    assert shared.device.type == dev.type and shared.dtype == dt
+    _close(shared, blur_windowed(img, own, **kw), dt)
+    k = window_chunk(img, 512)
+    assert k >= 1 and (dev.type == "cuda" or k == max(1, 32 * 2**20 // (3 * 3 * 512 * 512 * img.element_size())))
+
+
 @pytest.mark.parametrize("fn, bad, match", [
     (lambda x: blur_windowed(x, LensPSF(PAPER_CAMERA, E2E)), torch.zeros(8, 8), r"image has shape \(8, 8\)"),
     (lambda x: wiener_windowed(x, LensPSF(PAPER_CAMERA, E2E), electrons_per_unit=1.0), torch.zeros(1, 8, 8),

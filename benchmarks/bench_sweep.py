@@ -1,0 +1,62 @@
+"""The paper sweep's cost with the accurate default numerics and with the fast preset, side by side.
+
+    python benchmarks/bench_sweep.py [--every 16]
+
+Runs every ``--every``-th value of s of the paper grid (all 113 values of Q, 15 field angles) with
+both numerics in one process, interleaved, and projects the full grid (122 values of s) from the
+measured time per chunk. Prints the PSF throughput and the peak resident memory of each run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lenssim.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
+from lenssim.resources import config_path
+from lenssim.sweep import load_config, run_sweep
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_pipeline import PeakRSS  # noqa: E402
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--every", type=int, default=16, help="take every N-th value of s (default 16: 8 chunks)")
+    args = ap.parse_args()
+    full = load_config(config_path("paper_grid"))
+    s_all = full.values("s")
+    start, stop, step = full.grid["s"]
+    picked = s_all[::args.every]
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for label, numerics in (("fast (oversample 1)", FAST_NUMERICS), ("default (oversample 2)", DEFAULT_NUMERICS)):
+            cfg = load_config(config_path("paper_grid"))
+            cfg.grid = {"s": (float(picked[0]), float(picked[-1]), step * args.every), **{k: v for k, v in cfg.grid.items()
+                                                                                           if k != "s"}}
+            cfg.numerics = numerics
+            n_psf = cfg.n_designs() * len(cfg.lens.field_angles_deg)
+            with PeakRSS() as mem:
+                t0 = time.perf_counter()
+                run_sweep(cfg, Path(d) / f"{len(rows)}.nc", device="cpu", show_progress=False)
+                t = time.perf_counter() - t0
+            per_chunk = t / len(cfg.values("s"))
+            rows.append((label, len(cfg.values("s")), n_psf, t, per_chunk * len(s_all), mem.peak))
+            print(f"  {label}: {t:.1f} s", flush=True)
+    print(f"\npaper grid, every {args.every}th of {len(s_all)} values of s ({np.round(picked, 3).tolist()}), "
+          f"all {len(full.values('Q_back'))} Q_back, {len(full.lens.field_angles_deg)} angles\n")
+    print("| numerics | chunks | PSFs | time [s] | PSF/s | projected full grid [min] | peak RSS [GiB] |")
+    print("|---|---|---|---|---|---|---|")
+    for label, k, n, t, proj, peak in rows:
+        print(f"| {label} | {k} | {n} | {t:.1f} | {n / t:.0f} | {proj / 60:.1f} | {peak:.2f} |")
+    print(f"\ndefault / fast: {rows[1][3] / rows[0][3]:.2f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
