@@ -24,13 +24,17 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
-__all__ = ["TASK_RETRIES", "dask_client", "compute_chunks"]
+__all__ = ["TASK_RETRIES", "ClusterError", "dask_client", "compute_chunks"]
 
 TASK_RETRIES = 2
 """Times a chunk task that raised is tried again (a lost worker's task is re-run by the scheduler anyway)."""
 
 CONNECT_TIMEOUT_S = 30
 """Seconds to wait for a scheduler at a given address."""
+
+
+class ClusterError(Exception):
+    """The cluster cannot run the sweep as the client asks (a worker without lenssim, or another version)."""
 
 
 WORKER_MALLOC = {"M_TRIM_THRESHOLD": (-1, 2**30), "M_MMAP_THRESHOLD": (-3, 32 * 2**20)}
@@ -70,7 +74,7 @@ def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int
 
     cfg = SweepConfig.from_dict(config)
     if cfg.digest() != digest:
-        raise RuntimeError(f"the worker's lenssim reads this sweep config differently (digest {cfg.digest()} != "
+        raise ClusterError(f"the worker's lenssim reads this sweep config differently (digest {cfg.digest()} != "
                            f"{digest}): install the client's lenssim version on every worker")
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
@@ -122,7 +126,11 @@ def compute_chunks(client, cfg, indices, *, device: str = "auto", threads: int |
                              pure=False, retries=TASK_RETRIES) for i in indices]
     try:
         for fut in as_completed(futures):
-            i, chunk, sha = fut.result()
+            try:
+                i, chunk, sha = fut.result()
+            except ImportError as exc:  # the task could not even be unpickled on the worker
+                raise ClusterError(f"a dask worker cannot import what the sweep needs ({exc}); install the client's "
+                                   "lenssim (and torch) on every worker") from None
             chunk = {k: np.asarray(v) for k, v in chunk.items()}
             if _checksum(chunk) != sha:
                 raise ValueError(f"sweep chunk {i} arrived from its worker corrupted (checksum mismatch)")

@@ -10,6 +10,7 @@ import sys
 import warnings
 
 from lenssim import LensError, __version__
+from lenssim.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
 from . import camera, optics
@@ -18,7 +19,7 @@ COMMAND_MODULES = (optics, camera)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
-                   PermissionError, OSError)
+                   PermissionError, OSError, ClusterError)
 
 OVERRIDE_FLAGS = {"max_fft_size": "--max-fft-size N", "memory_limit_gib": "--memory-limit GIB"}
 """The command-line flag that raises each library limit (ResourceLimitError.setting)."""

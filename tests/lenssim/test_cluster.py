@@ -7,7 +7,7 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from lenssim.cluster import compute_chunks, dask_client  # noqa: E402
+from lenssim.cluster import ClusterError, _chunk_task, compute_chunks, dask_client  # noqa: E402
 from lenssim.lens import Lens  # noqa: E402
 from lenssim.camera import Camera  # noqa: E402
 from lenssim.numerics import FAST_NUMERICS  # noqa: E402
@@ -73,3 +73,9 @@ def test_command_line_checks_the_worker_count_before_any_work(tmp_path, capsys):
     assert not out.exists() and not (tmp_path / "x.nc.partial").exists()
     with pytest.raises(SystemExit):
         main(["sweep", "small_grid", "--out", str(out), "--workers", "2", "--scheduler", "tcp://h:1"])
+
+
+def test_a_worker_that_reads_the_config_differently_refuses():
+    """A worker whose lenssim computes another digest for the config would write another sweep: it refuses."""
+    with pytest.raises(ClusterError, match="install the client's lenssim version on every worker"):
+        _chunk_task(CFG.to_dict(), "0" * 16, 0, "cpu", 1)
