@@ -102,8 +102,9 @@ def dask_client(scheduler: str | None = None, workers: int | None = None):
         with client:
             yield client
         return
-    if not (isinstance(workers, int) and not isinstance(workers, bool) and workers >= 1):
-        raise ValueError(f"workers={workers!r} is not allowed: a number of processes >= 1")
+    from .validate import check_int
+
+    workers = check_int("workers", workers, 1)
     import dask
 
     # no MALLOC_TRIM_THRESHOLD_ in the workers' environment (see WORKER_MALLOC)

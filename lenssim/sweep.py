@@ -38,7 +38,7 @@ from .paper import PAPER_GRID, PAPER_RHO0, PAPER_SNR_DB
 from .sensor import Sensor
 from .spectrum import Spectrum
 from .torch_utils import select_device
-from .validate import ResourceLimitError, ResumeWarning, check_memory, check_real
+from .validate import ResourceLimitError, ResumeWarning, check_int, check_memory, check_real
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
            "design_dims"]
@@ -410,9 +410,8 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     dev = select_device(device)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
-    for name, v in (("workers", workers), ("worker_threads", worker_threads)):
-        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-            raise ValueError(f"{name}={v!r} is not allowed: an integer >= 1")
+    workers = None if workers is None else check_int("workers", workers, 1)
+    worker_threads = None if worker_threads is None else check_int("worker_threads", worker_threads, 1)
     cfg.check(memory_limit_bytes)
     if out.exists():
         try:

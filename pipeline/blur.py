@@ -171,9 +171,10 @@ class _WindowOTFs:
         self.rev = (-torch.arange(win, device=device)) % win  # the row of -f_y for each row f_y
 
     def _canonical(self, ys, xs):
+        """Offsets ``dy, dx`` from the axis, the canonical ``u <= v`` and whether the window is transposed."""
         dy, dx = ys.to(torch.float64) - self.center[0], xs.to(torch.float64) - self.center[1]
         ady, adx = dy.abs(), dx.abs()
-        return dy, dx, torch.minimum(ady, adx), torch.maximum(ady, adx)
+        return dy, dx, torch.minimum(ady, adx), torch.maximum(ady, adx), ady > adx
 
     def chunks(self, Y, X, chunk: int):
         """Batches ``(ys, xs)`` of at least ``chunk`` windows (the last may have fewer); with symmetry the
@@ -182,7 +183,7 @@ class _WindowOTFs:
             for k in range(0, Y.numel(), chunk):
                 yield Y[k:k + chunk], X[k:k + chunk]
             return
-        _, _, u, v = self._canonical(Y, X)
+        _, _, u, v, _ = self._canonical(Y, X)
         iu, iv = torch.round(2 * u).to(torch.int64), torch.round(2 * v).to(torch.int64)
         key = iu * (int(iv.max()) + 1) + iv
         key, order = torch.sort(key, stable=True)
@@ -205,11 +206,10 @@ class _WindowOTFs:
         if not self.symmetric:
             otf = torch.fft.rfft2(self._psfs(ys, xs))
         else:
-            dy, dx, u, v = self._canonical(ys, xs)
+            dy, dx, u, v, swap = self._canonical(ys, xs)  # swap: the PSF is the transpose of the one at (u, v)
             uniq, inv = torch.unique(torch.stack([u, v], 1), dim=0, return_inverse=True)
             p = self._psfs(uniq[:, 0] + self.center[0], uniq[:, 1] + self.center[1])  # PSFs at (u, v), u <= v
             H = torch.fft.rfft2(p)
-            swap = dy.abs() > dx.abs()  # such a window's PSF is the transpose of the one at (u, v)
             need_t = torch.unique(inv[swap]).tolist()
             HT = dict(zip(need_t, torch.fft.rfft2(p[need_t].transpose(-2, -1)))) if need_t else {}
             parts = []
@@ -259,7 +259,7 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
         chunk = window_chunk(image, win)
     # the origin grid has (almost) no mirror pairs: it keeps the first version's order of work, bit for bit
     otfs = _WindowOTFs(psf, center, win, image.dtype, image.device,
-                       symmetric=scheme.anchor == "axis" and bool(getattr(psf, "mirror_symmetric", False)))
+                       symmetric=scheme.anchor == "axis" and bool(psf.mirror_symmetric))
     pad = half + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
