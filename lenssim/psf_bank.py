@@ -398,7 +398,8 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
       evaluated and its ``x``-DFT (even sequence) is two real inverse FFTs of half length,
     * the zero rows of the pupil: the ``y``-FFT runs on the ``~n/2`` pupil rows, zero-padded by
       the FFT itself (the row offset this implies is a phase factor that ``|.|^2`` removes),
-    * real transforms for PSF -> OTF: ``rfft`` along ``y``, then the even ``x``-DFT on ``n/2+1`` rows,
+    * real transforms for PSF -> OTF: the even ``x``-DFT of the ``n`` PSF rows (one ``irfft`` each), then
+      ``rfft`` along ``y`` on ``m/2+1`` columns (the output is a transposed view),
     * Hermitian symmetry ``H(-f) = conj H(f)`` with evenness in ``fx``: ``|H|^2`` and ``Re H`` are
       even in both axes, so the quarter plane carries everything the MSE integrals need.
     """
@@ -441,22 +442,28 @@ def _otf_from_psf_half(p_half: torch.Tensor, n: int, oversample: int, area: floa
     h = n // 2
     B = p_half.shape[0]
     m = n * int(oversample)
+    hm = m // 2
     if m != n:  # zero-pad the PSF from n to m; the Nyquist row/column splits between +h and -h
         p_half = p_half.clone()
         p_half[:, h] *= 0.5
         p_half[..., h] *= 0.5
-        p_half = torch.cat([p_half[:, : h + 1], p_half.new_zeros(B, m - n - 1, h + 1), p_half[:, h:]], dim=1)
-        p_half = torch.nn.functional.pad(p_half, (0, m // 2 - h))
-    hm = m // 2
-    g = torch.fft.rfft(p_half, dim=-2)  # (B, hm+1, hm+1): fy = 0..hm, x still in image space
+    # x first: each of the n PSF rows is real and even in x, so its DFT is one real inverse transform, zero-padded
+    # from h+1 to m by the transform itself; then y, on the hm+1 columns, as real transforms along contiguous rows
+    gx = torch.fft.irfft(p_half, n=m, dim=-1)[..., : hm + 1]  # (B, n, hm+1): x-frequencies 0..hm, y still in image space
     del p_half
-    # the irffts divide by n and m, and p_half carries 1/n^2: G = (fft2 |fft2 field|^2) / (n^3 m),
-    # and the area-normalised OTF is that over (area n^2) (see _area_normalise)
-    scale = float(m / area)
-    g_re = torch.fft.irfft(g.real, n=m, dim=-1)[..., : hm + 1].mul_(scale)
-    g_im = torch.fft.irfft(g.imag, n=m, dim=-1)[..., : hm + 1].mul_(scale)
+    if m == n:
+        g = gx.transpose(-2, -1).contiguous()  # (B, hm+1, n)
+    else:  # transposed into the rows of the zero-padded (B, hm+1, m): y = 0..h, then -h..-1
+        g = gx.new_empty(B, hm + 1, m)
+        g[..., h + 1: m - h].zero_()
+        g[..., : h + 1].copy_(gx[:, : h + 1].transpose(-2, -1))
+        g[..., m - h:].copy_(gx[:, h:].transpose(-2, -1))
+    del gx
+    # the irfft divides by m and p_half carries 1/n^2: G = (fft2 |fft2 field|^2) / (n^2 m), and the
+    # area-normalised OTF is that over (area n^2) (see _area_normalise)
+    H = torch.fft.rfft(g, dim=-1).transpose(-2, -1)  # (B, hm+1, hm+1): H[fy, fx]
     del g
-    return torch.complex(g_re, g_im)
+    return H.mul_(float(m / area))
 
 
 def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
