@@ -119,7 +119,8 @@ class LensPSF(PSFProvider):
     def extent_px(self, rows, cols, optical_center) -> int:
         """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
         x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
-        a = self.geometry.field_angle_deg(x_mm, y_mm)
+        # the support depends on the field angle only: each angle once (a frame's mirror-image windows share theirs)
+        a = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm))
         half = 0.0
         for cam in self.camera.channel_cameras():
             c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)

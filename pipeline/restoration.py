@@ -75,7 +75,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         out = torch.fft.rfft2(patches)
         dc = mu[..., 0, 0] * (win * win)  # the local mean's DC term: filter y - mu, then add mu back
         out[..., 0, 0] -= dc
-        out.mul_(H.conj()).mul_(G)
+        out.mul_(H.conj())
+        torch.view_as_real(out).mul_(G[..., None])  # the real G scales both parts: no complex copy of G
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
 
