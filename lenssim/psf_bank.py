@@ -341,13 +341,15 @@ def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
 def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
     """Half-pupil amplitude and monomial basis for :func:`otf_quarter` (float64, CPU).
 
-    Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..n/2``.
-    Basis ``(T, rows, n/2+1)``: the monomials of :data:`lenssim.aberrations.TERMS` with ``rho_r = y / R``.
+    Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..cx`` with ``cx`` the last
+    column the anti-aliased rim reaches (at most ``n/2``; the transforms zero-pad the rest of the half-row).
+    Basis ``(T, rows, cx+1)``: the monomials of :data:`lenssim.aberrations.TERMS` with ``rho_r = y / R``.
     """
     h = n // 2
     ry = int(math.floor(radius + 0.5))
+    cx = min(h, int(math.ceil(radius + 0.7072)))
     yv = torch.arange(-ry, ry + 1, dtype=torch.float64)
-    xv = torch.arange(0, h + 1, dtype=torch.float64)
+    xv = torch.arange(0, cx + 1, dtype=torch.float64)
     a = _coverage(yv, xv, radius, supersample)
     area = 2 * a.sum() - a[:, 0].sum()  # the x < 0 half mirrors x > 0
     basis = pupil_monomials((yv / radius)[:, None], (xv / radius)[None, :], *(() if terms is None else (terms,)))
@@ -428,7 +430,7 @@ def _psf_half(coeffs: torch.Tensor, n: int, pupil_radius_px: float, supersample:
     B = coeffs.shape[0]
     W = (coeffs @ basis.reshape(n_terms, -1)).reshape(B, *a.shape)
     phase = (-2 * math.pi) * W
-    re_im = torch.stack([a * torch.cos(phase), a * torch.sin(phase)], dim=1)  # (B, 2, rows, h+1)
+    re_im = torch.stack([a * torch.cos(phase), a * torch.sin(phase)], dim=1)  # (B, 2, rows, cx+1)
     row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
     field_x = torch.complex(row_dft[:, 0], row_dft[:, 1])
     amp_img = torch.fft.fft(field_x, n=n, dim=-2)  # (B, n, h+1)
