@@ -117,6 +117,37 @@ def test_quarter_bank_equals_full_otf():
     torch.testing.assert_close(q32.to(torch.complex128), q, rtol=0, atol=5e-5)
 
 
+def _zero_pad_dft_order(p: torch.Tensor, m: int) -> torch.Tensor:
+    """An ``(n, n)`` array in DFT order (origin at [0, 0]) zero-padded to ``(m, m)``, the Nyquist row and column
+    split in halves between +n/2 and -n/2 (written out sample by sample: an independent reference)."""
+    n = p.shape[-1]
+    out = torch.zeros(p.shape[:-2] + (m, m), dtype=p.dtype)
+    for r in range(n):
+        ys = [(r, 1.0)] if r < n // 2 else [(m - (n - r), 1.0)] if r > n // 2 else [(n // 2, 0.5), (m - n // 2, 0.5)]
+        for c in range(n):
+            xs = [(c, 1.0)] if c < n // 2 else [(m - (n - c), 1.0)] if c > n // 2 else [(n // 2, 0.5), (m - n // 2, 0.5)]
+            for y, wy in ys:
+                for x, wx in xs:
+                    out[..., y, x] += wy * wx * p[..., r, c]
+    return out
+
+
+def test_oversampled_bank_equals_the_zero_padded_psf_transform():
+    """oversample = 2: every sample of the finer grid, odd ones included, is the 2n-point DFT of the n-point PSF
+    zero-padded (here from psf() and a full complex fft2), times the bank's area normalisation."""
+    g = torch.Generator().manual_seed(2)
+    c = torch.randn(2, 4, generator=g, dtype=D) * torch.tensor([1.5, 1.0, 2.0, 1.0], dtype=D)
+    n, m = 64, 128
+    p = psf(CAM, c[:, None], n, centered=False)  # unit sum, origin at [0, 0]
+    amp, _ = pupil_amplitude(CAM, n, dtype=D)
+    ref = torch.fft.fft2(_zero_pad_dft_order(p, m)) * float(amp.square().sum() / amp.sum())
+    got = quarter(c, n, oversample=2)
+    ref_q = ref[:, : m // 2 + 1, : m // 2 + 1].clone()
+    ref_q[:, 0, 0] = 1  # the bank sets H(0) = 1 (see _area_normalise)
+    torch.testing.assert_close(got, ref_q, rtol=0, atol=1e-12)
+    assert float((got[:, 1::2, 1::2] - got[:, ::2, ::2][:, :-1, :-1]).abs().max()) > 1e-3  # odd samples are new
+
+
 def test_psf_centroid_is_the_mean_ray_aberration():
     """Coma direction: the PSF centroid is the pupil mean of eps = -(f/y) grad W (in pixels)."""
     s, Q, alpha = -0.725, -10.0, 10.0
