@@ -12,6 +12,8 @@ Input: the 24 MP photo in ../shared/photos when present, else the generated 6000
    noise + adaptive Wiener with the window grid of the first version (``anchor="origin"``, one PSF
    computation per window and pass) against today's default (``anchor="axis"``: one PSF per mirror
    group of up to 8 windows). Prints the ratio and how far apart the two restored frames are (PSNR).
+   Then the blur alone on that frame: the machinery before issue 11's second round against today's
+   (the same numbers: prints whether the frames are identical).
 3. Unless ``--no-full``: the paper-faithful full-frame run, stage by stage (read + linearise,
    blur, Poisson noise at ISO 100, adaptive Wiener, sRGB PSNR), with the wall time and the peak
    resident memory of each stage (sampled from /proc every 20 ms) and of the whole run.
@@ -167,6 +169,42 @@ def grid_side_by_side(ideal: torch.Tensor, size) -> None:
           f"{psnr_srgb(out['origin'], out['axis']):.1f} dB PSNR (sRGB)")
 
 
+def core_irfft2_before(spectrum: torch.Tensor, window: int, core: int) -> torch.Tensor:
+    """The pruned inverse as it was before issue 11's second round (the row transform on the strided slice)."""
+    lo = window // 2 - core // 2
+    rows = torch.fft.ifft(spectrum, dim=-2)[..., lo:lo + core, :]
+    return torch.fft.irfft(rows, n=window, dim=-1)[..., lo:lo + core]
+
+
+def blur_side_by_side(ideal: torch.Tensor, size) -> None:
+    """The blur of a ``size = (W, H)`` frame: the machinery before issue 11's second round (pruned inverse on
+    a strided slice, product not in place) against today's, interleaved twice in this process."""
+    import pipeline.blur as blur_module
+    from pipeline.blur import apply_windowed
+
+    W, H = size
+    H0, W0 = ideal.shape[-2:]
+    frame = ideal[..., (H0 - H) // 2:(H0 - H) // 2 + H, (W0 - W) // 2:(W0 - W) // 2 + W].float().contiguous()
+    current = blur_module.core_irfft2
+
+    def before():
+        blur_module.core_irfft2 = core_irfft2_before
+        try:
+            return apply_windowed(frame, PSF, lambda p, otf: torch.fft.rfft2(p) * otf)
+        finally:
+            blur_module.core_irfft2 = current
+
+    times, out = {}, {}
+    for name, fn in (("before", before), ("now", lambda: blur_windowed(frame, PSF))) * 2:
+        t0 = time.perf_counter()
+        out[name] = fn()
+        times.setdefault(name, []).append(time.perf_counter() - t0)
+    t_old, t_new = min(times["before"]), min(times["now"])
+    print(f"side by side, {W}x{H} frame, blur machinery (best of 2 each, interleaved):")
+    print(f"  before the second round: {t_old:6.1f} s;  now: {t_new:6.1f} s;  ratio {t_old / t_new:.2f}x; "
+          f"identical: {torch.equal(out['before'], out['now'])}")
+
+
 def full_frame(photo, device: torch.device) -> None:
     rows: list = []
     print(f"full frame, paper scheme 512/32/64, {DESIGN.label()}, ISO 100, device {device}:")
@@ -211,6 +249,7 @@ def main() -> int:
         side_by_side(ideal, args.region, args.angle)
     if min(args.frame) > 0:
         grid_side_by_side(ideal, args.frame)
+        blur_side_by_side(ideal, args.frame)
     del ideal
     if not args.no_full:
         full_frame(photo, device)
