@@ -62,23 +62,26 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as d:
         current = psf_bank._otf_from_psf_half
-        for label, numerics, stage2 in (("default, baseline (77a70cc)", DEFAULT_NUMERICS, otf_from_psf_half_77a70cc),
-                                        ("default (oversample 2)", DEFAULT_NUMERICS, current),
-                                        ("fast (oversample 1)", FAST_NUMERICS, current)):
-            psf_bank._otf_from_psf_half = stage2
-            cfg = load_config(config_path("paper_grid"))
-            cfg.grid = {"s": (float(picked[0]), float(picked[-1]), step * args.every), **{k: v for k, v in cfg.grid.items()
-                                                                                           if k != "s"}}
-            cfg.numerics = numerics
-            n_psf = cfg.n_designs() * len(cfg.lens.field_angles_deg)
-            with PeakRSS() as mem:
-                t0 = time.perf_counter()
-                run_sweep(cfg, Path(d) / f"{len(rows)}.nc", device="cpu", show_progress=False)
-                t = time.perf_counter() - t0
-            per_chunk = t / len(cfg.values("s"))
-            rows.append((label, len(cfg.values("s")), n_psf, t, per_chunk * len(s_all), mem.peak))
-            print(f"  {label}: {t:.1f} s", flush=True)
-        psf_bank._otf_from_psf_half = current
+        try:
+            runs = (("default, baseline (77a70cc)", DEFAULT_NUMERICS, otf_from_psf_half_77a70cc),
+                    ("default (oversample 2)", DEFAULT_NUMERICS, current),
+                    ("fast (oversample 1)", FAST_NUMERICS, current))
+            for label, numerics, stage2 in runs:
+                psf_bank._otf_from_psf_half = stage2
+                cfg = load_config(config_path("paper_grid"))
+                cfg.grid = {"s": (float(picked[0]), float(picked[-1]), step * args.every),
+                            **{k: v for k, v in cfg.grid.items() if k != "s"}}
+                cfg.numerics = numerics
+                n_psf = cfg.n_designs() * len(cfg.lens.field_angles_deg)
+                with PeakRSS() as mem:
+                    t0 = time.perf_counter()
+                    run_sweep(cfg, Path(d) / f"{len(rows)}.nc", device="cpu", show_progress=False)
+                    t = time.perf_counter() - t0
+                per_chunk = t / len(cfg.values("s"))
+                rows.append((label, len(cfg.values("s")), n_psf, t, per_chunk * len(s_all), mem.peak))
+                print(f"  {label}: {t:.1f} s", flush=True)
+        finally:  # the library's own stage back, whatever happened
+            psf_bank._otf_from_psf_half = current
     print(f"\npaper grid, every {args.every}th of {len(s_all)} values of s ({np.round(picked, 3).tolist()}), "
           f"all {len(full.values('Q_back'))} Q_back, {len(full.lens.field_angles_deg)} angles\n")
     print("| numerics | chunks | PSFs | time [s] | PSF/s | projected full grid [min] | peak RSS [GiB] |")

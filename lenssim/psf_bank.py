@@ -156,6 +156,11 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     return table[idx].to(torch.int64).reshape(need.shape)
 
 
+RIM_REACH = 0.7072
+"""Farthest a sample centre (samples) may lie outside the pupil's radius and still overlap the disc: half a unit
+sample's diagonal, rounded up (sqrt(2)/2 = 0.70711)."""
+
+
 def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: int) -> torch.Tensor:
     """Area fraction of each unit sample centred at ``(yv[i], xv[j])`` inside the disc ``|r| <= radius``.
 
@@ -164,7 +169,7 @@ def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: in
     """
     r = torch.hypot(yv[:, None], xv[None, :])
     amp = (r <= radius).to(torch.float64)
-    rim = (r - radius).abs() < 0.7072
+    rim = (r - radius).abs() < RIM_REACH
     if rim.any():
         iy, ix = torch.nonzero(rim, as_tuple=True)
         sub = (torch.arange(supersample, dtype=torch.float64) + 0.5) / supersample - 0.5
@@ -212,7 +217,7 @@ def pupil_amplitude(camera: Camera, n: int, wavelength_um: float | None = None, 
 @lru_cache(maxsize=128)
 def _pupil_box_cached(radius: float, supersample: int):
     """Anti-aliased pupil on its bounding box only: coordinates ``-m..m`` samples, ``m = ceil(R + 0.71)``."""
-    m = int(math.ceil(radius + 0.7072))
+    m = int(math.ceil(radius + RIM_REACH))
     x = torch.arange(-m, m + 1, dtype=torch.float64)
     return _coverage(x, x, radius, supersample), x / radius
 
@@ -347,7 +352,7 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
     """
     h = n // 2
     ry = int(math.floor(radius + 0.5))
-    cx = min(h, int(math.ceil(radius + 0.7072)))
+    cx = min(h, int(math.ceil(radius + RIM_REACH)))
     yv = torch.arange(-ry, ry + 1, dtype=torch.float64)
     xv = torch.arange(0, cx + 1, dtype=torch.float64)
     a = _coverage(yv, xv, radius, supersample)
@@ -451,7 +456,7 @@ def _otf_from_psf_half(p_half: torch.Tensor, n: int, oversample: int, area: floa
         p_half[..., h] *= 0.5
     # x first: each of the n PSF rows is real and even in x, so its DFT is one real inverse transform, zero-padded
     # from h+1 to m by the transform itself; then y, on the hm+1 columns, as real transforms along contiguous rows
-    gx = torch.fft.irfft(p_half, n=m, dim=-1)[..., : hm + 1]  # (B, n, hm+1): x-frequencies 0..hm, y still in image space
+    gx = torch.fft.irfft(p_half, n=m, dim=-1)[..., : hm + 1]  # (B, n, hm+1): x-frequencies 0..hm, y in image space
     del p_half
     if m == n:
         g = gx.transpose(-2, -1).contiguous()  # (B, hm+1, n)
