@@ -146,3 +146,21 @@ def test_every_coefficient_function_refuses_non_finite_coefficients(name):
              "field_rms_wavefront": lambda: lenssim.field_rms_wavefront(c[:, 0])}
     with pytest.raises(ValueError, match=r"coeffs holds NaN or infinite values \(first at index \(1, "):
         calls[name]()
+
+
+@settings(max_examples=60, deadline=None)
+@given(dtype=st.sampled_from([torch.float16, torch.float32, torch.float64, torch.complex64]),
+       n=st.integers(1, 2000), bad=st.sampled_from([math.nan, math.inf, -math.inf]), where=st.floats(0, 1),
+       huge=st.booleans())
+def test_the_finite_check_finds_every_nan_and_infinity_and_passes_huge_finite_values(dtype, n, bad, where, huge):
+    """The fast path (a finite sum proves all finite) may not hide a bad element, and a sum that overflows on
+    finite values (here near the dtype's maximum) may not refuse good data."""
+    from lenssim.validate import check_finite
+
+    big = torch.finfo(dtype if not dtype.is_complex else torch.float32).max / 2
+    t = torch.full((n,), big if huge else 1.0, dtype=dtype)
+    assert check_finite("t", t) is t
+    i = min(n - 1, int(where * n))
+    t[i] = bad
+    with pytest.raises(ValueError, match=rf"t holds NaN or infinite values \(first at index \({i},\)"):
+        check_finite("t", t)
