@@ -64,7 +64,8 @@ def test_the_installed_command_runs_outside_the_repository(installed, tmp_path):
     assert r.returncode == 0 and "end_to_end_paper" in r.stdout and "mse_s_grid" in r.stdout
     r = _run(site, tmp_path, "evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--json")
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=1e-9)  # the pinned value
+    # the pinned value; its float32 OTFs round differently on another CPU's FFT code (1.1e-8 between two hosts)
+    assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=1e-6)
 
 
 def test_import_layers_hold():
