@@ -12,8 +12,10 @@ Input: the 24 MP photo in ../shared/photos when present, else the generated 6000
    noise + adaptive Wiener with the window grid of the first version (``anchor="origin"``, one PSF
    computation per window and pass) against today's default (``anchor="axis"``: one PSF per mirror
    group of up to 8 windows). Prints the ratio and how far apart the two restored frames are (PSNR).
-   Then the blur alone on that frame: the machinery before issue 11's second round against today's
-   (the same numbers: prints whether the frames are identical).
+   Then the blur alone on that frame: the machinery before issue 11's second round, today's with every
+   window 512 px (the same numbers: prints whether the frames are identical) and today's default, windows
+   fitted to the local PSF (prints the agreement in dB). ``--full-blur-side-by-side``: the same 512 px
+   against fitted comparison on the whole frame.
 3. Unless ``--no-full``: the paper-faithful full-frame run, stage by stage (read + linearise,
    blur, Poisson noise at ISO 100, adaptive Wiener, sRGB PSNR), with the wall time and the peak
    resident memory of each stage (sampled from /proc every 20 ms) and of the whole run.
@@ -23,6 +25,7 @@ Input: the 24 MP photo in ../shared/photos when present, else the generated 6000
 from __future__ import annotations
 
 import argparse
+import math
 import resource
 import sys
 import threading
@@ -177,8 +180,9 @@ def core_irfft2_before(spectrum: torch.Tensor, window: int, core: int) -> torch.
 
 
 def blur_side_by_side(ideal: torch.Tensor, size) -> None:
-    """The blur of a ``size = (W, H)`` frame: the machinery before issue 11's second round (pruned inverse on
-    a strided slice, product not in place) against today's, interleaved twice in this process."""
+    """The blur of a ``size = (W, H)`` frame, interleaved twice in this process: the machinery before issue 11's
+    second round (pruned inverse on a strided slice, product not in place, every window 512 px), today's with
+    every window 512 px (``fit=False``: the same numbers), and today's default (windows fitted to the PSF)."""
     import pipeline.blur as blur_module
     from pipeline.blur import apply_windowed
 
@@ -194,15 +198,38 @@ def blur_side_by_side(ideal: torch.Tensor, size) -> None:
         finally:
             blur_module.core_irfft2 = current
 
+    full = WindowScheme(fit=False)
     times, out = {}, {}
-    for name, fn in (("before", before), ("now", lambda: blur_windowed(frame, PSF))) * 2:
+    for name, fn in (("before", before), ("full", lambda: blur_windowed(frame, PSF, scheme=full)),
+                     ("fitted", lambda: blur_windowed(frame, PSF))) * 2:
         t0 = time.perf_counter()
         out[name] = fn()
         times.setdefault(name, []).append(time.perf_counter() - t0)
-    t_old, t_new = min(times["before"]), min(times["now"])
-    print(f"side by side, {W}x{H} frame, blur machinery (best of 2 each, interleaved):")
-    print(f"  before the second round: {t_old:6.1f} s;  now: {t_new:6.1f} s;  ratio {t_old / t_new:.2f}x; "
-          f"identical: {torch.equal(out['before'], out['now'])}")
+    t = {k: min(v) for k, v in times.items()}
+    print(f"side by side, {W}x{H} frame (optical axis at its centre), blur (best of 2 each, interleaved):")
+    print(f"  before the second round: {t['before']:6.1f} s;  now, 512 px windows: {t['full']:6.1f} s "
+          f"({t['before'] / t['full']:.2f}x; identical: {torch.equal(out['before'], out['full'])})")
+    print(f"  now, windows fitted to the PSF (default): {t['fitted']:6.1f} s ({t['full'] / t['fitted']:.2f}x against "
+          f"512 px; the two agree to {_snr_db(out['full'], out['fitted']):.1f} dB)")
+
+
+def _snr_db(ref: torch.Tensor, x: torch.Tensor) -> float:
+    """``10 log10(sum ref^2 / sum (ref - x)^2)`` (dB)."""
+    return 10 * math.log10(float((ref.double() ** 2).sum() / ((ref.double() - x.double()) ** 2).sum()))
+
+
+def full_blur_side_by_side(photo, device: torch.device) -> None:
+    """The whole frame's blur, every window 512 px against windows fitted to the PSF, one after the other."""
+    ideal, _ = load_photo(photo)
+    ideal = ideal.to(device)
+    times, out = {}, {}
+    for name, scheme in (("full", WindowScheme(fit=False)), ("fitted", PAPER_SCHEME)):
+        t0 = time.perf_counter()
+        out[name] = blur_windowed(ideal, PSF, scheme=scheme)
+        times[name] = time.perf_counter() - t0
+    print(f"side by side, the whole {ideal.shape[-1]}x{ideal.shape[-2]} frame's blur: 512 px windows "
+          f"{times['full']:.1f} s, fitted {times['fitted']:.1f} s ({times['full'] / times['fitted']:.2f}x); "
+          f"they agree to {_snr_db(out['full'], out['fitted']):.1f} dB")
 
 
 def full_frame(photo, device: torch.device) -> None:
@@ -240,6 +267,8 @@ def main() -> int:
     ap.add_argument("--no-crop", action="store_true", help="skip the crop side by side against scipy")
     ap.add_argument("--no-full", action="store_true", help="skip the full-frame run")
     ap.add_argument("--device", default="auto", help="auto, cpu or cuda (full-frame run)")
+    ap.add_argument("--full-blur-side-by-side", action="store_true",
+                    help="also time the whole frame's blur with 512 px windows against fitted ones (~1.5 min here)")
     args = ap.parse_args()
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "photos" / "outdoor_misty_forest_6016x4016.jpg"
     photo = args.photo or (str(shared) if shared.exists() else None)
@@ -251,6 +280,8 @@ def main() -> int:
         grid_side_by_side(ideal, args.frame)
         blur_side_by_side(ideal, args.frame)
     del ideal
+    if args.full_blur_side_by_side:
+        full_blur_side_by_side(photo, device)
     if not args.no_full:
         full_frame(photo, device)
     return 0

@@ -51,6 +51,12 @@ class PSFProvider:
         """Diameter (px) of the largest PSF support over the positions (0 if unknown)."""
         return 0
 
+    def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
+        """Diameter (px) of the PSF support at each position, ``(P,)`` int64 (0 if unknown): here
+        :meth:`extent_px` everywhere; a provider that knows how its PSFs grow over the field says so."""
+        rows = torch.as_tensor(rows)
+        return torch.full((rows.numel(),), int(self.extent_px(rows, cols, optical_center)), dtype=torch.int64)
+
 
 @dataclass(frozen=True)
 class LensPSF(PSFProvider):
@@ -118,17 +124,22 @@ class LensPSF(PSFProvider):
 
     def extent_px(self, rows, cols, optical_center) -> int:
         """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
-        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
+        return int(self.extents_px(rows, cols, optical_center).max())
+
+    def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
+        """Geometric PSF diameter (px) at each position, ``(P,)`` int64: ``2 G lambda f / (y Delta)`` with ``G`` the
+        largest wavefront slope over the pupil (largest over the wavelengths), rounded up, + the margin."""
+        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
         # the support depends on the field angle only: each angle once (a frame's mirror-image windows share theirs)
-        a = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm))
-        half = 0.0
+        a, inv = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm).flatten(), return_inverse=True)
+        half = torch.zeros_like(a, dtype=torch.float64)
         for cam in self.camera.channel_cameras():
             c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)
-            half = max([half] + [float(cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]).max(), lam))
-                                 for k, lam in enumerate(cam.spectrum.wavelengths_um)])
+            for k, lam in enumerate(cam.spectrum.wavelengths_um):
+                half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]), lam).to(half))
         if self.wavefront == "exact":  # fifth and higher orders: allow 25% more than third order's support
-            half *= 1.25
-        return int(math.ceil(2 * half)) + self.numerics.margin_px
+            half = half * 1.25
+        return (torch.ceil(2 * half).to(torch.int64) + self.numerics.margin_px)[inv]
 
 
 @dataclass(frozen=True)

@@ -213,7 +213,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     seconds = {}
     pkey = _provider_key(psf)
     params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),
-              "scheme": [scheme.window, scheme.stride, scheme.core], "dtype": str(dtype), "shape": list(ideal.shape)}
+              "scheme": [scheme.window, scheme.stride, scheme.core, scheme.anchor, scheme.fit], "dtype": str(dtype),
+              "shape": list(ideal.shape)}
     stamp_path = sensor_path = None
     if checkpoint is not None and pkey is not None:
         ck = Path(checkpoint)

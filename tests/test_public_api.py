@@ -82,12 +82,17 @@ def test_mirror_groups_on_the_device_match_every_window_s_own_psf(device_dtype):
     img = (torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float64) * 0.8 + 0.1).to(device=dev, dtype=dt)
     lens = LensPSF(PAPER_CAMERA, E2E)
     pitch = lens.geometry.pitch_mm
-    own = FunctionPSF(lambda x, y, n: lens.psf_at_pixels(y / pitch, x / pitch, (0.0, 0.0), n, dtype=torch.float64),
-                      lens.geometry, extent=60)
-    kw = dict(scheme=WindowScheme(128, 32, 64), optical_center=(47.5, 63.5))
-    shared = blur_windowed(img, lens, **kw)
-    assert shared.device.type == dev.type and shared.dtype == dt
-    _close(shared, blur_windowed(img, own, **kw), dt)
+    class Own(FunctionPSF):  # each window's own PSF, with the lens's support at each position (the same sizes)
+        def extents_px(self, rows, cols, optical_center):
+            return lens.extents_px(rows, cols, optical_center)
+
+    own = Own(lambda x, y, n: lens.psf_at_pixels(y / pitch, x / pitch, (0.0, 0.0), n, dtype=torch.float64),
+              lens.geometry, extent=60)
+    for fit in (True, False):  # blur windows fitted to the PSF, and all of the scheme's 128 px
+        kw = dict(scheme=WindowScheme(128, 32, 64, fit=fit), optical_center=(47.5, 63.5))
+        shared = blur_windowed(img, lens, **kw)
+        assert shared.device.type == dev.type and shared.dtype == dt
+        _close(shared, blur_windowed(img, own, **kw), dt)
     k = window_chunk(img, 512)
     assert k >= 1 and (dev.type == "cuda" or k == max(1, 32 * 2**20 // (3 * 3 * 512 * 512 * img.element_size())))
 

@@ -18,6 +18,10 @@ transforms along x first (on the PSF's n rows only) and then along y, instead of
 columns (2x faster sweep chunks). The float32 OTFs round differently: the metrics moved by at most 2.2e-7
 relative, the trade-off's minima along their flat iso-cost curves by 1.7e-6 in (s, Q); every optimum and
 Table 1 design is the same grid point.
+
+Added (issue 11, third round): ``pipeline_fitted``, the blur with the paper's 512 px scheme, whose windows are
+fitted to the local PSF (``WindowScheme.fit``, the default; 256 px here), and the restoration of that blur. The
+other pipeline parts use 256 px windows, which fitting leaves as they were: their pins hold unchanged.
 """
 
 from __future__ import annotations
@@ -123,9 +127,22 @@ def _pipeline_pins(anchor: str):
     return {"blur": _stats(blurred), "wiener": _stats(restored), "crops": crops}
 
 
+def _fitted_pins():
+    from lenssim import PAPER_CAMERA, Design, LensPSF
+    from pipeline import PAPER_SCHEME, blur_windowed, wiener_windowed
+
+    g = torch.Generator().manual_seed(3)
+    img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
+    oc = (-500.0, -700.0)  # ~2.9 deg of field: the 512 px scheme's blur windows fit in 256 px
+    e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
+    blurred = blur_windowed(img, e2e, scheme=PAPER_SCHEME, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=PAPER_SCHEME, optical_center=oc)
+    return {"blur": _stats(blurred), "wiener": _stats(restored)}
+
+
 def compute_pins(tmp: Path) -> dict:
     return {"evaluate": _evaluate_pins(), "sweep": _sweep_pins(tmp), "psf": _psf_pins(), "pipeline": _pipeline_pins("origin"),
-            "pipeline_axis": _pipeline_pins("axis")}
+            "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins()}
 
 
 def _compare(new, old, path, rtol):
@@ -150,7 +167,7 @@ def pins_now(tmp_path_factory):
 
 
 @pytest.mark.parametrize("part,rtol", [("evaluate", 1e-9), ("sweep", 1e-9), ("psf", 1e-9), ("pipeline", 1e-6),
-                                       ("pipeline_axis", 1e-6)])
+                                       ("pipeline_axis", 1e-6), ("pipeline_fitted", 1e-6)])
 def test_numbers_unchanged_since_the_pins(pins_now, part, rtol):
     old = json.loads(PINS.read_text())
     _compare(pins_now[part], old[part], part, rtol)

@@ -124,6 +124,9 @@ def test_full_frame_resumes_from_its_checkpoint(tmp_path):
     assert torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
     other = simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)
     assert not other.resumed and not torch.equal(other.sensor, first.sensor)  # another seed: recomputed
+    for changed in (WindowScheme(256, 32, 64, fit=False), WindowScheme(256, 32, 64, anchor="origin")):
+        simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)  # the checkpoint: seed 2
+        assert not simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=changed, checkpoint=tmp_path).resumed
     # crops cut from the frame are the frame's pixels, at their own field angle
     box = crop_at_field_angle(ideal.shape, 0.3, 64)
     c = crops_from_frame(ideal, first, [box])[0]
