@@ -74,6 +74,11 @@ def read_image(path: str | os.PathLike) -> tuple[torch.Tensor, ImageInfo]:
     return t, ImageInfo(str(p), spec.width, spec.height, t.shape[1], fmt, linear)
 
 
+PNG_COMPRESSION_LEVEL = 3
+"""zlib level of the PNGs written (0-9; OpenImageIO's default is 6). Measured on a 24 MP 8-bit frame here:
+level 6 took 3.8 s for 17.8 MB, level 3 1.8 s for 19.4 MB, level 1 1.4 s for 20.8 MB."""
+
+
 def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str = 8, inputs=()) -> Path:
     """Write a ``(1, C, H, W)`` or ``(C, H, W)`` tensor. ``bits`` is 8, 16 or ``"float"`` (use .exr)."""
     import OpenImageIO as oiio
@@ -101,6 +106,7 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
         if out is None:
             raise ImageFileError(f"cannot write {str(p)!r}: {oiio.geterror() or 'unknown file extension'}")
         spec = oiio.ImageSpec(arr.shape[1], arr.shape[0], arr.shape[2], fmts[bits])
+        spec.attribute("png:compressionLevel", PNG_COMPRESSION_LEVEL)  # other formats ignore it
         ok = out.open(tmp, spec) and out.write_image(arr)
         msg = out.geterror()
         out.close()
