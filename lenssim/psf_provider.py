@@ -124,7 +124,8 @@ class LensPSF(PSFProvider):
 
     def extent_px(self, rows, cols, optical_center) -> int:
         """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
-        return int(self.extents_px(rows, cols, optical_center).max())
+        e = self.extents_px(rows, cols, optical_center)
+        return int(e.max()) if e.numel() else self.numerics.margin_px  # no position: no aberration, the margin
 
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Geometric PSF diameter (px) at each position, ``(P,)`` int64: ``2 G lambda f / (y Delta)`` with ``G`` the

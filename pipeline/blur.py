@@ -304,13 +304,20 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     shift_x = float(torch.ceil(px[0]) - px[0]) if px.numel() else 0.0
     Y, X = torch.meshgrid(py, px, indexing="ij")
     Y, X = Y.flatten(), X.flatten()  # window positions (px, float64): where each PSF is evaluated
-    need = psf.extent_px(Y, X, center)
+    # the origin grid has (almost) no mirror pairs: it keeps the first version's order of work, bit for bit
+    symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
+    if fit:  # each window's support, asked once: for its size and for the check
+        ext = _extents(psf, Y, X, center, symmetric)
+        need = int(ext.max()) if ext.numel() else 0
+    else:
+        need = psf.extent_px(Y, X, center)
     if need + core > win:
         raise ValueError(f"the PSF spans {need} px but window={win} leaves room for only {win - core} beside the "
                          f"{core}-px core: use a larger window")
-    # the origin grid has (almost) no mirror pairs: it keeps the first version's order of work, bit for bit
-    symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
-    sizes = _window_sizes(psf, Y, X, center, scheme, symmetric) if fit else torch.full_like(Y, win, dtype=torch.int64)
+    if fit:
+        sizes = fitted_windows(torch.where(ext > 0, ext + core, 0), win)
+    else:
+        sizes = torch.full_like(Y, win, dtype=torch.int64)
     pad = half + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
@@ -347,14 +354,13 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     return result
 
 
-def _window_sizes(psf: PSFProvider, Y, X, center, scheme: WindowScheme, symmetric: bool) -> torch.Tensor:
-    """:func:`fitted_windows` for the windows at ``(Y, X)`` (px): PSF support there + the core. With symmetry the
-    support is asked at each window's canonical position, so a mirror group shares one size."""
+def _extents(psf: PSFProvider, Y, X, center, symmetric: bool) -> torch.Tensor:
+    """The PSF support (px, int64) of the windows at ``(Y, X)`` (px). With symmetry it is asked at each window's
+    canonical position, so a mirror group shares one value (and one fitted size)."""
     if symmetric:
         dy, dx = (Y - center[0]).abs(), (X - center[1]).abs()
         Y, X = center[0] + torch.minimum(dy, dx), center[1] + torch.maximum(dy, dx)
-    ext = psf.extents_px(Y, X, center).to(torch.int64)
-    return fitted_windows(torch.where(ext > 0, ext + scheme.core, 0), scheme.window)
+    return psf.extents_px(Y, X, center).to(torch.int64)
 
 
 def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme = PAPER_SCHEME,

@@ -289,3 +289,4 @@ def test_lens_psf_support_grows_with_the_field_and_bounds_the_largest():
     assert ext[0] < ext[1] < ext[2] < ext[3]
     assert int(ext.max()) == E2E.extent_px(rows, cols, (2000.0, 3000.0))
     assert [E2E.extent_px(rows[i:i + 1], cols[i:i + 1], (2000.0, 3000.0)) for i in range(4)] == ext.tolist()
+    assert E2E.extent_px(torch.zeros(0), torch.zeros(0), (0.0, 0.0)) == E2E.numerics.margin_px  # no position
