@@ -6,7 +6,9 @@ several pitches (2-16 px periods), a grey step wedge, and fine random texture. I
 Siemens stars (0, 4, 8, 12 degrees) and bar groups (2, 6, 10 degrees) are centred on the frame
 diagonal at those field angles of the paper's lens (at 6000 x 4000; the 12-degree tile sits in
 the corner), where :func:`pipeline.simulate.crop_at_field_angle` puts its crops by default. Linear RGB in
-[0.02, 0.95], ``(1, 3, H, W)`` float32, deterministic for a given ``seed``.
+[0.02, 0.95], ``(1, 3, H, W)`` float32, deterministic for a given ``seed``: it is computed in float64 and rounded
+to float32 once, so the same on any CPU and thread count (float32 interpolation and trigonometry round
+differently from one vector path to another, which moved crop scores by 1e-9).
 """
 
 from __future__ import annotations
@@ -20,28 +22,28 @@ __all__ = ["resolution_scene", "target_tile"]
 
 
 def target_tile(size: int = 256, kind: int = 0) -> torch.Tensor:
-    """One ``size x size`` grey target (values in [0, 1]): 0 Siemens star, 1 bar groups, 2 step wedge + texture."""
-    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float32) - size / 2 + 0.5,
-                          torch.arange(size, dtype=torch.float32) - size / 2 + 0.5, indexing="ij")
+    """One ``size x size`` grey target (values in [0, 1], float64): 0 Siemens star, 1 bar groups, 2 step wedge + texture."""
+    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float64) - size / 2 + 0.5,
+                          torch.arange(size, dtype=torch.float64) - size / 2 + 0.5, indexing="ij")
     if kind == 0:
         theta = torch.atan2(y, x)
-        star = (torch.sin(36 * theta) > 0).float()
+        star = (torch.sin(36 * theta) > 0).double()
         return torch.where(torch.hypot(x, y) < size * 0.47, star, torch.full_like(star, 0.5))
     if kind == 1:  # bar groups, periods 2..16 px, vertical and horizontal
-        tile = torch.full((size, size), 0.5)
+        tile = torch.full((size, size), 0.5, dtype=torch.float64)
         q, h2 = size // 4, size // 2
         bh, bw = q - 8, h2 - 8
         for i, period in enumerate((2, 3, 4, 6, 8, 10, 12, 16)):
             r, c = divmod(i, 2)
             idx = torch.arange(bw if r % 2 == 0 else bh)
-            bars = ((2 * idx // period) % 2).float()
+            bars = ((2 * idx // period) % 2).double()
             block = bars[None, :].expand(bh, -1) if r % 2 == 0 else bars[:, None].expand(-1, bw)
             tile[r * q + 4:r * q + 4 + bh, c * h2 + 4:c * h2 + 4 + bw] = block
         return tile
-    steps = torch.linspace(0.05, 0.95, 8)  # grey wedge above, fine random texture below
+    steps = torch.linspace(0.05, 0.95, 8, dtype=torch.float64)  # grey wedge above, fine random texture below
     tile = steps[torch.arange(size) * 8 // size][None, :].repeat(size, 1)
     g = torch.Generator().manual_seed(7)
-    tile[size // 2:] = torch.rand(size - size // 2, size, generator=g)
+    tile[size // 2:] = torch.rand(size - size // 2, size, generator=g).double()
     return tile
 
 
@@ -64,14 +66,14 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
     if height < tile or width < tile:
         raise ValueError(f"scene {height}x{width} is smaller than one {tile}-px target")
     g = torch.Generator().manual_seed(seed)
-    lo = torch.rand(1, 3, max(2, height // 64), max(2, width // 64), generator=g)
+    lo = torch.rand(1, 3, max(2, height // 64), max(2, width // 64), generator=g).double()
     bg = torch.nn.functional.interpolate(lo, size=(height, width), mode="bilinear", align_corners=False)
-    fine = torch.rand(1, 1, height // 4, width // 4, generator=g)
+    fine = torch.rand(1, 1, height // 4, width // 4, generator=g).double()
     bg = 0.6 * bg + 0.25 * torch.nn.functional.interpolate(fine, size=(height, width), mode="bilinear",
                                                            align_corners=False) + 0.05
     img = bg
     tiles = [target_tile(tile, k) for k in range(3)]
-    colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]])
+    colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]], dtype=torch.float64)
     diagonal = _diagonal_positions(height, width, tile, geometry or PAPER_CAMERA.geometry)
     clear = lambda r, c: all(abs(r - dr) >= tile + 8 or abs(c - dc) >= tile + 8 for dr, dc, _ in diagonal)  # noqa: E731
     k = 0
@@ -82,4 +84,4 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
             k += 1
     for r, c, kind in diagonal:
         img[0, :, r:r + tile, c:c + tile] = colours[kind][:, None, None] * (0.05 + 0.9 * tiles[kind])
-    return img.clamp(0.02, 0.95).contiguous()
+    return img.clamp(0.02, 0.95).to(torch.float32).contiguous()

@@ -64,8 +64,9 @@ def test_the_installed_command_runs_outside_the_repository(installed, tmp_path):
     assert r.returncode == 0 and "end_to_end_paper" in r.stdout and "mse_s_grid" in r.stdout
     r = _run(site, tmp_path, "evaluate", "--design", "end_to_end_paper", "--snr", "27.6", "--json")
     assert r.returncode == 0, r.stderr
-    # the pinned value; its float32 OTFs round differently on another CPU's FFT code (1.1e-8 between two hosts)
-    assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=1e-6)
+    # the pinned value, to the tolerance of every criterion from the float32 OTF bank (F32_OTF in
+    # test_regression_pins.py: float32 FFTs round differently on another CPU, up to 3.1e-7 measured)
+    assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=2e-6)
 
 
 def test_import_layers_hold():

@@ -22,10 +22,33 @@ Table 1 design is the same grid point.
 Added (issue 11, third round): ``pipeline_fitted``, the blur with the paper's 512 px scheme, whose windows are
 fitted to the local PSF (``WindowScheme.fit``, the default; 256 px here), and the restoration of that blur. The
 other pipeline parts use 256 px windows, which fitting leaves as they were: their pins hold unchanged.
+
+Host-independent tolerances (issue 18). The pins must hold on any x86-64 CPU and thread count, and each
+tolerance below says why it is what it is (:data:`RULES`, first match wins):
+
+* float64 physics (RMS wavefront, cost, FFT sizes, PSFs and OTFs in float64): ``F64`` = 1e-9 relative, and
+  a sample of a PSF/OTF to 1e-9 of that array's maximum (a sample that is a rounding zero, ~1e-17 of the
+  peak, has no relative precision at all);
+* criteria from the float32 OTF bank (``mse_s``, ``mse_r`` and everything made from them): ``F32_OTF`` =
+  2e-6 relative. Float32 FFTs round differently from one CPU's FFT code to the next: 1.1e-8 between two
+  AMD hosts, 3.1e-7 between the pinning host and an Intel Xeon (measured), against float32's 6e-8 epsilon
+  accumulated over the transform's log2(n) ~ 9-10 stages;
+* the trade-off's minima along its iso-cost curves (``FLAT_MINIMUM`` = 1e-4 relative in s and Q): the curves
+  are flat at their minimum, so a 1e-7 change of the criterion moves the minimiser by ~sqrt(1e-7) of the
+  curvature's scale (measured: 2.3e-6 between two hosts); the value there still holds to ``F32_OTF``;
+* the float32 image pipeline's noise-free outputs (blur, Wiener of the blur): ``F32_IMAGE`` = 5e-6 of each
+  image statistic (sums relative to themselves, pixel samples relative to the image's maximum; measured
+  <= 9.5e-7 across hosts and thread counts);
+* crop scores after Poisson noise are pinned from a float64 run (``simulate_crops(dtype=float64)``). In
+  float32 a rate that moves by 1e-7 between hosts flips a Poisson count, and since torch draws the counts
+  one after another from one generator, a changed rejection step shifts every later draw: an SSIM moved by
+  1.3e-3 between two hosts. In float64 the rate moves by ~1e-16 and no count flips (the chance per pixel is
+  ~1e-14), so the scores hold to ``F64``.
 """
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import math
 import sys
@@ -49,6 +72,34 @@ snr_db = [21.6, 27.6, 33.6]
 [numerics]
 min_size = 128
 """
+
+
+F64 = 1e-9
+F32_OTF = 2e-6
+FLAT_MINIMUM = 1e-4
+F32_IMAGE = 5e-6
+
+# (dotted path pattern, relative tolerance, kind): "value" compares each number relative to itself, "stats" a
+# _stats() list: its sum, sum of squares and maximum relative to themselves, its samples relative to the maximum
+RULES = [
+    ("evaluate.*.mse_*", F32_OTF, "value"),
+    ("evaluate.*", F64, "value"),
+    ("sweep.cost", F64, "value"),
+    ("sweep.tradeoff.cost", F64, "value"),
+    ("sweep.tradeoff.s", FLAT_MINIMUM, "value"),
+    ("sweep.tradeoff.Q", FLAT_MINIMUM, "value"),
+    ("sweep.*", F32_OTF, "value"),
+    ("psf.*", F64, "stats"),
+    ("pipeline*.crops", F64, "value"),
+    ("pipeline*", F32_IMAGE, "stats"),
+]
+
+
+def _rule(path: str):
+    for pattern, rtol, kind in RULES:
+        if fnmatch.fnmatchcase(path, pattern):
+            return rtol, kind
+    raise KeyError(f"no tolerance rule for {path}")
 
 
 def _stats(t: torch.Tensor) -> list[float]:
@@ -121,7 +172,8 @@ def _pipeline_pins(anchor: str):
     restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=scheme, optical_center=oc)
     big = resolution_scene(600, 800, tile=128, spacing=256)
     res = simulate_crops(big, LensPSF(PAPER_CAMERA, Design(s=-0.725, Q_back=-10.0)), [3200.0, 800.0],
-                         [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme)
+                         [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme,
+                         dtype=torch.float64)  # float64: no Poisson count flips between hosts (module docstring)
     crops = [[r.scores["sensor"]["psnr_db"], r.scores["wiener"]["psnr_db"], r.scores["sensor"]["ssim"],
               r.scores["wiener"]["ssim"], r.field_deg] for per in res for r in per]
     return {"blur": _stats(blurred), "wiener": _stats(restored), "crops": crops}
@@ -145,20 +197,32 @@ def compute_pins(tmp: Path) -> dict:
             "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins()}
 
 
-def _compare(new, old, path, rtol):
+def _close(new, old, tol, path):
+    if isinstance(old, float) and math.isnan(old):
+        assert math.isnan(new), f"{path}: {new} != NaN"
+        return
+    assert abs(new - old) <= tol, f"{path}: {new!r} != pinned {old!r} (tolerance {tol:.3g})"
+
+
+def _compare(new, old, path, key):
+    """Compare ``new`` with the pinned ``old``; ``key`` is the dotted path without indices (for :data:`RULES`)."""
     if isinstance(old, dict):
         assert set(new) == set(old), f"{path}: keys {sorted(new)} != {sorted(old)}"
         for k in old:
-            _compare(new[k], old[k], f"{path}.{k}", rtol)
+            _compare(new[k], old[k], f"{path}.{k}", f"{key}.{k}")
+        return
+    rtol, kind = _rule(key)
+    if kind == "stats" and isinstance(old, list) and old and not isinstance(old[0], list):
+        assert len(new) == len(old), f"{path}: length {len(new)} != {len(old)}"
+        peak = abs(old[2])
+        for i, (a, b) in enumerate(zip(new, old)):
+            _close(a, b, rtol * (abs(b) if i < 3 else peak), f"{path}[{i}]")
     elif isinstance(old, list):
         assert len(new) == len(old), f"{path}: length {len(new)} != {len(old)}"
         for i, (a, b) in enumerate(zip(new, old)):
-            _compare(a, b, f"{path}[{i}]", rtol)
+            _compare(a, b, f"{path}[{i}]", key)
     else:
-        if isinstance(old, float) and math.isnan(old):
-            assert math.isnan(new), f"{path}: {new} != NaN"
-            return
-        assert new == pytest.approx(old, rel=rtol, abs=1e-300), f"{path}: {new!r} != pinned {old!r}"
+        _close(new, old, rtol * abs(old), path)
 
 
 @pytest.fixture(scope="module")
@@ -166,19 +230,49 @@ def pins_now(tmp_path_factory):
     return compute_pins(tmp_path_factory.mktemp("pins"))
 
 
-@pytest.mark.parametrize("part,rtol", [("evaluate", 1e-9), ("sweep", 1e-9), ("psf", 1e-9), ("pipeline", 1e-6),
-                                       ("pipeline_axis", 1e-6), ("pipeline_fitted", 1e-6)])
-def test_numbers_unchanged_since_the_pins(pins_now, part, rtol):
+@pytest.mark.parametrize("part", ["evaluate", "sweep", "psf", "pipeline", "pipeline_axis", "pipeline_fitted"])
+def test_numbers_unchanged_since_the_pins(pins_now, part):
     old = json.loads(PINS.read_text())
-    _compare(pins_now[part], old[part], part, rtol)
+    _compare(pins_now[part], old[part], part, part)
+
+
+def test_every_pinned_number_has_a_tolerance_rule():
+    """A pin added without a rule would raise inside the comparison; this names it up front."""
+    def keys(d, prefix):
+        for k, v in d.items():
+            yield from keys(v, f"{prefix}.{k}") if isinstance(v, dict) else [f"{prefix}.{k}"]
+    for part, tree in json.loads(PINS.read_text()).items():
+        for key in keys(tree, part):
+            _rule(key)
+
+
+def test_tolerances_catch_a_real_change():
+    """A change above the tolerance fails; a float32-rounding-sized change passes."""
+    old = json.loads(PINS.read_text())["sweep"]
+    moved = json.loads(json.dumps(old))
+    moved["mse_r"][3] *= 1 + 1e-7  # what another CPU's float32 FFT does
+    _compare(moved, old, "sweep", "sweep")
+    moved["mse_r"][3] *= 1 + 1e-4  # what a physics change does
+    with pytest.raises(AssertionError, match="sweep.mse_r"):
+        _compare(moved, old, "sweep", "sweep")
 
 
 if __name__ == "__main__":
-    if sys.argv[1:] == ["--write"]:
+    # --write: every part; --write PART[.KEY] ...: only those (everything else keeps its pinned value)
+    if sys.argv[1:2] == ["--write"]:
         import tempfile
 
         sys.path.remove(str(Path(__file__).parent))  # tests/lenssim would shadow the lenssim package
 
         with tempfile.TemporaryDirectory() as d:
-            PINS.write_text(json.dumps(compute_pins(Path(d)), indent=1) + "\n")
-        print(f"wrote {PINS}")
+            now = compute_pins(Path(d))
+        names = sys.argv[2:] or list(now)
+        pins = json.loads(PINS.read_text()) if PINS.exists() else {}
+        for name in names:
+            part, _, key = name.partition(".")
+            if key:
+                pins[part][key] = now[part][key]
+            else:
+                pins[part] = now[part]
+        PINS.write_text(json.dumps(pins, indent=1) + "\n")
+        print(f"wrote {', '.join(names)} to {PINS}")
