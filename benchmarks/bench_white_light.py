@@ -59,7 +59,7 @@ def main() -> None:
     fm = lambda: blur_windowed(scene, LensPSF(mono, design), optical_center=oc, region=reg)  # noqa: E731
     fp = lambda: blur_windowed(scene, LensPSF(poly, design), optical_center=oc, region=reg)  # noqa: E731
     b_m, b_p = best(fm, args.repeat), best(fp, args.repeat)
-    print(f"blur of a 256 px crop at ~8 deg (paper windows 512/32/64):")
+    print("blur of a 256 px crop at ~8 deg (paper windows 512/32/64):")
     print(f"  monochromatic {b_m:.2f} s, polychromatic {b_p:.2f} s: ratio {b_p / b_m:.1f}x "
           f"({DEFAULT_WAVELENGTHS_PER_CHANNEL} wavelengths per channel)")
 

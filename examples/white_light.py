@@ -14,7 +14,6 @@ It first finds the best focus for MSE_R (the d-line focus is not it), then write
 from __future__ import annotations
 
 import argparse
-import math
 import warnings
 from pathlib import Path
 

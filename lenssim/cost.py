@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 
 from .design import Design
-from .lens import Lens
+from .lens import Lens, LensError
 from .numerics import DEFAULT_NUMERICS
 from .torch_utils import as_tensor
 

@@ -15,7 +15,6 @@ channel); :attr:`channels` says which (1 or C).
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 

@@ -12,11 +12,9 @@ whole-frame metrics (resumable). Without PHOTO the built-in generated 6000 x 400
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
-from pathlib import Path
 
 import torch
 
@@ -242,7 +240,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     checkpoint = out / ".checkpoint"
     with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
         frame = simulate_frame(ideal, psf, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
-                               checkpoint=checkpoint, sensor=PAPER_CAMERA.sensor)
+                               checkpoint=checkpoint, sensor=psf.camera.sensor)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     # each image is sRGB-encoded once, for its PNG and for all its scores

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import torch
 
 from lenssim import PSFProvider, check_shape
 from lenssim.validate import FULL_WELL_RANGE_E, check_finite, check_real

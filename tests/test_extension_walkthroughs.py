@@ -12,7 +12,7 @@ import torch
 from lenssim import CRITERIA, PAPER_CAMERA, PARAMETERS, Camera, Criterion, Design, Lens, LensPSF, Numerics, Spectrum
 from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
 from lenssim.cost import surface_cost
-from lenssim.paraxial import Surface, seidel_surface_sums
+from lenssim.paraxial import seidel_surface_sums
 from lenssim.sweep import SweepConfig, run_sweep
 from lenssim.tradeoff import find_optimum
 

@@ -84,8 +84,6 @@ def test_an_output_folder_holding_the_input_is_refused(tmp_path, capsys, no_comp
 
 
 def test_a_run_that_fails_late_leaves_no_partial_outputs(tmp_path, monkeypatch, capsys):
-    import pipeline.figures
-
     def broken(*a, **k):
         raise OSError("disk full (simulated)")
     monkeypatch.setattr("lenssim_cli.camera.mosaic_figure", broken)

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
 
-from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensPSF, Numerics, Sensor, Spectrum, evaluate, psf
-from lenssim.aberrations import seidel_sums, wavefront_coefficients, wavefront_gradient
+from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensPSF, Numerics, Sensor, Spectrum, evaluate
+from lenssim.aberrations import wavefront_coefficients, wavefront_gradient
 from lenssim.glass import C_LINE_UM, D_LINE_UM, F_LINE_UM, load_glasses
 from lenssim.raytrace import trace_rays, transverse_aberration
 from lenssim.spectrum import channel_spectra

@@ -6,11 +6,9 @@ import json
 import warnings
 
 import pytest
-import torch
 
 from lenssim import PAPER_CAMERA, Camera, Design, Lens, Numerics, evaluate
 from lenssim.cost import slope_departure_cost
-from lenssim.spectrum import channel_spectra
 from lenssim.sweep import SweepConfig, load_config, run_sweep
 from lenssim.validate import ModelValidityWarning
 

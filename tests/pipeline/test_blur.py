@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lenssim import PAPER_CAMERA, Design, FunctionPSF, LensPSF
-from pipeline.blur import (PAPER_SCHEME, WindowScheme, axis_positions, blur_exact, blur_windowed, core_irfft2,
+from pipeline.blur import (WindowScheme, axis_positions, blur_exact, blur_windowed, core_irfft2,
                            FIT_SIZES, fitted_windows, fold_psf, tent_weights, window_centres)
 
 E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
