@@ -19,11 +19,11 @@ import torch
 
 from .camera import Camera
 from .cost import slope_departure_cost
-from .criteria import quarter_weights, validate_criterion
+from .criteria import OTFContext, quarter_weights, validate_criterion
 from .design import PARAMETERS, Design, parameter_name
 from .image_model import image_psd_quarter, noise_variance
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .paper import REFERENCE_SNR_DB
+from .paper import PAPER_RHO0, REFERENCE_SNR_DB
 from .psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
 
 __all__ = ["DifferentiableCriterion", "DifferentiableMSE", "IsoCostResult", "optimise_on_iso_cost"]
@@ -40,12 +40,14 @@ class DifferentiableCriterion:
     function of ``x``, the values of the design parameters ``names``."""
 
     def __init__(self, camera: Camera, snr_db: float = REFERENCE_SNR_DB, criterion: str = "mse_r", *,
-                 names=PAPER_NAMES, numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64):
+                 names=PAPER_NAMES, numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64,
+                 rho0: float = PAPER_RHO0, psd_model: str = "discrete"):
         crit = validate_criterion(criterion)
         if crit.from_otf is None:
             raise ValueError(f"criterion={criterion!r} is not allowed: an OTF criterion "
                              "(the design criteria have their own closed forms)")
         self.camera, self.criterion, self.numerics, self.dtype = camera, crit, numerics, dtype
+        self.rho0, self.psd_model = rho0, psd_model  # the image model, as in evaluate() and sweeps
         self.names = tuple(parameter_name(n) for n in names)
         self.sigma2 = noise_variance([snr_db]).to(dtype)
         self.sizes: list[int] | None = None
@@ -73,11 +75,17 @@ class DifferentiableCriterion:
         for a, n in enumerate(self.sizes):
             m = n * over
             H = otf_quarter_spectrum(self.camera, coeffs[a:a + 1], n, oversample=over, numerics=self.numerics)
-            psd = image_psd_quarter(m, dtype=self.dtype)
-            v = self.criterion.from_otf(H, H.real.square() + H.imag.square(), psd, psd * quarter_weights(m, psd.dtype, psd.device),
-                                        self.sigma2)
-            total = total + v[0, 0]
+            psd = image_psd_quarter(m, self.rho0, model=self.psd_model, dtype=self.dtype)
+            w = quarter_weights(m, psd.dtype, psd.device)
+            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd, w, psd * w, self.sigma2, n, self.camera,
+                             self.numerics)
+            v = self.criterion.from_otf(ctx)
+            total = total + (v[0, 0] if self.criterion.per_snr else v[0])
         return total / len(self.sizes)
+
+    def objective(self, x: torch.Tensor) -> torch.Tensor:
+        """The value to minimise: the criterion, negated for a criterion to maximise (its ``sense``)."""
+        return self.criterion.sign * self(x)
 
 
 DifferentiableMSE = DifferentiableCriterion
@@ -115,8 +123,8 @@ def _project_to_level(quality, x, level, points, iters=6):
 def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, steps: int = 30,
                          step0: float = 2.0, tol: float = 1e-7, cost_points: int = DEFAULT_NUMERICS.cost_points,
                          bounds=None) -> IsoCostResult:
-    """Minimise ``quality`` along ``C_a = level`` from ``x0`` (values of ``quality.names``) by projected
-    gradient descent.
+    """Optimise ``quality`` (minimised, or maximised if its criterion's sense is ``"max"``) along
+    ``C_a = level`` from ``x0`` (values of ``quality.names``) by projected gradient descent.
 
     ``step0`` is the first trial step in grid steps; steps are halved until the quality decreases.
     Stops when the tangential gradient (per grid step) is below ``tol`` relative to the value, or
@@ -137,7 +145,7 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, 
     it = 0
     for it in range(1, steps + 1):
         xx = x.clone().requires_grad_(True)
-        q = quality(xx)
+        q = quality.objective(xx)
         (gq,) = torch.autograd.grad(q, xx)
         xc = x.clone().requires_grad_(True)
         (gc,) = torch.autograd.grad(_cost(quality, xc, cost_points), xc)
@@ -145,7 +153,7 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, 
         nrm = gc_u / gc_u.norm()
         tangent = gq_u - gq_u.dot(nrm) * nrm
         qv = q.item()
-        history.append((float(x[0]), float(x[1]), qv))
+        history.append((float(x[0]), float(x[1]), quality.criterion.sign * qv))
         if tangent.norm() <= tol * abs(qv):
             break
         direction = -tangent / tangent.norm() * SCALE  # in (s, Q) units, one grid step long
@@ -155,7 +163,7 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, 
             trial = _project_to_level(quality, trial, level, cost_points)
             trial = torch.maximum(torch.minimum(trial, hi), lo)
             with torch.no_grad():
-                qt = quality(trial)
+                qt = quality.objective(trial)
             if qt.item() < qv:
                 x, accepted = trial, True
                 step *= 1.5

@@ -54,19 +54,18 @@ def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: floa
 
 def exact_criteria(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float = PAPER_RHO0,
                    numerics: Numerics = DEFAULT_NUMERICS) -> dict:
-    """The OTF criteria (``mse_s``, ``mse_r``; field averages, ``(S,)`` float64) of one design with the exact
-    (ray-traced, fitted) wavefront at each field angle, one wavelength (the spectrum's first); also
-    ``NAME_alpha`` ``(A, S)`` and ``fft_size`` ``(A,)``."""
+    """Every registered OTF criterion (field averages, ``(S,)`` float64, ``()`` for one that does not depend on the
+    SNR) of one design with the exact (ray-traced, fitted) wavefront at each field angle, one wavelength (the
+    spectrum's first); also ``NAME_alpha`` ``(A, S)`` (``(A,)``) and ``fft_size`` ``(A,)``."""
     if len(camera.spectrum) != 1 or camera.channels:
         raise ValueError("exact_criteria takes a one-wavelength camera")
     lam = camera.spectrum.wavelengths_um[0]
-    A = len(camera.lens.field_angles_deg)
     c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
     sizes = fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS)
     per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
                             terms=EXACT_TERMS)
     out = {}
     for k, v in per.items():
-        out[k], out[f"{k}_alpha"] = v.reshape(A, -1).mean(dim=0), v.reshape(A, -1)
+        out[k], out[f"{k}_alpha"] = v.mean(dim=0), v
     out["fft_size"] = sizes
     return out

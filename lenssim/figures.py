@@ -171,7 +171,7 @@ def table1(ds: xr.Dataset, out_dir: Path, snr: float = REFERENCE_SNR_DB) -> tupl
         r = find_optimum(ds, crit, snr)
         mr = r["mse_r"][f"{snr:g}"]
         rows.append({"design": CRITERIA[crit].label, "parameters": r["design"], "mse_r": mr, "mse_r_relative": mr / best,
-                     "cost_Ca": r["cost_Ca"]})
+                     "cost_Ca": r["cost"]})
     out_dir.mkdir(parents=True, exist_ok=True)
     csv = out_dir / "table1.csv"
     md = out_dir / "table1.md"

@@ -36,8 +36,8 @@ class FocusResult:
 
 def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db: float = REFERENCE_SNR_DB, *,
                bounds_um=FOCUS_BOUNDS_UM, tol_um: float = 0.5, numerics: Numerics = DEFAULT_NUMERICS) -> FocusResult:
-    """The ``focus_shift_um`` of ``design`` (one design) minimising ``criterion`` at ``snr_db``, within ``bounds_um``,
-    to ``tol_um``."""
+    """The ``focus_shift_um`` of ``design`` (one design) optimising ``criterion`` at ``snr_db`` (its minimum, or its
+    maximum for a criterion whose sense is ``"max"``), within ``bounds_um``, to ``tol_um``."""
     from scipy.optimize import minimize_scalar
 
     crit = validate_criterion(criterion)
@@ -51,7 +51,7 @@ def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db:
         count[0] += 1
         r = evaluate(camera, design.replace(focus_shift_um=float(z)), [snr_db], numerics=numerics)
         v = r[criterion]
-        return float(v.reshape(-1)[0]) if crit.per_snr else float(v)
+        return crit.sign * (float(v.reshape(-1)[0]) if crit.per_snr else float(v))
 
     res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": tol_um})
     if min(res.x - lo, hi - res.x) < 2 * tol_um:
@@ -59,7 +59,7 @@ def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db:
 
         warn_model(f"the best focus for {criterion} is at the search bound ({res.x:+.1f} um of [{lo:g}, {hi:g}] um); "
                    "widen the bounds")
-    return FocusResult(float(res.x), float(res.fun), criterion, count[0])
+    return FocusResult(float(res.x), crit.sign * float(res.fun), criterion, count[0])
 
 
 def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", snr_db: float = REFERENCE_SNR_DB, *,
@@ -67,7 +67,8 @@ def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", s
     """Best focus of every design of a batch at once: golden-section search in lock step (one batched
     :func:`evaluate` per step, ``ceil(log(tol / width) / log(0.618))`` steps).
 
-    Returns ``(focus_shift_um, value)``, tensors of the design's shape (float64). ``kw`` goes to
+    Returns ``(focus_shift_um, value)``, tensors of the design's shape (float64); the criterion is minimised, or
+    maximised if its sense is ``"max"``. ``kw`` goes to
     :func:`evaluate` (e.g. ``device``, ``rho0``, ``psd_model``).
     """
     import math
@@ -83,7 +84,7 @@ def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", s
 
     def f(z):
         r = evaluate(camera, d.replace(focus_shift_um=z), [snr_db], numerics=numerics, **kw)[criterion]
-        return (r[..., 0] if crit.per_snr else r).to(torch.float64).cpu()
+        return crit.sign * (r[..., 0] if crit.per_snr else r).to(torch.float64).cpu()  # minimised
 
     g = (math.sqrt(5) - 1) / 2
     a, b = torch.full(shape, lo, dtype=torch.float64), torch.full(shape, hi, dtype=torch.float64)
@@ -98,4 +99,4 @@ def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", s
         c, fc, e, fe = (torch.where(left, new, e), torch.where(left, fn, fe),
                         torch.where(left, c, new), torch.where(left, fc, fn))
     best = torch.where(fc < fe, c, e)
-    return best, torch.minimum(fc, fe)
+    return best, crit.sign * torch.minimum(fc, fe)

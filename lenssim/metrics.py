@@ -16,7 +16,7 @@ import torch
 from .aberrations import N_TERMS
 from .camera import Camera
 from .checks import check_shape
-from .criteria import CRITERIA, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
+from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
 from .design import Design
 from .image_model import image_psd_quarter, noise_variance
 from .numerics import DEFAULT_NUMERICS, Numerics
@@ -33,8 +33,9 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
                       rho0: float = PAPER_RHO0, psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS,
                       criteria=None, progress: Callable[[int], None] | None = None,
                       terms=None) -> dict[str, torch.Tensor]:
-    """OTF criteria ``{name: (P, S)}`` (float64) for field-axis coefficient sets ``(P, K, T)`` (``terms``: their
-    monomial table, default :data:`lenssim.aberrations.TERMS`).
+    """OTF criteria ``{name: (P, S)}`` (``(P,)`` for a criterion that does not depend on the SNR; float64) for
+    field-axis coefficient sets ``(P, K, T)`` (``terms``: their monomial table, default
+    :data:`lenssim.aberrations.TERMS`). Each criterion receives an :class:`lenssim.criteria.OTFContext`.
 
     PSFs are grouped by FFT size ``sizes`` ``(P,)`` and processed in chunks of at most
     ``numerics.chunk_bytes`` of working memory on a CPU (a share of the free memory on a GPU:
@@ -50,14 +51,17 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
             raise ValueError(f"criterion {c!r} is not computed from the OTF")
     sigma2 = noise_variance(snr_db).reshape(-1).to(coeffs.device)
     P, S = coeffs.shape[0], sigma2.numel()
-    out = {c: torch.empty(P, S, dtype=torch.float64, device=coeffs.device) for c in names}
+    out = {c: torch.empty((P, S) if CRITERIA[c].per_snr else (P,), dtype=torch.float64, device=coeffs.device)
+           for c in names}
     sizes = sizes.reshape(-1).cpu()
     oversample = numerics.oversample
     for n in torch.unique(sizes).tolist():
         idx = torch.nonzero(sizes == n).flatten().to(coeffs.device)
         m = n * oversample
         psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=coeffs.dtype, device=coeffs.device)
-        pw = psd_q * quarter_weights(m, psd_q.dtype, psd_q.device)
+        weights = quarter_weights(m, psd_q.dtype, psd_q.device)
+        pw = psd_q * weights
+        cache = {}  # what the contexts of this FFT size share (e.g. the diffraction-limited OTF)
         per_psf = 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
         check_memory(per_psf, f"one OTF of {m} x {m} samples", setting="max_fft_size")
         step = max(1, int(chunk_budget_bytes(coeffs.device, numerics.chunk_bytes) // per_psf))
@@ -65,8 +69,9 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
             sel = idx[start:start + step]
             H = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics, terms=terms)
             H2 = H.real.square() + H.imag.square()
+            ctx = OTFContext(H, H2, psd_q, weights, pw, sigma2, n, camera, numerics, _cache=cache)
             for c in names:
-                out[c][sel] = CRITERIA[c].from_otf(H, H2, psd_q, pw, sigma2)
+                out[c][sel] = CRITERIA[c].from_otf(ctx)
             if progress is not None:
                 progress(sel.numel())
     return out
@@ -79,7 +84,7 @@ def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float
 
     Returns a dict of tensors (float64 for the criteria) with ``A`` field angles and ``S`` SNRs:
     each criterion of :data:`lenssim.criteria.CRITERIA` by name, ``(*, S)`` if it depends on the
-    SNR else ``(*)``; per field angle ``NAME_alpha`` ``(*, A, S)`` for the OTF criteria and
+    SNR else ``(*)``; per field angle ``NAME_alpha`` ``(*, A, S)`` (``(*, A)``) for the OTF criteria and
     ``rms_w_alpha`` ``(*, A)``; ``rms_w_piston_removed`` ``(*)``; ``fft_size`` ``(*, A)`` (the FFT size
     used for each PSF); ``snr_db`` ``(S,)``; ``alpha_deg`` ``(A,)``. ``fft_size`` overrides the
     automatic choice (:func:`lenssim.psf_bank.fft_size`). The OTFs are computed in ``dtype``.
@@ -126,8 +131,8 @@ def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float
     out = {}
     for name, crit in CRITERIA.items():
         if crit.from_otf is not None:
-            v = per_field[name].reshape(shape + (A, S))
-            out[name], out[f"{name}_alpha"] = v.mean(dim=-2), v
+            v = per_field[name].reshape(shape + ((A, S) if crit.per_snr else (A,)))
+            out[name], out[f"{name}_alpha"] = v.mean(dim=-2 if crit.per_snr else -1), v
         else:
             out[name] = as_tensor(crit.from_design(camera, d64, coeffs64, numerics), dtype=torch.float64)
     out["rms_w_alpha"] = wavefront_rms_per_field(camera, coeffs64)

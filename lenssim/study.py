@@ -218,7 +218,7 @@ def _second_asphere(camera, e2e: dict, study: WhiteLightStudy, log) -> dict:
 
 
 def _study_glass(glass: str, study: WhiteLightStudy, out: Path, log, show_progress: bool) -> dict:
-    from .figures import fig4_landscapes, fig6_performance_vs_cost, table1
+    from .figures import TABLE1_CRITERIA, fig4_landscapes, fig6_performance_vs_cost, table1
     from .sweep import SweepConfig, run_sweep
     from .tradeoff import find_optimum, tradeoff
 
@@ -235,7 +235,7 @@ def _study_glass(glass: str, study: WhiteLightStudy, out: Path, log, show_progre
     gdir = out / glass
     gdir.mkdir(parents=True, exist_ok=True)
     ds = run_sweep(cfg, gdir / "sweep.nc", show_progress=show_progress)
-    trade = tradeoff(ds, camera.lens, study.levels)
+    trade = tradeoff(ds, camera.lens, study.levels, criteria=TABLE1_CRITERIA)
     trade.to_netcdf(gdir / "tradeoff.nc")
     fig4_landscapes(ds, gdir, snr)
     fig6_performance_vs_cost(trade, gdir)

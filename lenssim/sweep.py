@@ -309,14 +309,12 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     coords.update({"alpha": np.asarray(cfg.lens.field_angles_deg), "snr": np.asarray(cfg.snr_db, dtype=np.float64)})
     data = {}
     for name, c in CRITERIA.items():
-        attrs = {"units": c.units, "long_name": f"{c.label}: {c.description}"}
-        if c.per_snr:
-            data[name] = (dims + ("snr",), st[name], attrs)
-            if c.from_otf is not None:
-                data[f"{name}_alpha"] = (dims + ("alpha", "snr"), st[f"{name}_alpha"],
-                                         {"units": c.units, "long_name": f"{c.label} per field angle"})
-        else:
-            data[name] = (dims, st[name], attrs)
+        attrs = {"units": c.units, "long_name": f"{c.label}: {c.description}", "sense": c.sense, "role": c.role}
+        snr = ("snr",) if c.per_snr else ()
+        data[name] = (dims + snr, st[name], attrs)
+        if c.from_otf is not None:
+            data[f"{name}_alpha"] = (dims + ("alpha",) + snr, st[f"{name}_alpha"],
+                                     {"units": c.units, "long_name": f"{c.label} per field angle"})
     data["rms_w_alpha"] = (dims + ("alpha",), st["rms_w_alpha"], {"units": "waves", "long_name": "RMS_w(alpha) over the pupil"})
     data["rms_w_piston_removed"] = (dims, st["rms_w_piston_removed"], {"units": "waves"})
     data["fft_size"] = (dims + ("alpha",), st["fft_size"].astype(np.int32),
@@ -373,8 +371,9 @@ def _read_chunk(path: Path, cfg: SweepConfig, i: int):
     if _checksum(chunk) != str(data["_checksum"]):
         return "fails its checksum (corrupted)"
     rest = tuple(len(cfg.values(d)) for d in cfg.dims[1:])
-    if chunk["cost"].shape != rest:
-        return f"has the shape {chunk['cost'].shape}, not {rest}"
+    shape = chunk["rms_w_piston_removed"].shape  # one value per design of the chunk, whatever the criteria
+    if shape != rest:
+        return f"has the shape {shape}, not {rest}"
     return chunk
 
 
@@ -485,4 +484,4 @@ def design_dims(ds: xr.Dataset) -> tuple[str, ...]:
     """The design-parameter dimensions of a sweep dataset, in order."""
     if "design_parameters" in ds.attrs:
         return tuple(str(ds.attrs["design_parameters"]).split())
-    return tuple(d for d in ds["cost"].dims)
+    return tuple(d for d in ds["rms_w_piston_removed"].dims)

@@ -71,19 +71,30 @@ def iso_cost_curve(lens: Lens, level: float, s_values, Q_range=(-10.0, 1.2), *, 
     return np.concatenate(out_s), np.concatenate(out_q), np.concatenate(out_b)
 
 
-def criteria_of(ds: xr.Dataset) -> dict[str, xr.DataArray]:
-    """The sweep's quality criteria (every registered one but the cost) as design-space landscapes:
-    ``rms_w``, ``mse_s@SNR``, ``mse_r@SNR``."""
+def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
+    """The sweep's quality criteria as design-space landscapes, ``NAME`` or ``NAME@SNR`` (e.g. ``rms_w``,
+    ``mse_s@27.6``): ``criteria`` (names, in that order), default every registered criterion whose role is
+    quality and that the sweep holds."""
+    names = [k for k, c in CRITERIA.items() if c.role == "quality" and k in ds] if criteria is None else list(criteria)
     out = {}
-    for name, c in CRITERIA.items():
-        if name == "cost" or name not in ds:
-            continue
+    for name in names:
+        c = validate_criterion(name)
+        if c.role != "quality":
+            raise ValueError(f"criterion {name!r} is a {c.role}, not an image-quality criterion: the trade-off "
+                             "weighs quality against the cost")
+        if name not in ds:
+            raise ValueError(f"criterion {name!r} is not in this sweep; it holds {', '.join(k for k in CRITERIA if k in ds)}")
         if c.per_snr:
             for snr in ds["snr"].values:
                 out[f"{name}@{snr:g}"] = ds[name].sel(snr=snr)
         else:
             out[name] = ds[name]
     return out
+
+
+def _sense(key: str) -> float:
+    """+1 or -1: the sign that makes the landscape ``key`` (``NAME`` or ``NAME@SNR``) one to minimise."""
+    return CRITERIA[key.split("@")[0]].sign
 
 
 @dataclass
@@ -110,12 +121,13 @@ def _two_dims(ds: xr.Dataset) -> tuple[str, str]:
 
 
 def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS, *, ds_step: float = 0.002,
-             cost_points: int | None = None) -> xr.Dataset:
-    """Best design of every criterion on every iso-cost level.
+             cost_points: int | None = None, criteria=None, reference: str = "mse_r") -> xr.Dataset:
+    """Best design of every quality criterion on every iso-cost level (minimum or maximum, by its sense).
 
-    Returns a dataset with dims ``(criterion, level)``: one variable per design dimension (the
-    optimum, e.g. ``s`` and ``Q_back``), ``value`` (the criterion there), ``cost`` (C_a recomputed at
-    the optimum), and ``mse_r_ref`` (MSE_R at the sweep's middle SNR at that design, for Fig. 6).
+    ``criteria``: names (default: every quality criterion the sweep holds, :func:`criteria_of`). Returns a
+    dataset with dims ``(criterion, level)``: one variable per design dimension (the optimum, e.g. ``s`` and
+    ``Q_back``), ``value`` (the criterion there), ``cost`` (C_a recomputed at the optimum), and
+    ``REFERENCE_ref`` (the ``reference`` criterion at the sweep's middle SNR at that design, for Fig. 6).
     """
     import json
 
@@ -129,12 +141,14 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
                          f"also fixes {sorted(set(cfg.fixed) - {'focus_shift_um'})}, which may add cost")
     s_grid, q_grid = ds[dims[0]].values, ds[dims[1]].values
     s_fine = np.arange(s_grid[0], s_grid[-1] + 1e-12, ds_step)
-    crits = criteria_of(ds)
+    crits = criteria_of(ds, criteria)
     splines = {k: _spline(v, dims) for k, v in crits.items()}
     mid = float(ds["snr"].values[len(ds["snr"]) // 2])
-    ref = splines[f"mse_r@{mid:g}"]
+    ref_crit = validate_criterion(reference)
+    ref = _spline(ds[reference].sel(snr=mid) if ref_crit.per_snr else ds[reference], dims)
+    ref_key = f"{reference}_ref"
     names = list(crits)
-    res = {k: np.full((len(names), len(levels)), np.nan) for k in dims + ("value", "cost", "mse_r_ref")}
+    res = {k: np.full((len(names), len(levels)), np.nan) for k in dims + ("value", "cost", ref_key)}
     for j, level in enumerate(levels):
         cs, cq, cb = iso_cost_curve(lens, float(level), s_fine, (q_grid[0], q_grid[-1]), cost_points=cost_points,
                                     dims=dims)
@@ -146,7 +160,8 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
         if len(cs) == 0:
             continue
         for i, name in enumerate(names):
-            v = splines[name].ev(cs, cq)
+            sign = _sense(name)
+            v = sign * splines[name].ev(cs, cq)  # minimised whatever the criterion's sense
             k = int(np.argmin(v))
             s_opt, q_opt, v_opt = cs[k], cq[k], v[k]
             same = np.nonzero(cb == cb[k])[0]
@@ -162,12 +177,12 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
                                                cost_points=cost_points, dims=dims)
                     if len(ts):
                         q_try = tq[np.argmin(np.abs(tq - q_opt))]
-                        v_try = float(splines[name].ev(s_try, q_try))
+                        v_try = sign * float(splines[name].ev(s_try, q_try))
                         if v_try <= v_opt:
                             s_opt, q_opt, v_opt = float(s_try), float(q_try), v_try
-            res[dims[0]][i, j], res[dims[1]][i, j], res["value"][i, j] = s_opt, q_opt, v_opt
+            res[dims[0]][i, j], res[dims[1]][i, j], res["value"][i, j] = s_opt, q_opt, sign * v_opt
             res["cost"][i, j] = float(slope_departure_cost(lens, Design({dims[0]: s_opt, dims[1]: q_opt}), cost_points))
-            res["mse_r_ref"][i, j] = float(ref.ev(s_opt, q_opt))
+            res[ref_key][i, j] = float(ref.ev(s_opt, q_opt))
     out = xr.Dataset({k: (("criterion", "level"), v) for k, v in res.items()},
                      coords={"criterion": names, "level": np.asarray(levels, dtype=np.float64)})
     out["level"].attrs = {"long_name": "iso-cost level C_a", "units": "1 (slope)"}
@@ -177,20 +192,23 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
 
 
 def min_cost_for_quality(trade: xr.Dataset, criterion: str, quality: float) -> float:
-    """Smallest iso-cost level whose optimum reaches ``criterion <= quality`` (NaN if none)."""
+    """Smallest iso-cost level whose optimum reaches ``quality`` (``criterion`` ``NAME`` or ``NAME@SNR``: at most
+    ``quality`` for a criterion to minimise, at least for one to maximise; NaN if none)."""
+    sign = _sense(criterion)
     v = trade["value"].sel(criterion=criterion).values
-    ok = np.nonzero(v <= quality)[0]
+    ok = np.nonzero(sign * v <= sign * quality)[0]
     return float(trade["level"].values[ok[0]]) if len(ok) else float("nan")
 
 
 def find_optimum(ds: xr.Dataset, criterion: str, snr: float | None = None) -> dict:
-    """Grid argmin of a registered ``criterion`` in a sweep dataset (``snr`` in dB picks the noise level).
+    """Grid optimum of a registered ``criterion`` in a sweep dataset: its minimum, or its maximum for a
+    criterion whose sense is ``"max"`` (``snr`` in dB picks the noise level).
 
-    Returns ``criterion``, ``snr_db``, ``design`` (``{parameter: value}``), ``value``, the other
-    criteria at that design (``rms_w_waves``, ``cost_Ca``, ``mse_s`` and ``mse_r`` per SNR) and
+    Returns ``criterion``, ``snr_db``, ``design`` (``{parameter: value}``), ``value``, every criterion the sweep
+    holds at that design by name (a number, or ``{"SNR": number}`` for one that depends on the SNR) and
     ``on_grid_boundary``.
     """
-    validate_criterion(criterion)
+    crit = validate_criterion(criterion)
     if criterion not in ds:
         raise ValueError(f"criterion {criterion!r} is not in this sweep; it holds {', '.join(k for k in CRITERIA if k in ds)}")
     dims = design_dims(ds)
@@ -202,12 +220,13 @@ def find_optimum(ds: xr.Dataset, criterion: str, snr: float | None = None) -> di
             raise ValueError(f"SNR {snr!r} dB is not in the sweep; available: {[float(v) for v in ds['snr'].values]}")
         da = da.sel(snr=snr, method="nearest")
     da = da.transpose(*dims)
-    idx = np.unravel_index(int(np.nanargmin(da.values)), da.shape)
+    idx = np.unravel_index(int(np.nanargmin(crit.sign * da.values)), da.shape)
     at = dict(zip(dims, idx))
     design = {d: float(ds[d].values[i]) for d, i in at.items()}
-    out = {"criterion": criterion, "snr_db": snr, "design": design, "value": float(da.values[idx]),
-           "rms_w_waves": float(ds["rms_w"][at]), "cost_Ca": float(ds["cost"][at])}
-    for k in ("mse_s", "mse_r"):
-        out[k] = {f"{v:g}": float(ds[k][at].sel(snr=v)) for v in ds["snr"].values}
+    out = {"criterion": criterion, "snr_db": snr, "design": design, "value": float(da.values[idx])}
+    for k, c in CRITERIA.items():
+        if k in ds:
+            v = ds[k][at]
+            out[k] = {f"{s:g}": float(v.sel(snr=s)) for s in ds["snr"].values} if "snr" in v.dims else float(v)
     out["on_grid_boundary"] = bool(any(i in (0, ds.sizes[d] - 1) for d, i in at.items()))
     return out

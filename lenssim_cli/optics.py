@@ -37,7 +37,6 @@ def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_
     out["units"] = {name: c.units for name, c in CRITERIA.items()}
     out["camera"] = {"glass": camera.lens.glass.name, "spectrum": camera.spectrum.name if not camera.channels
                      else [c.name for c in camera.channels]}
-    out["rms_w_waves"], out["cost_Ca"] = out["rms_w"], out["cost"]  # names of lenssim 0.1
     out["rms_w_piston_removed_waves"] = float(res["rms_w_piston_removed"])
     out["snr_db"] = [float(v) for v in res["snr_db"]]
     out["fft_size_per_angle"] = [int(v) for v in res["fft_size"]]
@@ -80,11 +79,12 @@ def cmd_evaluate(args) -> int:
         from lenssim.exact_wavefront import exact_criteria
 
         ex = exact_criteria(camera, design, args.snr, numerics=_numerics(args))
-        for name in ("mse_s", "mse_r"):
-            r[name] = [float(x) for x in ex[name]]
+        otf = [name for name, c in CRITERIA.items() if c.from_otf is not None]
+        for name in otf:  # every OTF criterion from the exact wavefront, none left at its third-order value
+            r[name] = [float(x) for x in ex[name]] if CRITERIA[name].per_snr else float(ex[name])
         r["fft_size_per_angle"] = [int(v) for v in ex["fft_size"]]
-        r["wavefront"] = "exact: MSE_S and MSE_R from the wavefront fitted to an exact ray trace (RMS_W stays the " \
-                         "third-order one; C_a is exact either way)"
+        r["wavefront"] = (f"exact: {', '.join(CRITERIA[n].label for n in otf)} from the wavefront fitted to an exact "
+                          "ray trace (RMS_W stays the third-order one; C_a is exact either way)")
     if args.json:
         print(json_text({"design": design.name or "custom", **r}))
     else:
@@ -141,9 +141,11 @@ def cmd_optimum(args) -> int:
         where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
         print(f"best {r['criterion']}{snr_txt}: {where}  (value {r['value']:.6g})"
               + ("  [on the grid boundary]" if r["on_grid_boundary"] else ""))
-        print(f"  RMS_W = {r['rms_w_waves']:.4f} waves, C_a = {r['cost_Ca']:.4e}")
-        for k in ("mse_s", "mse_r"):
-            print(f"  {k.upper()}: " + ", ".join(f"{v:.5f} @ {snr} dB" for snr, v in r[k].items()))
+        for k, c in CRITERIA.items():  # every criterion the sweep holds, at that design
+            if k in r and k != r["criterion"] or isinstance(r.get(k), dict):
+                v = r[k]
+                print(f"  {c.label}: " + (", ".join(f"{x:.5g} @ {snr} dB" for snr, x in v.items()) if isinstance(v, dict)
+                                          else f"{v:.5g} [{c.units}]"))
     return 0
 
 
@@ -171,7 +173,7 @@ def cmd_demo(args) -> int:
             r = find_optimum(ds, crit, snr)
             rows.append([crit + (f"@{snr:g}dB" if snr is not None else "")]
                         + [f"{r['design'][d]:g}" for d in cfg.dims]
-                        + [f"{r['value']:.5g}", f"{r['rms_w_waves']:.3f}", f"{r['cost_Ca']:.3e}",
+                        + [f"{r['value']:.5g}", f"{r['rms_w']:.3f}", f"{r['cost']:.3e}",
                            f"{r['mse_r'][ref]:.5f}" if ref in r["mse_r"] else "-"])
     print("\nGrid optima of the small sweep (coarse grid; the paper's grid is the built-in config paper_grid):\n")
     print(table(rows, ["criterion", *cfg.dims, "value", "RMS_W", "C_a", f"MSE_R@{ref}dB"]))

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
-from lenssim import CRITERIA, PAPER_CAMERA, PARAMETERS, Camera, Criterion, Design, Lens, LensPSF, Numerics, Spectrum
+from lenssim import CRITERIA, PAPER_CAMERA, PARAMETERS, Camera, Design, Lens, LensPSF, Numerics, Spectrum
 from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
 from lenssim.cost import surface_cost
 from lenssim.paraxial import seidel_surface_sums
@@ -78,19 +77,25 @@ def test_walkthrough_a_restoration_method(monkeypatch):
     assert set(r.scores) == {"sensor", "wiener", "unsharp"} and r.images["unsharp"].shape == r.ideal.shape
 
 
-def test_walkthrough_a_design_criterion(monkeypatch, tmp_path):
-    """One entry in lenssim.criteria.CRITERIA (and its function): evaluate, sweeps and optima pick it up."""
-    def blur_energy(H, H2, psd, pw, sigma2):  # the noise-free part of MSE_S
-        e = ((H2 - 2 * H.real + 1) * pw).sum(dim=(-2, -1)).to(torch.float64)
-        return e[:, None].expand(-1, sigma2.numel())
+def test_walkthrough_a_design_criterion(tmp_path):
+    """One file in lenssim/criteria/ that calls register(): the Strehl ratio (strehl.py) and MTF50 (mtf50.py) were
+    added exactly so. The package finds them, evaluate returns them, sweeps store them with their label, unit,
+    sense and role, and optima and the trade-off read their sense (both are maximised, and neither depends on
+    the SNR). The generic checks of every registered criterion run on them in
+    tests/lenssim/criteria/test_registered_criteria.py."""
+    import pkgutil
 
-    monkeypatch.setitem(CRITERIA, "blur_energy", Criterion(
-        "blur_energy", "E_blur", "noise-free sensor-image error, field average", "1 (unit signal variance)", True,
-        from_otf=blur_energy))
+    import lenssim.criteria as package
+
+    files = {m.name for m in pkgutil.iter_modules(package.__path__)}
+    assert {"strehl", "mtf50"} <= files and {"strehl", "mtf50"} <= set(CRITERIA)
     r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
-    np.testing.assert_allclose(float(r["blur_energy"][0]), float(r["mse_s"][0]) - 10 ** -2.76, rtol=1e-9)
+    assert 0 < float(r["strehl"]) < 1 and r["strehl_alpha"].shape == (15,)
     cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 10.0))), grid={"s": (-0.8, -0.7, 0.05), "Q": (-3.0, -1.0, 1.0)},
                       snr_db=(27.6,), numerics=FAST)
     ds = run_sweep(cfg, tmp_path / "c.nc", show_progress=False)
-    assert ds["blur_energy"].attrs["units"].startswith("1") and "E_blur" in ds["blur_energy"].attrs["long_name"]
-    assert find_optimum(ds, "blur_energy")["value"] == pytest.approx(float(ds["blur_energy"].min()))
+    assert ds["strehl"].dims == ("s", "Q_back") and ds["strehl_alpha"].dims == ("s", "Q_back", "alpha")
+    assert ds["strehl"].attrs["sense"] == "max" and "Strehl" in ds["strehl"].attrs["long_name"]
+    assert find_optimum(ds, "strehl")["value"] == pytest.approx(float(ds["strehl"].max()))
+    assert find_optimum(ds, "mtf50")["value"] == pytest.approx(float(ds["mtf50"].max()))
+    assert find_optimum(ds, "mse_r")["value"] == pytest.approx(float(ds["mse_r"].min()))

@@ -135,7 +135,7 @@ def _sweep_pins(tmp: Path):
             r = find_optimum(ds, crit, snr)
             optima[f"{crit}@{snr:g}"] = [r["design"]["s"], r["design"]["Q_back"], r["value"]]
     _, _, rows = table1(ds, tmp / "t1", 27.6)
-    trade = tradeoff(ds, levels=np.linspace(0, 1e-3, 4), ds_step=0.01)
+    trade = tradeoff(ds, levels=np.linspace(0, 1e-3, 4), ds_step=0.01, criteria=("rms_w", "mse_s", "mse_r"))
     return {
         "mse_r": ds["mse_r"].values.flatten().tolist(),
         "cost": ds["cost"].values.flatten().tolist(),

@@ -2,6 +2,8 @@ import numpy as np
 import pytest
 import torch
 
+from lenssim import CRITERIA
+
 from lenssim import DEFAULT_NUMERICS, PAPER_LENS, Camera, Design, Lens
 from lenssim import slope_departure_cost as _cost
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
@@ -57,6 +59,9 @@ class Quadratic:
     def __call__(self, x):
         self.evaluations += 1
         return (x[0] - self.s0) ** 2 + 1.0
+
+    objective = __call__  # a criterion to minimise (as DifferentiableCriterion.objective)
+    criterion = CRITERIA["mse_r"]
 
 
 def test_projected_descent_finds_a_known_iso_cost_optimum():

@@ -93,3 +93,24 @@ def test_reproduce_reuses_its_outputs(tmp_path):
     stamps = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}
     reproduce(tmp_path, cfg, show_progress=False)
     assert stamps == {p.name: p.stat().st_mtime_ns for p in (tmp_path / "sweep.nc", tmp_path / "tradeoff.nc")}
+
+
+def test_a_criterion_to_maximise_is_maximised_along_the_curves_and_in_the_grid():
+    """The trade-off, the grid optimum and the minimal-cost view read a criterion's sense: a Strehl-like
+    landscape (maximised) peaks where its mirror image (minimised) bottoms out."""
+    s0 = 0.3137
+    ds = synthetic_sweep(lambda S, Q: (S - s0) ** 2 + 1.0)
+    ds["strehl"] = 2.0 - ds["rms_w"]  # best where rms_w is best
+    levels = np.array([5e-5, 1e-4])
+    t = tradeoff(ds, levels=levels, criteria=("rms_w", "strehl"))
+    for lvl in levels:
+        best, mirror = t.sel(criterion="strehl", level=lvl), t.sel(criterion="rms_w", level=lvl)
+        assert float(best["s"]) == pytest.approx(float(mirror["s"]), abs=1e-9)
+        assert float(best["value"]) == pytest.approx(2.0 - float(mirror["value"]), abs=1e-9)
+    assert min_cost_for_quality(t, "strehl", 1.0 - 1e-6) == 5e-5  # "at least" for a criterion to maximise
+    from lenssim.tradeoff import find_optimum
+
+    assert find_optimum(ds, "strehl")["value"] == pytest.approx(float(ds["strehl"].max()))
+    assert find_optimum(ds, "strehl")["design"] == find_optimum(ds, "rms_w")["design"]
+    with pytest.raises(ValueError, match="is a cost"):
+        tradeoff(ds, levels=levels, criteria=("cost",))

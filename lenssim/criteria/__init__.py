@@ -1,0 +1,198 @@
+"""The design criteria, as a registry: name -> how it is computed, its sense, role, label and unit.
+
+Two kinds (Sections 2.2-2.3 of the paper):
+
+* **OTF criteria**, computed per field angle from the pixel-sampled OTF of each PSF (an
+  :class:`OTFContext`: the OTF with its frequency axes, the image model, the noise variances, the camera,
+  an optional reference OTF), then averaged over the field: ``mse_s`` and ``mse_r`` (the paper's),
+  ``strehl`` and ``mtf50``;
+* **design criteria**, computed from the design and its wavefront coefficients directly: ``rms_w``
+  and ``cost`` (``C_a``, :mod:`lenssim.cost`).
+
+Each criterion declares its **sense** (``"min"``: smaller is better, or ``"max"``), whether it depends on
+the SNR (``per_snr``) and its **role** (``"quality"`` or ``"cost"``); evaluate, sweeps, optima, the
+trade-off, focus and the command line read these and never a criterion's name.
+
+Adding a criterion is one file in this package (``lenssim/criteria/NAME.py``) that calls
+:func:`register`: every module here is imported when the package is (the paper's four first, in the
+paper's order, then the others by file name).
+
+References
+----------
+.. [1] Optics Express 31(10), 16897 (2023), Sections 2.1-2.3, Eqs. (2)-(6).
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from ..camera import Camera
+
+__all__ = ["Criterion", "OTFContext", "CRITERIA", "register", "validate_criterion", "otf_criteria",
+           "quality_criteria", "quarter_weights", "wavefront_rms_per_field", "SENSES", "ROLES"]
+
+SENSES = ("min", "max")
+ROLES = ("quality", "cost")
+
+
+def quarter_weights(n: int, dtype, device) -> torch.Tensor:
+    """Weights ``(n/2+1, n/2+1)`` that turn a quarter-plane sum into the mean over the ``n x n`` DFT grid
+    of a function even in both axes."""
+    w = torch.full((n // 2 + 1,), 2.0, dtype=dtype, device=device)
+    w[0] = 1.0
+    w[-1] = 1.0
+    return w[:, None] * w[None, :] / float(n * n)
+
+
+@dataclass
+class OTFContext:
+    """What an OTF criterion sees of one batch of PSFs (one FFT size), with its sampling.
+
+    ``H``: quarter-plane OTFs ``(B, m/2+1, m/2+1)`` (axes ``(fy, fx)``, sample ``k`` at ``k / m`` cycles/pixel,
+    ``0 .. 1/2``; ``m = n * oversample``), normalised to ``H(0) = 1``; ``H2 = |H|^2``; ``psd`` the image model
+    ``P_x`` on the same grid (unit signal variance); ``weights`` the quarter-plane integration weights (their
+    sum with an even function is its mean over the ``m x m`` DFT grid); ``pw = psd * weights``; ``sigma2``
+    ``(S,)`` the noise variances (unit signal variance); ``n`` the FFT size of the PSFs; ``camera`` (pixel
+    pitch, spectrum); ``reference``: an optional reference OTF ``(B, m/2+1, m/2+1)`` on the same grid (e.g. a
+    nominal lens's, for a restoration designed for it).
+    """
+
+    H: torch.Tensor
+    H2: torch.Tensor
+    psd: torch.Tensor
+    weights: torch.Tensor
+    pw: torch.Tensor
+    sigma2: torch.Tensor
+    n: int
+    camera: Camera
+    numerics: object = None
+    reference: torch.Tensor | None = None
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def m(self) -> int:
+        """Frequency samples per axis of the full grid (``n * oversample``)."""
+        return 2 * (self.H.shape[-1] - 1)
+
+    @property
+    def freq_cycles_per_pixel(self) -> torch.Tensor:
+        """The quarter plane's frequency axis ``(m/2+1,)`` in cycles/pixel (0 .. 0.5), float64."""
+        return torch.arange(self.m // 2 + 1, dtype=torch.float64, device=self.H.device) / self.m
+
+    @property
+    def freq_cycles_per_mm(self) -> torch.Tensor:
+        """The quarter plane's frequency axis ``(m/2+1,)`` in cycles/mm on the sensor, float64."""
+        return self.freq_cycles_per_pixel / (self.camera.sensor.pixel_pitch_um * 1e-3)
+
+    def diffraction_limited(self) -> torch.Tensor:
+        """The aberration-free OTF ``(1, m/2+1, m/2+1)`` of the same camera on the same grid (computed once)."""
+        if "dl" not in self._cache:
+            from ..psf_bank import otf_quarter_spectrum
+
+            zero = torch.zeros(1, len(self.camera.spectrum), self._terms(), dtype=self.H.real.dtype,
+                               device=self.H.device)
+            kw = {"numerics": self.numerics} if self.numerics is not None else {}
+            self._cache["dl"] = otf_quarter_spectrum(self.camera, zero, self.n, oversample=self.m // self.n, **kw)
+        return self._cache["dl"]
+
+    def _terms(self) -> int:
+        from ..aberrations import N_TERMS
+
+        return N_TERMS
+
+    def integrate(self, f: torch.Tensor) -> torch.Tensor:
+        """Mean over the full ``m x m`` frequency grid of a function even in both axes given on the quarter
+        plane ``(..., m/2+1, m/2+1)``: ``(...)`` in float64."""
+        return (f * self.weights).sum(dim=(-2, -1)).to(torch.float64)
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """A design criterion.
+
+    ``from_otf(ctx: OTFContext) -> (B, S)`` if ``per_snr`` else ``(B,)`` (float64), per PSF, for OTF criteria
+    (averaged over the field by :func:`lenssim.metrics.evaluate`); ``from_design(camera, design, coeffs,
+    numerics) -> (*)`` for design criteria (``coeffs`` ``(*, A, K, T)`` in waves, design in float64).
+    ``sense``: ``"min"`` (smaller is better) or ``"max"``; ``role``: ``"quality"`` or ``"cost"``.
+    """
+
+    name: str
+    label: str
+    description: str
+    units: str
+    per_snr: bool
+    from_otf: Callable | None = None
+    from_design: Callable | None = None
+    sense: str = "min"
+    role: str = "quality"
+
+    def __post_init__(self):
+        if (self.from_otf is None) == (self.from_design is None):
+            raise ValueError(f"criterion {self.name!r}: give exactly one of from_otf and from_design")
+        if self.sense not in SENSES:
+            raise ValueError(f"criterion {self.name!r}: sense={self.sense!r} is not allowed; one of {', '.join(SENSES)}")
+        if self.role not in ROLES:
+            raise ValueError(f"criterion {self.name!r}: role={self.role!r} is not allowed; one of {', '.join(ROLES)}")
+
+    @property
+    def sign(self) -> float:
+        """+1 for a criterion to minimise, -1 for one to maximise: ``sign * value`` is always minimised."""
+        return 1.0 if self.sense == "min" else -1.0
+
+
+CRITERIA: dict[str, Criterion] = {}
+"""The registry: name -> :class:`Criterion` (filled by the modules of this package)."""
+
+
+def register(criterion: Criterion) -> Criterion:
+    """Add ``criterion`` to :data:`CRITERIA` (a name may be registered once)."""
+    if criterion.name in CRITERIA:
+        raise ValueError(f"criterion {criterion.name!r} is registered already")
+    CRITERIA[criterion.name] = criterion
+    return criterion
+
+
+def validate_criterion(name: str) -> Criterion:
+    """The registered criterion ``name``; ``ValueError`` listing the valid names otherwise."""
+    if name not in CRITERIA:
+        raise ValueError(f"criterion {name!r} is not known; valid: {', '.join(CRITERIA)}")
+    return CRITERIA[name]
+
+
+def otf_criteria() -> tuple[str, ...]:
+    """Names of the registered OTF criteria."""
+    return tuple(k for k, c in CRITERIA.items() if c.from_otf is not None)
+
+
+def quality_criteria() -> tuple[str, ...]:
+    """Names of the registered criteria whose role is image quality (everything but costs)."""
+    return tuple(k for k, c in CRITERIA.items() if c.role == "quality")
+
+
+def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:
+    """``RMS_w(alpha)`` ``(*, A)`` in waves at the spectrum's reference wavelength, from ``(*, A, K, T)``.
+
+    Over a spectrum: the weighted mean square over the wavelengths (``W_k lambda_k / lambda_ref`` in
+    reference waves).
+    """
+    from ..aberrations import rms_wavefront
+
+    spec = camera.spectrum
+    if len(spec) == 1:
+        return rms_wavefront(coeffs[..., 0, :], piston_removed)
+    ms = sum(w * rms_wavefront(coeffs[..., k, :] * (lam / spec.reference_um), piston_removed) ** 2
+             for k, (lam, w) in enumerate(zip(spec.wavelengths_um, spec.weights)))
+    return torch.sqrt(ms)
+
+
+_PAPER_MODULES = ("wavefront", "mse", "cost")  # the paper's criteria first, in its order: RMS_W, MSE_S, MSE_R, C_a
+for _name in _PAPER_MODULES:
+    importlib.import_module(f"{__name__}.{_name}")
+for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+    if _info.name not in _PAPER_MODULES and not _info.name.startswith("_"):
+        importlib.import_module(f"{__name__}.{_info.name}")
