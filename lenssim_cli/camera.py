@@ -24,7 +24,6 @@ from lenssim.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.figures import mosaic_figure
-from pipeline.restoration import validate_method
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
                      design_from_args, designs)
@@ -88,17 +87,16 @@ def _memory_limit(args):
     return None if getattr(args, "memory_limit", None) is None else args.memory_limit * 2**30
 
 
-def _methods(args) -> tuple[tuple[str, ...], dict]:
-    methods = ["wiener"]
-    options = {}
+def _methods(args):
+    """The restorations ``simulate`` runs: ``--restore NAME[:key=value,...] ...`` (default: the adaptive Wiener
+    filter), plus ``--rl N`` (shorthand, kept from 0.1: Richardson-Lucy with N iterations besides them)."""
+    from pipeline.restoration import parse_restoration
+    from pipeline.simulate import check_methods
+
+    specs = [parse_restoration(m) for m in (args.restore or ["wiener"])]
     if args.rl:
-        methods.append("richardson_lucy")
-        options["richardson_lucy"] = {"iterations": args.rl}
-    for m in args.restore or []:
-        validate_method(m)
-        if m not in methods:
-            methods.append(m)
-    return tuple(methods), options
+        specs = [r for r in specs if r.name != "richardson_lucy"] + [parse_restoration(f"richardson_lucy:iterations={args.rl}")]
+    return check_methods(specs)
 
 
 def cmd_simulate(args) -> int:
@@ -122,10 +120,11 @@ def cmd_simulate(args) -> int:
         raise ValueError(f"--rl {args.rl} is not allowed: a number of iterations >= 0 (0: no Richardson-Lucy)")
     if args.denoise and not 0 < args.denoise <= 2:
         raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength in (0, 2], or 0 for none")
-    methods, options = _methods(args)
-    if args.full_frame and len(methods) > 1:
-        raise ValueError("--full-frame restores with the adaptive Wiener filter only (Richardson-Lucy on 24 MP is "
-                         "hours on a CPU); use --rl and --restore on crops")
+    specs = _methods(args)
+    methods = tuple(r.name for r in specs)
+    if args.full_frame and len(specs) > 1:
+        raise ValueError(f"--full-frame restores with one method; {len(specs)} were given ({', '.join(methods)}): "
+                         "give one with --restore, or compare methods on crops")
     inputs = _inputs([args.photo])
     out = check_output_dir(args.out, inputs)
     t0 = time.perf_counter()
@@ -155,13 +154,13 @@ def cmd_simulate(args) -> int:
               "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
               "blur_windows": args.blur_windows,
-              "methods": list(methods)}
+              "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0]}
     with staged_output_dir(out) as stage:
         if args.full_frame:
-            results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, methods)
+            results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0])
         else:
-            results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=methods, method_options=options,
-                                     scheme=scheme, sensor=camera.sensor)
+            results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
+                                     sensor=camera.sensor)
         report["crops"] = []
         for a, r in zip(args.angles, results):
             tag = f"crop_{a:g}deg"
@@ -171,7 +170,7 @@ def cmd_simulate(args) -> int:
             report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3),
                                     "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
                                     "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
-                                    "psnr_restored_db": r.scores["wiener"]["psnr_db"] if "wiener" in r.scores else None})
+                                    "psnr_restored_db": r.scores[methods[0]]["psnr_db"]})
         title = f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
         shown = [m for m in methods if m in results[0].images]
         mosaic_figure(results, shown, stage / "mosaic.png", title=title)
@@ -224,7 +223,7 @@ def _file_kind(kind: str) -> str:
                                                                         else f"restored_{kind}")
 
 
-def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, methods):
+def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, method):
     """``simulate --full-frame``: the whole frame (resumable from ``out/.checkpoint``), whole-frame metrics,
     crops cut from it; files go to ``stage``."""
     import shutil
@@ -240,7 +239,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     checkpoint = out / ".checkpoint"
     with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
         frame = simulate_frame(ideal, psf, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
-                               checkpoint=checkpoint, sensor=psf.camera.sensor)
+                               checkpoint=checkpoint, sensor=psf.camera.sensor, method=method)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     # each image is sRGB-encoded once, for its PNG and for all its scores
@@ -291,8 +290,12 @@ def cmd_psnr_table(args) -> int:
             raise ValueError(f"design {d!r} is not known; choose from {', '.join(sorted(named))}")
     camera = PAPER_CAMERA
     wells = [camera.sensor.full_well_for_iso(i) for i in args.isos]
-    method = args.method
-    validate_method(method)
+    from pipeline.restoration import parse_restoration
+
+    spec = parse_restoration(args.method or args.restore)
+    if args.method is not None:  # after the check: an error stays one line
+        print("note: --method is the former name of --restore", file=sys.stderr)
+    method = spec.name
     photos = args.photos or [None]
     out = check_output_dir(args.out, _inputs(photos))
     rows = []
@@ -303,7 +306,7 @@ def cmd_psnr_table(args) -> int:
         boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
         for name in args.designs:
             d = named[name]
-            per_iso = simulate_crops(ideal, LensPSF(camera, d), wells, boxes, seed=args.seed, methods=(method,),
+            per_iso = simulate_crops(ideal, LensPSF(camera, d), wells, boxes, seed=args.seed, methods=(spec,),
                                      sensor=camera.sensor)
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
@@ -319,7 +322,8 @@ def cmd_psnr_table(args) -> int:
     keys = list(dict.fromkeys(k for r in rows for k in r))
     csv = "".join(",".join(str(r.get(k, "")) for k in keys) + "\n" for r in rows)
     md = (f"Mean over crops at {', '.join(f'{a:g}' for a in args.angles)} deg ({args.crop} px), sRGB PSNR/SSIM vs the "
-          f"ideal image; restoration: {RESTORATION_METHODS[method].label}.\n\n"
+          f"ideal image; restoration: {spec.method.label}"
+          + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
           "| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |\n|---|---|---|---|---|---|\n"
           + "".join(f"| {r['photo']} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
                     f"{r['ssim_restored']:.3f} |\n" for r in rows))
@@ -335,7 +339,10 @@ def cmd_fig8(args) -> int:
     from lenssim.files import check_output_dir, staged_output_dir
     from pipeline.figure8 import figure8
 
+    from pipeline.restoration import parse_restoration
+
     _check_common(args)
+    spec = parse_restoration(args.restore)
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
     size = _crop_size(args, ideal, source)
@@ -345,8 +352,7 @@ def cmd_fig8(args) -> int:
         crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry)
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
-        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=size,
-                             seed=args.seed)
+        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=size, seed=args.seed, method=spec)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
     return 0
@@ -376,10 +382,11 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--denoise", type=float, default=0.0, metavar="STRENGTH",
                    help="gently denoise the photo first (wavelet, strength in (0, 2]; off by default, as a paper option)")
-    p.add_argument("--restore", nargs="+", metavar="METHOD",
-                   help=f"restoration methods besides the adaptive Wiener filter ({methods})")
+    p.add_argument("--restore", nargs="+", metavar="NAME[:KEY=VALUE,...]",
+                   help=f"restoration methods to run, each with its options ({methods}; default: wiener), e.g. "
+                        "--restore wiener tikhonov:weight=0.003 richardson_lucy:iterations=30; --full-frame takes one")
     p.add_argument("--rl", type=int, default=0, metavar="N",
-                   help="also restore with N iterations of windowed Richardson-Lucy (non-linear comparison; slow)")
+                   help="shorthand: also restore with N iterations of windowed Richardson-Lucy (slow)")
     p.add_argument("--full-frame", action="store_true",
                    help="simulate the whole frame (sensor.png, restored.png, whole-frame PSNR/SSIM; ~5 min at 24 MP on "
                         "2 CPU cores; resumes after an interruption) instead of crops only")
@@ -396,6 +403,8 @@ def register(sub) -> None:
     f.add_argument("--angles", type=float, nargs="+", default=list(PAPER_FIG8_ANGLES_DEG))
     f.add_argument("--crop", type=int, default=128)
     f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
+                   help=f"restoration method and its options ({methods}; default: wiener)")
     add_device_argument(f)
     f.add_argument("--out", required=True)
     f.set_defaults(func=cmd_fig8)
@@ -405,7 +414,9 @@ def register(sub) -> None:
     t.add_argument("--designs", nargs="+", default=list(PAPER_DESIGNS), help="named designs (see `lenssim designs`)")
     t.add_argument("--designs-file", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
     t.add_argument("--isos", type=int, nargs="+", default=sorted(isos, reverse=True))
-    t.add_argument("--method", default="wiener", help=f"restoration method ({methods})")
+    t.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
+                   help=f"restoration method and its options ({methods}; default: wiener)")
+    t.add_argument("--method", default=None, help="former name of --restore")
     t.add_argument("--angles", type=float, nargs="+", default=list(TABLE_ANGLES_DEG))
     t.add_argument("--crop", type=int, default=192)
     t.add_argument("--seed", type=int, default=0)

@@ -18,11 +18,12 @@ from .colour_space import linear_to_srgb, srgb_to_linear
 from .denoise import gentle_denoise
 from .field_map import field_psnr, plot_field_psnr
 from .io import ImageFileError, ImageInfo, read_image, write_image
-from .noise import ISO_FULL_WELL, add_poisson_noise, full_well_for_iso, read_out
+from .noise import ISO_FULL_WELL, add_poisson_noise, expose, full_well_for_iso, read_out
 from .photo import load_photo
 from .quality import psnr_map_srgb, psnr_srgb, ssim_srgb
-from .restoration import (RESTORATION_METHODS, RestorationMethod, restore, richardson_lucy_windowed, validate_method,
-                          wiener_windowed)
+from .restoration import (RESTORATION_METHODS, Restoration, RestorationMethod, parse_restoration, restore,
+                          richardson_lucy_windowed, validate_method, wiener_windowed)
+from .restoration.tikhonov import tikhonov_windowed
 from .scene import resolution_scene
 from .simulate import (DEFAULT_METHODS, CropResult, FrameResult, crop_at_field_angle, crops_from_frame, simulate_crops,
                        simulate_frame)
@@ -36,9 +37,11 @@ __all__ = [
     "FrameResult",
     "ImageFileError",
     "ImageInfo",
+    "Restoration",
     "RestorationMethod",
     "WindowScheme",
     "add_poisson_noise",
+    "expose",
     "apply_windowed",
     "blur_exact",
     "blur_windowed",
@@ -54,6 +57,7 @@ __all__ = [
     "psnr_map_srgb",
     "psnr_srgb",
     "read_image",
+    "parse_restoration",
     "read_out",
     "resolution_scene",
     "restore",
@@ -63,6 +67,7 @@ __all__ = [
     "srgb_to_linear",
     "ssim_srgb",
     "tent_weights",
+    "tikhonov_windowed",
     "validate_method",
     "window_centres",
     "window_count",

@@ -33,9 +33,11 @@ def check_scene(image, name: str = "ideal") -> dict:
     return sizes
 
 
-def check_provider(psf) -> None:
+def check_provider(psf, name: str = "psf"):
+    """``psf`` if it is a PSF provider; ``ValueError`` otherwise."""
     if not isinstance(psf, PSFProvider):
-        raise ValueError(f"psf is a {type(psf).__name__}: expected a PSF provider (lenssim.LensPSF, lenssim.FunctionPSF)")
+        raise ValueError(f"{name} is a {type(psf).__name__}: expected a PSF provider (lenssim.LensPSF, lenssim.FunctionPSF)")
+    return psf
 
 
 def check_full_well(value, name: str = "full_well") -> float:

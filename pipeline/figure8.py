@@ -17,7 +17,7 @@ from lenssim.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
 
 from .colour_space import linear_to_srgb
 from .figures import tile_label
-from .restoration import RESTORATION_METHODS
+from .restoration import Restoration
 from .simulate import crop_at_field_angle, simulate_crops
 
 __all__ = ["PAPER_FIG8_ANGLES", "figure8"]
@@ -27,22 +27,25 @@ PAPER_FIG8_ANGLES = PAPER_FIG8_ANGLES_DEG
 
 def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             rms_w: Design = PAPER_DESIGNS["rms_w_paper"], e2e: Design = PAPER_DESIGNS["end_to_end_paper"],
-            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method: str = "wiener") -> tuple[Path, list[dict]]:
+            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method="wiener") -> tuple[Path, list[dict]]:
     """The mosaic for ``camera`` with a conventional (``rms_w``) and an end-to-end (``e2e``) design,
-    restored with ``method``; writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``."""
+    restored with ``method`` (a name, ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`);
+    writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    spec = Restoration.of(method)
+    method = spec.name
     boxes = [crop_at_field_angle(ideal.shape, a, crop, camera.geometry) for a in angles]
     isos = tuple(ISO_FOR_SNR.values())  # low, expected, high light: ISO 400, 100, 25
     low_noise = isos[-1]
     well = camera.sensor.full_well_for_iso
     runs = {("rms_w", low_noise): simulate_crops(ideal, LensPSF(camera, rms_w), well(low_noise), boxes, seed=seed,
-                                                 methods=(method,), sensor=camera.sensor)}
+                                                 methods=(spec,), sensor=camera.sensor)}
     per_iso = simulate_crops(ideal, LensPSF(camera, e2e), [well(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(method,), sensor=camera.sensor)
+                             methods=(spec,), sensor=camera.sensor)
     runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
     cols = [("ideal", img(("e2e", low_noise), "ideal"), None),
@@ -72,7 +75,7 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
                 table.append({"field_deg": runs[key][i].field_deg, "design": key[0], "iso": key[1],
                               "psnr_restored_db": sc["psnr_db"], "ssim_restored": sc["ssim"]})
     fig.suptitle(f"Fig. 8: RMS_W design ({rms_w.label()}) vs end-to-end design ({e2e.label()}); restoration: "
-                 f"{RESTORATION_METHODS[method].label}; PSNR / SSIM in sRGB against the ideal image", fontsize=8)
+                 f"{spec.method.label}; PSNR / SSIM in sRGB against the ideal image", fontsize=8)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png = out / "fig8_mosaic.png"

@@ -17,7 +17,7 @@ from lenssim import PAPER_SENSOR, Sensor
 
 from .checks import check_full_well, check_image
 
-__all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise", "read_out", "read_noise_variance"]
+__all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise", "expose", "read_out", "read_noise_variance"]
 
 ISO_FULL_WELL = dict(PAPER_SENSOR.full_well_e)
 """The paper's full-well capacity (electrons) per ISO (from :data:`lenssim.PAPER_SENSOR`)."""
@@ -52,6 +52,20 @@ def read_noise_variance(sensor: Sensor, electrons_per_unit: float) -> float:
     return var_e / electrons_per_unit**2 if electrons_per_unit != float("inf") else 0.0
 
 
+def expose(image: torch.Tensor, electrons_per_unit: float, sensor: Sensor, full_well: float, *,
+           generator: torch.Generator) -> torch.Tensor:
+    """The sensor's reading of a linear image (any shape, >= 0): Poisson photo-electrons at
+    ``electrons_per_unit`` per unit of the image, then ``sensor``'s read noise and quantisation (``full_well``
+    electrons at the top of the ADC range), back in image units and dtype.
+
+    The one noise path of crops and frames. The rate is formed in float64 from the image, so a float64 run
+    draws the same counts on any CPU (a float32 rate that moves by one rounding between hosts can flip a count).
+    """
+    rate = (image.to(torch.float64) * electrons_per_unit).clamp_min_(0)
+    electrons = read_out(torch.poisson(rate, generator=generator), sensor, full_well, generator=generator)
+    return (electrons / electrons_per_unit).to(image.dtype)
+
+
 def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch.Generator | None = None,
                       seed: int | None = None, sensor: Sensor = PAPER_SENSOR) -> torch.Tensor:
     """Poisson noise on a linear image ``(B, C, H, W)`` >= 0, with its maximum at ``full_well`` electrons,
@@ -68,7 +82,4 @@ def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch
     peak = image.amax()
     if peak <= 0:
         return image.clone()
-    scale = full_well / peak
-    electrons = torch.poisson((image * scale).to(torch.float64), generator=generator)
-    electrons = read_out(electrons, sensor, full_well, generator=generator)
-    return (electrons / scale).to(image.dtype)
+    return expose(image, full_well / float(peak), sensor, full_well, generator=generator)

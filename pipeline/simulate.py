@@ -8,8 +8,14 @@ geometry places every window; the optical axis is at the frame centre.
 Noise scaling: the blurred image's maximum maps to the full-well capacity (paper). For crops the
 frame's blurred maximum is not computed; the ideal image's maximum stands in for it (blurring
 with a unit-sum PSF cannot raise the maximum, so the photon counts are at most those of the
-paper's scaling). Restoration methods come from :data:`pipeline.restoration.RESTORATION_METHODS`;
-results carry images and scores keyed by method name.
+paper's scaling). Crops and frames draw their noise through one function, :func:`pipeline.noise.expose`.
+Restoration methods come from :data:`pipeline.restoration.RESTORATION_METHODS` (a name, ``"NAME:key=value"``
+or a :class:`pipeline.restoration.Restoration`); results carry images and scores keyed by method name.
+
+The image is blurred with one PSF provider (the lens that made it) and restored with another
+(``restoration_psf``, default the same: the camera calibrated on its own lens); giving another one
+simulates a restoration built for a lens that is not the one in the camera (e.g. the nominal design
+restoring an as-built lens).
 """
 
 from __future__ import annotations
@@ -29,9 +35,9 @@ from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
 from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count
 from .checks import check_boxes, check_full_well, check_provider, check_scene
-from .noise import add_poisson_noise, read_noise_variance, read_out
+from .noise import expose, read_noise_variance
 from .quality import psnr_srgb, ssim_srgb
-from .restoration import restore, validate_method
+from .restoration import Restoration, restore
 
 __all__ = ["CropResult", "FrameResult", "crop_at_field_angle", "simulate_crops", "simulate_frame", "crops_from_frame",
            "DEFAULT_METHODS"]
@@ -96,42 +102,54 @@ def crop_at_field_angle(shape, alpha_deg: float, size: int = 256, geometry: Fiel
     return box
 
 
-def _check_methods(methods, method_options) -> dict:
-    for m in methods:
-        validate_method(m)
+def check_methods(methods, method_options: dict | None = None) -> tuple[Restoration, ...]:
+    """Restorations from names, ``"NAME:key=value,..."`` specs or :class:`Restoration` objects, with
+    ``method_options`` ``{name: {option: value}}`` merged in; checked, one per name."""
+    if isinstance(methods, (str, Restoration)):
+        methods = (methods,)
+    specs = [Restoration.of(m) for m in methods]
+    if not specs:
+        raise ValueError("no restoration method given")
+    names = [r.name for r in specs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"restoration method(s) {dup} given more than once (their results are filed by name)")
     opts = dict(method_options or {})
     for m in opts:
-        if m not in methods:
-            raise ValueError(f"options given for restoration method {m!r}, which is not run; run: {list(methods)}")
-    return opts
+        if m not in names:
+            raise ValueError(f"options given for restoration method {m!r}, which is not run; run: {names}")
+    return tuple(Restoration(r.name, {**r.options, **opts.get(r.name, {})}) for r in specs)
 
 
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
-                   sensor: Sensor = PAPER_SENSOR, progress=None, dtype: torch.dtype = torch.float32):
+                   sensor: Sensor = PAPER_SENSOR, progress=None, dtype: torch.dtype = torch.float32,
+                   restoration_psf: PSFProvider | None = None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``) at each box ``(r0, r1, c0, c1)``.
 
     ``full_well`` (electrons) is a number, giving a list of :class:`CropResult` (one per box), or a
     sequence of numbers (e.g. three ISOs), giving one such list per full well: the blur is computed
     once and shared. The noise of box ``k`` comes from ``seed + k`` at every full well (``sensor``
-    adds its read noise and quantisation, none for the paper's). Each of ``methods`` (names of
-    :data:`pipeline.restoration.RESTORATION_METHODS`; ``method_options`` ``{method: {option: value}}``)
-    restores the crop. ``dtype`` is the working precision (float32: ~1e-7 relative, far below the
-    noise; float64 for reference runs); results come back in ``ideal``'s dtype.
+    adds its read noise and quantisation, none for the paper's). Each of ``methods`` (names,
+    ``"NAME:key=value,..."`` or :class:`pipeline.restoration.Restoration`; ``method_options``
+    ``{method: {option: value}}``) restores the crop, with the PSFs of ``restoration_psf`` (default ``psf``).
+    ``dtype`` is the working precision (float32: ~1e-7 relative, far below the noise; float64 for reference
+    runs); results come back in ``ideal``'s dtype.
     """
     check_scene(ideal, "ideal")
     check_provider(psf)
-    opts = _check_methods(methods, method_options)
+    restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
     wells = [check_full_well(f) for f in (full_well if several else [full_well])]
     boxes = check_boxes(boxes, ideal.shape)
     H, W = ideal.shape[-2:]
     centre = frame_center(ideal.shape)
-    margin = scheme.window // 2 + scheme.core
+    # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
+    margin = max([scheme.window // 2 + scheme.core] + [r.margin(scheme) for r in specs])
     peak = float(ideal.amax())
     out = [[] for _ in wells]
     for k, (r0, r1, c0, c1) in enumerate(boxes):
-        # sub-array: crop + 2 margins (blur region = crop + 1 margin; restoration reads within it)
         R0, R1, C0, C1 = max(r0 - 2 * margin, 0), min(r1 + 2 * margin, H), max(c0 - 2 * margin, 0), min(c1 + 2 * margin, W)
         sub = ideal[..., R0:R1, C0:C1].to(dtype)
         oc = (centre[0] - R0, centre[1] - C0)
@@ -146,16 +164,15 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
             g = torch.Generator(device=blurred.device).manual_seed(seed + k)
             noisy = blurred.clone()
             reg = (slice(br[0], br[1]), slice(br[2], br[3]))
-            counts = torch.poisson((blurred[..., reg[0], reg[1]] * e).clamp_min(0), generator=g)
-            noisy[..., reg[0], reg[1]] = read_out(counts, sensor, fwc, generator=g) / e
+            noisy[..., reg[0], reg[1]] = expose(blurred[..., reg[0], reg[1]], e, sensor, fwc, generator=g)
             cs_ = crop(noisy)
             res = CropResult((r0, r1, c0, c1), field_deg, {"ideal": ci, "blurred": crop(blurred), "sensor": cs_},
                              {"sensor": _score(ci, cs_)})
-            for m in methods:
-                restored = crop(restore(m, noisy, psf, electrons_per_unit=e, read_noise_var=read_noise_variance(sensor, e),
-                                        options=opts.get(m), scheme=scheme, optical_center=oc, region=rr,
-                                        progress=progress))
-                res.images[m], res.scores[m] = restored, _score(ci, restored)
+            for spec in specs:
+                restored = crop(restore(spec, noisy, restoration_psf, electrons_per_unit=e,
+                                        read_noise_var=read_noise_variance(sensor, e), scheme=scheme,
+                                        optical_center=oc, region=rr, progress=progress))
+                res.images[spec.name], res.scores[spec.name] = restored, _score(ci, restored)
             out[i].append(res)
     return out if several else out[0]
 
@@ -191,9 +208,12 @@ def _provider_key(psf: PSFProvider):
 
 
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
-                   scheme: WindowScheme = PAPER_SCHEME, method: str = "wiener", sensor: Sensor = PAPER_SENSOR,
-                   progress=None, dtype: torch.dtype = torch.float32, checkpoint=None) -> FrameResult:
-    """The whole frame: blur, noise (seeded) and restoration by ``method``.
+                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor = PAPER_SENSOR,
+                   progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
+                   restoration_psf: PSFProvider | None = None) -> FrameResult:
+    """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
+    ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
+    ``restoration_psf`` (default ``psf``).
 
     Two passes of ``ceil((H-1)/stride + 1) x ceil((W-1)/stride + 1)`` windows (23,688 each at
     6000 x 4000 with the paper's scheme); ``progress(k)`` is called after every ``k`` windows.
@@ -208,7 +228,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
 
     check_scene(ideal, "ideal")
     check_provider(psf)
-    validate_method(method)
+    restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
     seconds = {}
     pkey = _provider_key(psf)
@@ -238,21 +259,22 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                     if tuple(noisy.shape) == tuple(ideal.shape):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme))
-                        return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, psf, method, sensor,
+                        return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, restoration_psf, method, sensor,
                                               stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
     t0 = time.perf_counter()
     blurred = blur_windowed(ideal.to(dtype), psf, scheme=scheme, progress=progress)
     seconds["blur"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     e = full_well / float(blurred.amax())
-    noisy = add_poisson_noise(blurred.clamp_min(0), full_well, seed=seed, sensor=sensor)
+    g = torch.Generator(device=blurred.device).manual_seed(int(seed))
+    noisy = expose(blurred, e, sensor, full_well, generator=g)
     del blurred
     seconds["noise"] = time.perf_counter() - t0
     if sensor_path is not None:
         write_image(sensor_path, noisy, bits="float")
         atomic_write_text(stamp_path, json.dumps({"key": key, "electrons_per_unit": e,
                                                   "sensor_sha256": _file_sha256(sensor_path), **params}, indent=2))
-    return _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, seconds, resumed=False)
+    return _restore_frame(noisy, ideal, restoration_psf, method, sensor, e, scheme, progress, seconds, resumed=False)
 
 
 def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry | None = None) -> list[CropResult]:
@@ -274,4 +296,4 @@ def _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, secon
     restored = restore(method, noisy, psf, electrons_per_unit=e, read_noise_var=read_noise_variance(sensor, e),
                        scheme=scheme, progress=progress)
     seconds["restore"] = time.perf_counter() - t0
-    return FrameResult(noisy.to(ideal.dtype), restored.to(ideal.dtype), method, e, resumed, seconds)
+    return FrameResult(noisy.to(ideal.dtype), restored.to(ideal.dtype), method.name, e, resumed, seconds)

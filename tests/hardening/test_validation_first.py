@@ -48,7 +48,9 @@ def _args(tmp_path, *extra, photo=None):
     (["--scheme", "511", "32", "64"], "window=511"),
     (["--denoise", "5"], "--denoise 5 is not allowed"),
     (["--restore", "tv"], "restoration method 'tv' is not known"),
-    (["--full-frame", "--rl", "2"], "--full-frame restores with the adaptive Wiener filter only"),
+    (["--full-frame", "--rl", "2"], "--full-frame restores with one method; 2 were given"),
+    (["--restore", "tikhonov:weight=-1"], "weight=-1"),
+    (["--restore", "wiener", "wiener"], "more than once"),
     (["--device", "tpu"], "device='tpu' is not allowed"),
     (["--Q", "60"], "Q_back must be < "),
 ])

@@ -1,0 +1,186 @@
+"""Restoration methods, as a registry: name -> how it restores, its label, its options and its margin.
+
+A method is ``fn(observed, psf, *, <what it uses>, **options) -> restored`` (linear ``(B, C, H, W)``): it
+declares in its signature only the keyword arguments it uses, from ``electrons_per_unit`` (photo-electrons
+per unit of the linear image; ``inf``: no photon noise), ``read_noise_var`` (squared image units),
+``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
+``progress``, and the dispatcher passes it just those (as colour-science's ``filter_kwargs``). Its
+``options`` are its own settings with their defaults; ``margin(scheme)`` says how far (px) beyond the
+``region`` it reads the observed image (the windowed methods: half a window and a core).
+
+Adding a method is one file in this package (``pipeline/restoration/NAME.py``) that calls :func:`register`:
+every module here is imported when the package is (the paper's Wiener filter first). A method and its
+options are written ``NAME[:key=value,...]`` on the command line (:func:`parse_restoration`) and given as a
+:class:`Restoration` to :func:`pipeline.simulate_crops` and :func:`pipeline.simulate_frame`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import math
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+__all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
+           "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin"]
+
+COMMON_ARGUMENTS = ("electrons_per_unit", "read_noise_var", "scheme", "optical_center", "region", "progress")
+"""What a restoration may ask for besides the image and the PSF provider."""
+
+
+def windowed_margin(scheme) -> int:
+    """Pixels a windowed method reads beyond its region: half a window and a blended core."""
+    return scheme.window // 2 + scheme.core
+
+
+@dataclass(frozen=True)
+class RestorationMethod:
+    """A restoration method (see the module docstring): ``fn``, a label for figures and tables, its options
+    ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options)``, which raises ``ValueError`` for
+    option values the method refuses (called when a :class:`Restoration` is made: before any work)."""
+
+    name: str
+    label: str
+    description: str
+    fn: Callable
+    options: tuple[tuple[str, object], ...] = ()
+    margin: Callable = windowed_margin
+    check: Callable | None = None
+
+    def __post_init__(self):
+        params = inspect.signature(self.fn).parameters
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+        for k, _ in self.options:
+            if k not in params and not takes_any:
+                raise ValueError(f"restoration method {self.name!r}: option {k!r} is not an argument of its function")
+            if k in COMMON_ARGUMENTS:
+                raise ValueError(f"restoration method {self.name!r}: option {k!r} is one of the common arguments")
+
+    def accepts(self) -> tuple[str, ...]:
+        """The common arguments the function declares (all of them if it takes ``**kwargs``)."""
+        params = inspect.signature(self.fn).parameters
+        if any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            return COMMON_ARGUMENTS
+        return tuple(k for k in COMMON_ARGUMENTS if k in params)
+
+
+RESTORATION_METHODS: dict[str, RestorationMethod] = {}
+"""The registry: name -> :class:`RestorationMethod` (filled by the modules of this package)."""
+
+
+def register(method: RestorationMethod) -> RestorationMethod:
+    """Add ``method`` to :data:`RESTORATION_METHODS` (a name may be registered once)."""
+    if method.name in RESTORATION_METHODS:
+        raise ValueError(f"restoration method {method.name!r} is registered already")
+    RESTORATION_METHODS[method.name] = method
+    return method
+
+
+def validate_method(name: str) -> RestorationMethod:
+    """The registered method ``name``; ``ValueError`` listing the valid names otherwise."""
+    if name not in RESTORATION_METHODS:
+        raise ValueError(f"restoration method {name!r} is not known; valid: {', '.join(RESTORATION_METHODS)}")
+    return RESTORATION_METHODS[name]
+
+
+@dataclass(frozen=True)
+class Restoration:
+    """A registered method with its options, checked: ``Restoration("tikhonov", {"weight": 1e-3})``; the key
+    under which its images and scores are filed is its ``name``."""
+
+    name: str
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        m = validate_method(self.name)
+        known = dict(m.options)
+        bad = sorted(set(self.options) - set(known))
+        if bad:
+            raise ValueError(f"restoration method {self.name!r} takes no option(s) {bad}; it takes "
+                             f"{', '.join(f'{k} (default {v!r})' for k, v in known.items()) or 'none'}")
+        object.__setattr__(self, "options", {k: _typed(self.name, k, v, known[k]) for k, v in self.options.items()})
+        if m.check is not None:
+            m.check({**known, **self.options})
+
+    @property
+    def method(self) -> RestorationMethod:
+        return RESTORATION_METHODS[self.name]
+
+    def margin(self, scheme) -> int:
+        return int(self.method.margin(scheme))
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "options": {**dict(self.method.options), **self.options}}
+
+    @classmethod
+    def of(cls, spec) -> Restoration:
+        """A :class:`Restoration` from itself, a name, or ``"NAME[:key=value,...]"``."""
+        return spec if isinstance(spec, Restoration) else parse_restoration(spec)
+
+
+def _typed(name: str, key: str, value, default):
+    """``value`` (a string from the command line, or a Python value) as the type of the option's default."""
+    want = type(default)
+    if isinstance(value, str) and want is not str:
+        try:
+            if want is bool:
+                if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError
+                value = value.lower() in ("true", "1", "yes")
+            else:
+                value = want(float(value)) if want is int and float(value).is_integer() else want(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"option {key}={value!r} of restoration method {name!r} is not allowed: "
+                             f"{want.__name__} expected (default {default!r})") from None
+    if want in (int, float) and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                 or not math.isfinite(value) or (want is int and value != int(value))):
+        raise ValueError(f"option {key}={value!r} of restoration method {name!r} is not allowed: a finite "
+                         f"{want.__name__} (default {default!r})")
+    return want(value) if want in (int, float) else value
+
+
+def parse_restoration(spec: str) -> Restoration:
+    """``"NAME"`` or ``"NAME:key=value,key=value"`` -> a checked :class:`Restoration`."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"restoration {spec!r} is not allowed: NAME or NAME:key=value,... with NAME one of "
+                         f"{', '.join(RESTORATION_METHODS)}")
+    name, _, rest = spec.partition(":")
+    options = {}
+    for item in filter(None, (x.strip() for x in rest.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise ValueError(f"restoration {spec!r}: option {item!r} is not key=value")
+        options[key.strip()] = value.strip()
+    return Restoration(name.strip(), options)
+
+
+def restore(method, observed: torch.Tensor, psf, *, electrons_per_unit: float, read_noise_var: float = 0.0,
+            options: dict | None = None, **common) -> torch.Tensor:
+    """Restore ``observed`` ``(B, C, H, W)`` with ``method`` (a name, ``"NAME:key=value,..."`` or a
+    :class:`Restoration`; ``options`` adds settings), passing the method only the common arguments it declares."""
+    spec = Restoration.of(method)
+    if options:
+        spec = Restoration(spec.name, {**spec.options, **options})
+    bad = set(common) - set(COMMON_ARGUMENTS)
+    if bad:
+        raise TypeError(f"restore() got unexpected argument(s) {sorted(bad)}")
+    given = {"electrons_per_unit": electrons_per_unit, "read_noise_var": read_noise_var, **common}
+    m = spec.method
+    return m.fn(observed, psf, **{k: v for k, v in given.items() if k in m.accepts()}, **spec.options)
+
+
+_PAPER_MODULES = ("wiener",)  # the paper's method first
+for _name in _PAPER_MODULES:
+    importlib.import_module(f"{__name__}.{_name}")
+for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+    if _info.name not in _PAPER_MODULES and not _info.name.startswith("_"):
+        importlib.import_module(f"{__name__}.{_info.name}")
+
+from .richardson_lucy import RL_ITERATIONS, richardson_lucy_windowed  # noqa: E402 (re-exported)
+from .wiener import wiener_windowed  # noqa: E402
+
+__all__ += ["wiener_windowed", "richardson_lucy_windowed", "RL_ITERATIONS"]
