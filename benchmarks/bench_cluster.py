@@ -22,7 +22,7 @@ import torch
 
 from lenssim.numerics import FAST_NUMERICS
 from lenssim.resources import config_path
-from lenssim.sweep import SweepConfig, load_config, run_sweep
+from lenssim_studies.sweep import SweepConfig, load_config, run_sweep
 
 
 def main() -> int:

@@ -35,7 +35,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF, select_device
+from lenssim import LensPSF, select_device
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import add_poisson_noise, load_photo
 from pipeline.blur import PAPER_SCHEME, WindowScheme, blur_windowed, tent_weights, window_centres, window_count
 from pipeline.quality import psnr_srgb
@@ -125,7 +127,7 @@ def baseline_blur(img: torch.Tensor, region, center) -> tuple[np.ndarray, int]:
 
 def side_by_side(ideal: torch.Tensor, region: int, angle: float) -> None:
     H, W = ideal.shape[-2:]
-    box = crop_at_field_angle(ideal.shape, angle, region)
+    box = crop_at_field_angle(ideal.shape, angle, region, PAPER_CAMERA.geometry)
     margin = PAPER_SCHEME.window // 2 + PAPER_SCHEME.core
     R0, R1 = max(box[0] - 2 * margin, 0), min(box[1] + 2 * margin, H)
     C0, C1 = max(box[2] - 2 * margin, 0), min(box[3] + 2 * margin, W)
@@ -220,7 +222,7 @@ def _snr_db(ref: torch.Tensor, x: torch.Tensor) -> float:
 
 def full_blur_side_by_side(photo, device: torch.device) -> None:
     """The whole frame's blur, every window 512 px against windows fitted to the PSF, one after the other."""
-    ideal, _ = load_photo(photo)
+    ideal, _ = load_photo(photo, PAPER_CAMERA)
     ideal = ideal.to(device)
     times, out = {}, {}
     for name, scheme in (("full", WindowScheme(fit=False)), ("fitted", PAPER_SCHEME)):
@@ -237,7 +239,7 @@ def full_frame(photo, device: torch.device) -> None:
     print(f"full frame, paper scheme 512/32/64, {DESIGN.label()}, ISO 100, device {device}:")
     with PeakRSS() as total:
         t_start = time.perf_counter()
-        ideal, source = stage("read + linearise", rows, lambda: load_photo(photo))
+        ideal, source = stage("read + linearise", rows, lambda: load_photo(photo, PAPER_CAMERA))
         ideal = ideal.to(device)
         H, W = ideal.shape[-2:]
         n = window_count(ideal.shape)
@@ -273,7 +275,7 @@ def main() -> int:
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "photos" / "outdoor_misty_forest_6016x4016.jpg"
     photo = args.photo or (str(shared) if shared.exists() else None)
     device = select_device(args.device)
-    ideal, _ = load_photo(photo)
+    ideal, _ = load_photo(photo, PAPER_CAMERA)
     if not args.no_crop:
         side_by_side(ideal, args.region, args.angle)
     if min(args.frame) > 0:

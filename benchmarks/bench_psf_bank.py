@@ -20,15 +20,17 @@ import time
 import numpy as np
 import torch
 
-from lenssim import (PAPER_CAMERA, PAPER_SNR_DB, Design, Numerics, image_psd, noise_variance, otf_criteria_bank,
-                     spectral_coefficients)
+from lenssim import Design, Numerics, image_psd, noise_variance, otf_criteria_bank, spectral_coefficients
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_SNR_DB
+from lenssim_studies.paper import PAPER_RHO0
 
 SNR = PAPER_SNR_DB
 NATIVE = Numerics(oversample=1)
 
 
 def mse_bank(c, sizes):
-    out = otf_criteria_bank(PAPER_CAMERA, c, sizes, SNR, numerics=NATIVE)
+    out = otf_criteria_bank(PAPER_CAMERA, c, sizes, SNR, numerics=NATIVE, rho0=PAPER_RHO0)
     return out["mse_s"], out["mse_r"]
 
 
@@ -44,7 +46,7 @@ def prysm_loop(coeffs: np.ndarray, n: int) -> np.ndarray:
     r, t = cart_to_polar(x, y)
     amp = circle(1.0, r)
     rho_r = y  # field along +y, as in lenssim
-    P = np.fft.fftshift(image_psd(n, dtype=torch.float64).numpy())
+    P = np.fft.fftshift(image_psd(n, dtype=torch.float64, rho0=PAPER_RHO0).numpy())
     s2 = noise_variance(SNR).numpy()
     out = np.empty((coeffs.shape[0], 2, len(SNR)))
     for i, (a, b, c, d) in enumerate(coeffs):
@@ -89,7 +91,7 @@ def bench_bank(n: int, repeat: int) -> None:
 
 
 def bench_sweep(config: str, out: str) -> None:
-    from lenssim.sweep import load_config, run_sweep
+    from lenssim_studies.sweep import load_config, run_sweep
 
     cfg = load_config(config)
     t0 = time.perf_counter()

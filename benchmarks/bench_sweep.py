@@ -24,7 +24,7 @@ import lenssim.psf_bank as psf_bank
 
 from lenssim.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
 from lenssim.resources import config_path
-from lenssim.sweep import load_config, run_sweep
+from lenssim_studies.sweep import load_config, run_sweep
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_pipeline import PeakRSS  # noqa: E402

@@ -16,11 +16,15 @@ import warnings
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, Camera, Design, Lens, LensPSF, Numerics, evaluate
+from lenssim import Camera, Design, LensPSF, Numerics, evaluate
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
 from lenssim.validate import ModelValidityWarning
 from pipeline import resolution_scene
 from pipeline.blur import blur_windowed
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SPECTRUM
 
 
 def best(fn, repeat):
@@ -39,21 +43,21 @@ def main() -> None:
     warnings.simplefilter("ignore", ModelValidityWarning)
     design = PAPER_DESIGNS["end_to_end_paper"]
     mono = PAPER_CAMERA
-    poly = Camera(Lens(glass="N-BK7"), PAPER_CAMERA.sensor, channels=channel_spectra())
+    poly = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7"), PAPER_CAMERA.sensor, channels=channel_spectra(), spectrum=PAPER_SPECTRUM)
     num = Numerics(oversample=1)
-    t_m = best(lambda: evaluate(mono, design, [27.6], numerics=num), args.repeat)
-    t_p = best(lambda: evaluate(poly, design, [27.6], numerics=num), args.repeat)
+    t_m = best(lambda: evaluate(mono, design, [27.6], numerics=num, rho0=PAPER_RHO0), args.repeat)
+    t_p = best(lambda: evaluate(poly, design, [27.6], numerics=num, rho0=PAPER_RHO0), args.repeat)
     k = sum(len(c) for c in poly.channels)
     print(f"metrics, 15 field angles, torch threads {torch.get_num_threads()}:")
     print(f"  monochromatic {t_m:.2f} s, polychromatic ({k} wavelengths in 3 channels) {t_p:.2f} s: ratio {t_p / t_m:.1f}x")
     # a sweep's chunk: 32 designs at once, per field point (default and fast numerics)
     grid = Design(s=torch.linspace(-0.85, -0.7, 8).repeat_interleave(4), Q_back=torch.linspace(-3, -1.5, 4).repeat(8))
     for nm in (Numerics(), num):
-        b_m = best(lambda: evaluate(mono, grid, [27.6], numerics=nm), args.repeat) / (32 * 15)
-        b_p = best(lambda: evaluate(poly, grid, [27.6], numerics=nm), args.repeat) / (32 * 15)
+        b_m = best(lambda: evaluate(mono, grid, [27.6], numerics=nm, rho0=PAPER_RHO0), args.repeat) / (32 * 15)
+        b_p = best(lambda: evaluate(poly, grid, [27.6], numerics=nm, rho0=PAPER_RHO0), args.repeat) / (32 * 15)
         print(f"  32 designs, oversample {nm.oversample}: monochromatic {1e3 * b_m:.2f} ms, polychromatic "
               f"{1e3 * b_p:.2f} ms per field point: ratio {b_p / b_m:.1f}x")
-    scene = resolution_scene(1200, 1600)
+    scene = resolution_scene(1200, 1600, geometry=PAPER_CAMERA.geometry)
     oc = (600 - 1200, 800 - 1800)  # the crop sits about 8 degrees from the axis
     reg = (472, 728, 672, 928)
     fm = lambda: blur_windowed(scene, LensPSF(mono, design), optical_center=oc, region=reg)  # noqa: E731

@@ -20,7 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, otf, psf_at, spectral_coefficients  # noqa: E402
+from lenssim import otf, psf_at, spectral_coefficients  # noqa: E402
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 
 DESIGNS = {"RMS_W design": PAPER_DESIGNS["rms_w_paper"], "end-to-end": PAPER_DESIGNS["end_to_end_paper"]}
 ANGLES = (0.0, 4.0, 8.0, 12.7)

@@ -14,11 +14,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
+from lenssim import LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.files import atomic_write_text
-from lenssim.paper import ISO_FOR_SNR
+from lenssim_studies.paper import ISO_FOR_SNR
 from pipeline import load_photo
 from pipeline.simulate import crop_at_field_angle, simulate_crops
+from lenssim_studies.paper import PAPER_SENSOR
 
 DESIGNS = {"RMS_W": PAPER_DESIGNS["rms_w_paper"], "end-to-end": PAPER_DESIGNS["end_to_end_paper"]}
 ISOS = tuple(ISO_FOR_SNR.values())  # 400, 100, 25
@@ -37,11 +40,11 @@ def main() -> None:
     print("| photo | design | " + " | ".join(f"ISO {i} [dB]" for i in ISOS) + " |")
     print("|---|---|" + "---|" * len(ISOS))
     for photo in photos:
-        ideal, source = load_photo(photo)
-        boxes = [crop_at_field_angle(ideal.shape, a, args.crop) for a in args.angles]
+        ideal, source = load_photo(photo, PAPER_CAMERA)
+        boxes = [crop_at_field_angle(ideal.shape, a, args.crop, PAPER_CAMERA.geometry) for a in args.angles]
         for name, design in DESIGNS.items():
             wells = [PAPER_CAMERA.sensor.full_well_for_iso(i) for i in ISOS]
-            per_iso = simulate_crops(ideal, LensPSF(PAPER_CAMERA, design), wells, boxes)
+            per_iso = simulate_crops(ideal, LensPSF(PAPER_CAMERA, design), wells, boxes, sensor=PAPER_SENSOR)
             means = []
             for iso, res in zip(ISOS, per_iso):
                 sensor = sum(r.scores["sensor"]["psnr_db"] for r in res) / len(res)

@@ -14,9 +14,12 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
+from lenssim import LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import RESTORATION_METHODS, linear_to_srgb, load_photo, write_image
 from pipeline.simulate import crop_at_field_angle, simulate_crops
+from lenssim_studies.paper import PAPER_SENSOR
 
 
 def main() -> None:
@@ -26,12 +29,12 @@ def main() -> None:
     ap.add_argument("--rl", type=int, default=20, help="Richardson-Lucy iterations")
     ap.add_argument("--out", default="restoration_demo")
     args = ap.parse_args()
-    ideal, source = load_photo(args.photo)
-    boxes = [crop_at_field_angle(ideal.shape, a, 160) for a in (2.0, 8.0)]
+    ideal, source = load_photo(args.photo, PAPER_CAMERA)
+    boxes = [crop_at_field_angle(ideal.shape, a, 160, PAPER_CAMERA.geometry) for a in (2.0, 8.0)]
     methods = ("wiener", "richardson_lucy")
     psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["end_to_end_paper"])
     res = simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes, methods=methods,
-                         method_options={"richardson_lucy": {"iterations": args.rl}})
+                         method_options={"richardson_lucy": {"iterations": args.rl}}, sensor=PAPER_SENSOR)
     rows = []
     for r in res:
         scores = "; ".join(f"{RESTORATION_METHODS[m].label if m != 'sensor' else 'sensor'} "

@@ -14,9 +14,12 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF
+from lenssim import LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import linear_to_srgb, load_photo, write_image
 from pipeline.simulate import crop_at_field_angle, simulate_crops
+from lenssim_studies.paper import PAPER_SENSOR
 
 DESIGNS = {"end-to-end": PAPER_DESIGNS["end_to_end_paper"], "RMS_W": PAPER_DESIGNS["rms_w_paper"]}
 
@@ -29,12 +32,12 @@ def main() -> None:
     args = ap.parse_args()
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "photos" / "outdoor_misty_forest_6016x4016.jpg"
     photo = args.photo or (str(shared) if shared.exists() else None)
-    ideal, source = load_photo(photo)
-    boxes = [crop_at_field_angle(ideal.shape, a, 192) for a in (1.0, 5.0, 9.0)]
+    ideal, source = load_photo(photo, PAPER_CAMERA)
+    boxes = [crop_at_field_angle(ideal.shape, a, 192, PAPER_CAMERA.geometry) for a in (1.0, 5.0, 9.0)]
     rows = []
     for name, design in DESIGNS.items():
         psf = LensPSF(PAPER_CAMERA, design)
-        for r in simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes):
+        for r in simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes, sensor=PAPER_SENSOR):
             print(f"{source} | {name} ({design.label()}) | {r.field_deg:4.1f} deg: sensor "
                   f"{r.scores['sensor']['psnr_db']:.2f} dB -> restored {r.scores['wiener']['psnr_db']:.2f} dB")
             rows.append(torch.cat([r.ideal, r.sensor, r.images["wiener"]], dim=-1))

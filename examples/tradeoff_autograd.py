@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lenssim import PAPER_CAMERA, REFERENCE_SNR_DB
+from lenssim_studies.paper import PAPER_CAMERA, REFERENCE_SNR_DB
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
-from lenssim.tradeoff import PAPER_COST_LEVELS, iso_cost_curve
+from lenssim_studies.tradeoff import PAPER_COST_LEVELS, iso_cost_curve
+from lenssim_studies.paper import PAPER_RHO0
 
 
 def main() -> None:
@@ -38,7 +39,7 @@ def main() -> None:
         level = float(PAPER_COST_LEVELS[j])
         cs, cq, _ = iso_cost_curve(PAPER_CAMERA.lens, level, [-1.0])
         x0 = (-1.0, float(cq[0]))
-        f = DifferentiableCriterion(PAPER_CAMERA, args.snr, "mse_r")
+        f = DifferentiableCriterion(PAPER_CAMERA, args.snr, "mse_r", rho0=PAPER_RHO0)
         t0 = time.perf_counter()
         r = optimise_on_iso_cost(f, x0, level)
         dt = time.perf_counter() - t0

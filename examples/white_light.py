@@ -23,12 +23,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, Camera, Lens, LensPSF, otf, psf_at, spectral_coefficients  # noqa: E402
+from lenssim import Camera, LensPSF, otf, psf_at, spectral_coefficients  # noqa: E402
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.focus import best_focus  # noqa: E402
 from lenssim.spectrum import channel_spectra  # noqa: E402
 from lenssim.validate import ModelValidityWarning  # noqa: E402
 from pipeline import crop_at_field_angle, load_photo, simulate_crops  # noqa: E402
 from pipeline.figures import mosaic_figure  # noqa: E402
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM, REFERENCE_SNR_DB
 
 COLOURS = ("tab:red", "tab:green", "tab:blue")
 
@@ -44,11 +48,11 @@ def main() -> None:
     warnings.simplefilter("ignore", ModelValidityWarning)  # the paper's 1.5625 um pixels undersample blue light
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    lens = Lens(glass=args.glass)
-    cam = Camera(lens, PAPER_CAMERA.sensor, channels=channel_spectra(args.spectrum))
+    lens = dataclasses.replace(PAPER_LENS, glass=args.glass)
+    cam = Camera(lens, PAPER_CAMERA.sensor, channels=channel_spectra(args.spectrum), spectrum=PAPER_SPECTRUM)
     design = PAPER_DESIGNS["end_to_end_paper"]
-    fr = best_focus(Camera(Lens(glass=args.glass, field_angles_deg=(0, 4, 8, 12)), PAPER_CAMERA.sensor,
-                           channels=cam.channels), design)
+    fr = best_focus(Camera(dataclasses.replace(PAPER_LENS, glass=args.glass, field_angles_deg=(0, 4, 8, 12)), PAPER_CAMERA.sensor,
+                           channels=cam.channels, spectrum=PAPER_SPECTRUM), design, "mse_r", REFERENCE_SNR_DB, rho0=PAPER_RHO0)
     design = design.replace(focus_shift_um=round(fr.focus_shift_um, 1))
     print(f"{args.glass}, {args.spectrum}: best focus for MSE_R {fr.focus_shift_um:+.1f} um ({fr.evaluations} evaluations)")
 
@@ -77,9 +81,9 @@ def main() -> None:
     fig.savefig(out / "psf_mtf.png", dpi=100)
     plt.close(fig)
 
-    ideal, source = load_photo(args.photo)
+    ideal, source = load_photo(args.photo, PAPER_CAMERA)
     box = crop_at_field_angle(ideal.shape, args.angle, 192, cam.geometry)
-    res = simulate_crops(ideal, LensPSF(cam, design), cam.sensor.full_well_for_iso(100), [box])
+    res = simulate_crops(ideal, LensPSF(cam, design), cam.sensor.full_well_for_iso(100), [box], sensor=PAPER_SENSOR)
     mosaic_figure(res, ["wiener"], out / "fringing.png",
                   title=f"{source}: {args.glass}, {args.spectrum}, {design.label()}, ISO 100")
     s = res[0].scores

@@ -8,8 +8,9 @@ the asphere's RMS slope-departure cost and the expected-MSE design criteria.
 The objects a designer names: :class:`Lens`, :class:`Sensor`, :class:`Spectrum` (together a
 :class:`Camera`), a :class:`Design` (named free parameters, :data:`PARAMETERS`), the criteria
 (:data:`CRITERIA`), the numerical settings (:class:`Numerics`) and PSF providers
-(:class:`LensPSF`, :class:`FunctionPSF`) for the image pipeline. The paper's values live in
-:mod:`lenssim.paper`. See docs/architecture.md.
+(:class:`LensPSF`, :class:`FunctionPSF`) for the image pipeline. No value of the paper is a default
+here: the paper is a scenario, :mod:`lenssim_studies.paper`, that the studies and the command line pass
+in. See docs/architecture.md.
 """
 
 __version__ = "0.2.0"
@@ -32,11 +33,9 @@ from .design import PARAMETERS, Design, Parameter, load_designs, parameter_name
 from .geometry import FieldGeometry, frame_center
 from .glass import ConstantGlass
 from .image_model import image_psd, noise_variance, psd_continuous
-from .lens import Lens, LensError, ThinLens
+from .lens import Lens, LensError
 from .metrics import evaluate, otf_criteria_bank
 from .numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
-from .paper import (PAPER_CAMERA, PAPER_DESIGNS, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM,
-                    REFERENCE_SNR_DB)
 from .psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
                        pupil_amplitude, spectral_coefficients)
 from .psf_provider import FunctionPSF, LensPSF, PSFProvider
@@ -60,21 +59,12 @@ __all__ = [
     "LensError",
     "LensPSF",
     "Numerics",
-    "PAPER_CAMERA",
-    "PAPER_DESIGNS",
-    "PAPER_LENS",
-    "PAPER_RHO0",
-    "PAPER_SENSOR",
-    "PAPER_SNR_DB",
-    "PAPER_SPECTRUM",
     "PARAMETERS",
     "PSFProvider",
     "Parameter",
-    "REFERENCE_SNR_DB",
     "Sensor",
     "Spectrum",
     "TERMS",
-    "ThinLens",
     "best_fit_sphere_curvature",
     "check_shape",
     "evaluate",

@@ -11,7 +11,7 @@ grid, so a pitch coarser than ``lambda f#`` (``R > N / 2 - 2``) is refused.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from .geometry import FieldGeometry
 from .lens import Lens
@@ -23,11 +23,11 @@ __all__ = ["Camera"]
 
 @dataclass(frozen=True)
 class Camera:
-    """Lens, sensor and spectrum (defaults: the paper's)."""
+    """Lens, sensor and spectrum (the paper's: :data:`lenssim_studies.paper.PAPER_CAMERA`)."""
 
-    lens: Lens = field(default_factory=Lens)
-    sensor: Sensor = field(default_factory=Sensor)
-    spectrum: Spectrum = field(default_factory=Spectrum)
+    lens: Lens
+    sensor: Sensor
+    spectrum: Spectrum
     channels: tuple[Spectrum, ...] = ()
     """Colour channels (e.g. :func:`lenssim.spectrum.channel_spectra`): each its own spectrum, PSF and
     criteria; empty: one channel, ``spectrum``, shared by every colour (the paper)."""

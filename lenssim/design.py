@@ -167,14 +167,14 @@ class Design:
 
 
 def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] | None = None) -> dict[str, Design]:
-    """Named designs: ``builtins`` (default: the paper's and those of the built-in ``configs/designs.toml``),
+    """Named designs: ``builtins`` (default: those of the built-in ``configs/designs.toml``; the paper's scenario
+    adds its two, :func:`lenssim_studies.paper.paper_designs`),
     updated from a TOML file of tables ``[name]`` with parameter values (``s = -0.775``,
     ``Q_back = -2.4``; aliases accepted) and an optional ``description``."""
     if builtins is None:
-        from .paper import PAPER_DESIGNS
         from .resources import designs_file
 
-        builtins = load_designs(designs_file(), PAPER_DESIGNS)
+        builtins = load_designs(designs_file(), {})
     designs = dict(builtins)
     if path is None:
         return designs

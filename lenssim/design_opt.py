@@ -23,12 +23,12 @@ from .criteria import OTFContext, quarter_weights, validate_criterion
 from .design import PARAMETERS, Design, parameter_name
 from .image_model import image_psd_quarter, noise_variance
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .paper import PAPER_RHO0, REFERENCE_SNR_DB
 from .psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
 
-__all__ = ["DifferentiableCriterion", "DifferentiableMSE", "IsoCostResult", "optimise_on_iso_cost"]
+__all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost"]
 
-PAPER_NAMES = ("s", "Q_back")
+LENS_PARAMETERS = ("s", "Q_back")
+"""The thin lens's two design parameters: the default optimisation vector."""
 
 
 def _scale(names) -> torch.Tensor:
@@ -39,9 +39,8 @@ class DifferentiableCriterion:
     """An OTF criterion of :mod:`lenssim.criteria` (field average at one SNR) as a differentiable
     function of ``x``, the values of the design parameters ``names``."""
 
-    def __init__(self, camera: Camera, snr_db: float = REFERENCE_SNR_DB, criterion: str = "mse_r", *,
-                 names=PAPER_NAMES, numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64,
-                 rho0: float = PAPER_RHO0, psd_model: str = "discrete"):
+    def __init__(self, camera: Camera, snr_db: float, criterion: str, *, rho0: float, psd_model: str = "discrete",
+                 names=LENS_PARAMETERS, numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64):
         crit = validate_criterion(criterion)
         if crit.from_otf is None:
             raise ValueError(f"criterion={criterion!r} is not allowed: an OTF criterion "
@@ -88,9 +87,6 @@ class DifferentiableCriterion:
         return self.criterion.sign * self(x)
 
 
-DifferentiableMSE = DifferentiableCriterion
-"""Former name of :class:`DifferentiableCriterion`."""
-
 
 @dataclass
 class IsoCostResult:
@@ -128,18 +124,16 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, 
 
     ``step0`` is the first trial step in grid steps; steps are halved until the quality decreases.
     Stops when the tangential gradient (per grid step) is below ``tol`` relative to the value, or
-    after ``steps`` accepted steps. Designs are kept inside ``bounds`` ``{name: (lo, hi)}`` (default:
-    the paper's grid, |Q| <= 10).
+    after ``steps`` accepted steps. Designs are kept inside ``bounds`` ``{name: (lo, hi)}`` (a parameter
+    left out is unbounded; the paper's scenario passes its grid, ``lenssim_studies.paper.PAPER_GRID``).
     """
-    from .paper import PAPER_GRID
-
     SCALE = _scale(quality.names)
-    bounds = {**{k: v[:2] for k, v in PAPER_GRID.items()}, **(bounds or {})}
+    bounds = dict(bounds or {})
     x = torch.as_tensor(x0, dtype=torch.float64).clone()
     x = _project_to_level(quality, x, level, cost_points)
     quality.fix_sizes(x)
-    lo = torch.tensor([bounds.get(n, (-float("inf"), 0))[0] for n in quality.names], dtype=torch.float64)
-    hi = torch.tensor([bounds.get(n, (0, float("inf")))[1] for n in quality.names], dtype=torch.float64)
+    lo = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[0] for n in quality.names], dtype=torch.float64)
+    hi = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[1] for n in quality.names], dtype=torch.float64)
     step = step0
     history = []
     it = 0

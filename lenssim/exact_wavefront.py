@@ -21,7 +21,6 @@ from .camera import Camera
 from .design import Design
 from .metrics import otf_criteria_bank
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .paper import PAPER_RHO0, PAPER_SNR_DB
 from .psf_bank import fft_size
 from .raytrace import transverse_aberration
 
@@ -52,7 +51,7 @@ def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: floa
     return c_mm / (lam * 1e-3)
 
 
-def exact_criteria(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float = PAPER_RHO0,
+def exact_criteria(camera: Camera, design: Design, snr_db, *, rho0: float,
                    numerics: Numerics = DEFAULT_NUMERICS) -> dict:
     """Every registered OTF criterion (field averages, ``(S,)`` float64, ``()`` for one that does not depend on the
     SNR) of one design with the exact (ray-traced, fitted) wavefront at each field angle, one wavelength (the

@@ -14,7 +14,6 @@ from .criteria import validate_criterion
 from .design import Design
 from .metrics import evaluate
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .paper import REFERENCE_SNR_DB
 from .validate import check_real
 
 __all__ = ["FocusResult", "best_focus", "best_focus_batch", "FOCUS_BOUNDS_UM"]
@@ -34,8 +33,8 @@ class FocusResult:
     evaluations: int
 
 
-def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db: float = REFERENCE_SNR_DB, *,
-               bounds_um=FOCUS_BOUNDS_UM, tol_um: float = 0.5, numerics: Numerics = DEFAULT_NUMERICS) -> FocusResult:
+def best_focus(camera: Camera, design: Design, criterion: str, snr_db: float, *, rho0: float,
+               psd_model: str = "discrete", bounds_um=FOCUS_BOUNDS_UM, tol_um: float = 0.5, numerics: Numerics = DEFAULT_NUMERICS) -> FocusResult:
     """The ``focus_shift_um`` of ``design`` (one design) optimising ``criterion`` at ``snr_db`` (its minimum, or its
     maximum for a criterion whose sense is ``"max"``), within ``bounds_um``, to ``tol_um``."""
     from scipy.optimize import minimize_scalar
@@ -49,7 +48,8 @@ def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db:
 
     def f(z: float) -> float:
         count[0] += 1
-        r = evaluate(camera, design.replace(focus_shift_um=float(z)), [snr_db], numerics=numerics)
+        r = evaluate(camera, design.replace(focus_shift_um=float(z)), [snr_db], rho0=rho0, psd_model=psd_model,
+                     numerics=numerics)
         v = r[criterion]
         return crit.sign * (float(v.reshape(-1)[0]) if crit.per_snr else float(v))
 
@@ -62,7 +62,7 @@ def best_focus(camera: Camera, design: Design, criterion: str = "mse_r", snr_db:
     return FocusResult(float(res.x), crit.sign * float(res.fun), criterion, count[0])
 
 
-def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", snr_db: float = REFERENCE_SNR_DB, *,
+def best_focus_batch(camera: Camera, design: Design, criterion: str, snr_db: float, *, rho0: float,
                      bounds_um=FOCUS_BOUNDS_UM, tol_um: float = 1.0, numerics: Numerics = DEFAULT_NUMERICS, **kw):
     """Best focus of every design of a batch at once: golden-section search in lock step (one batched
     :func:`evaluate` per step, ``ceil(log(tol / width) / log(0.618))`` steps).
@@ -83,7 +83,7 @@ def best_focus_batch(camera: Camera, design: Design, criterion: str = "mse_r", s
     shape = d.shape
 
     def f(z):
-        r = evaluate(camera, d.replace(focus_shift_um=z), [snr_db], numerics=numerics, **kw)[criterion]
+        r = evaluate(camera, d.replace(focus_shift_um=z), [snr_db], rho0=rho0, numerics=numerics, **kw)[criterion]
         return crit.sign * (r[..., 0] if crit.per_snr else r).to(torch.float64).cpu()  # minimised
 
     g = (math.sqrt(5) - 1) / 2

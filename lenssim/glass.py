@@ -24,7 +24,7 @@ C_LINE_UM = 0.6562725
 class ConstantGlass:
     """A glass of the same refractive index ``refractive_index`` (> 1) at every wavelength."""
 
-    refractive_index: float = 1.5
+    refractive_index: float
 
     def __post_init__(self):
         n = self.refractive_index

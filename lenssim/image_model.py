@@ -23,7 +23,6 @@ from functools import lru_cache
 
 import torch
 
-from .paper import PAPER_RHO0
 from .validate import SNR_DB_RANGE, SNR_DB_VALIDATED, warn_model
 
 __all__ = ["PSD_MODELS", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
@@ -37,7 +36,7 @@ def _check_rho0(rho0: float) -> float:
     return float(rho0)
 
 
-def psd_continuous(f_cpp: torch.Tensor, rho0: float = PAPER_RHO0) -> torch.Tensor:
+def psd_continuous(f_cpp: torch.Tensor, rho0: float) -> torch.Tensor:
     """``P_c(|f|)`` for radial frequency ``f`` in cycles/pixel (any shape)."""
     a = -math.log(_check_rho0(rho0))
     return 2 * math.pi * a / (a * a + 4 * math.pi**2 * f_cpp**2) ** 1.5
@@ -75,7 +74,7 @@ def _psd_quarter_cached(n: int, rho0: float, model: str) -> torch.Tensor:
     return _even_dft_quarter(_even_dft_quarter(folded, n, 1), n, 0)
 
 
-def image_psd_quarter(n: int, rho0: float = PAPER_RHO0, *, model: str = "discrete", dtype=torch.float32,
+def image_psd_quarter(n: int, rho0: float, *, model: str = "discrete", dtype=torch.float32,
                       device=None) -> torch.Tensor:
     """``P_x`` for ``f = (ky, kx) / n`` with ``ky, kx = 0..n/2`` (``n`` even): shape ``(n/2+1, n/2+1)``.
 
@@ -88,7 +87,7 @@ def image_psd_quarter(n: int, rho0: float = PAPER_RHO0, *, model: str = "discret
     return _psd_quarter_cached(n, _check_rho0(rho0), model).to(dtype=dtype, device=device)
 
 
-def image_psd(n: int, rho0: float = PAPER_RHO0, *, model: str = "discrete", dtype=torch.float32,
+def image_psd(n: int, rho0: float, *, model: str = "discrete", dtype=torch.float32,
               device=None) -> torch.Tensor:
     """Image power spectrum ``P_x`` on the ``n x n`` DFT grid (DFT order, ``f = k/n`` cycles/pixel).
 

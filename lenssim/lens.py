@@ -16,7 +16,7 @@ Conventions (Welford, *Aberrations of Optical Systems*, thin-lens chapter):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import torch
 
@@ -30,7 +30,7 @@ THIRD_ORDER_LIMIT = 0.25
 """Largest ``(1 + conic) c^2 y^2`` of a surface for which the third-order model is taken as valid (the paper's
 grid reaches 0.13); beyond it a warning (the surface itself is defined up to 1)."""
 
-__all__ = ["LensError", "Lens", "ThinLens", "as_tensor"]
+__all__ = ["LensError", "Lens", "as_tensor"]
 
 
 class LensError(ValueError):
@@ -42,7 +42,7 @@ def _check(name: str, value: float, ok: bool, allowed: str) -> None:
         raise LensError(f"{name}={value!r} is not allowed: {allowed}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Lens:
     """The physical singlet shared by every design of a sweep.
 
@@ -60,11 +60,11 @@ class Lens:
         Half field angles (degrees) at which field-averaged metrics are sampled, each in [0, 90).
     """
 
-    focal_length_mm: float = 25.0
-    pupil_radius_mm: float = 2.0
-    glass: ConstantGlass = field(default_factory=ConstantGlass)
+    focal_length_mm: float
+    pupil_radius_mm: float
+    glass: ConstantGlass
+    field_angles_deg: tuple[float, ...]
     position_factor: float = -1.0
-    field_angles_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(a) for a in range(15)))
 
     def __post_init__(self) -> None:
         try:
@@ -218,6 +218,3 @@ class Lens:
                 warn_model(f"surface {i + 1}: (1 + conic) c^2 y^2 exceeds {THIRD_ORDER_LIMIT:g} for some designs; the "
                            "third-order (Seidel) model is far outside its validated range there")
 
-
-ThinLens = Lens
-"""Former name of :class:`Lens` (kept as an alias)."""

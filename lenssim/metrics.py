@@ -20,7 +20,6 @@ from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights, valid
 from .design import Design
 from .image_model import image_psd_quarter, noise_variance
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .paper import PAPER_RHO0, PAPER_SNR_DB
 from .psf_bank import fft_size as choose_fft_size
 from .psf_bank import otf_quarter_spectrum, spectral_coefficients
 from .torch_utils import as_tensor, chunk_budget_bytes
@@ -29,8 +28,8 @@ from .validate import NumericalError, ResourceLimitError, check_memory
 __all__ = ["otf_criteria_bank", "evaluate"]
 
 
-def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db=PAPER_SNR_DB, *,
-                      rho0: float = PAPER_RHO0, psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS,
+def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db, *,
+                      rho0: float, psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS,
                       criteria=None, progress: Callable[[int], None] | None = None,
                       terms=None) -> dict[str, torch.Tensor]:
     """OTF criteria ``{name: (P, S)}`` (``(P,)`` for a criterion that does not depend on the SNR; float64) for
@@ -77,7 +76,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
     return out
 
 
-def evaluate(camera: Camera, design: Design, snr_db=PAPER_SNR_DB, *, rho0: float = PAPER_RHO0,
+def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
              psd_model: str = "discrete", fft_size: int | None = None, numerics: Numerics = DEFAULT_NUMERICS,
              dtype=torch.float32, device=None, progress: Callable[[int], None] | None = None) -> dict:
     """Every registered criterion for the designs of ``design`` (parameters broadcast to ``(*)``).

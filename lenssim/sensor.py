@@ -14,14 +14,16 @@ from dataclasses import dataclass
 __all__ = ["Sensor"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Sensor:
-    """A sensor. ``full_well_e`` is a tuple of ``(iso, electrons)`` pairs; ``bit_depth`` None: no quantisation."""
+    """A sensor: pixel pitch (um), size (px), full well per ISO (``full_well_e``, ``(iso, electrons)`` pairs; empty:
+    no ISO table, give full wells directly), read noise (electrons RMS) and ADC bits (``bit_depth`` None: no
+    quantisation)."""
 
-    pixel_pitch_um: float = 1.5625
-    width_px: int = 6000
-    height_px: int = 4000
-    full_well_e: tuple[tuple[int, float], ...] = ((25, 12800.0), (100, 3200.0), (400, 800.0))
+    pixel_pitch_um: float
+    width_px: int
+    height_px: int
+    full_well_e: tuple[tuple[int, float], ...] = ()
     read_noise_e: float = 0.0
     bit_depth: int | None = None
 

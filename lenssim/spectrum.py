@@ -24,8 +24,8 @@ wavelengths up to 4%)."""
 class Spectrum:
     """Wavelengths ``wavelengths_um`` (> 0) with weights (>= 0, normalised here to sum 1)."""
 
-    wavelengths_um: tuple[float, ...] = (0.5,)
-    weights: tuple[float, ...] = (1.0,)
+    wavelengths_um: tuple[float, ...]
+    weights: tuple[float, ...]
     name: str = ""
 
     def __post_init__(self):

@@ -18,9 +18,11 @@ import time
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, LensPSF, select_device
+from lenssim import LensPSF, select_device
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.files import atomic_write_text, json_text
-from lenssim.paper import PAPER_FIG8_ANGLES_DEG
+from lenssim_studies.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.figures import mosaic_figure
@@ -66,7 +68,7 @@ def _inputs(photos) -> list[str]:
 def _load(spec, device):
     from pipeline.checks import check_scene
 
-    ideal, source = load_photo(spec)
+    ideal, source = load_photo(spec, PAPER_CAMERA)
     check_scene(ideal, f"image {source!r}")
     H, W = ideal.shape[-2:]
     if min(H, W) < MIN_IMAGE_PX:
@@ -189,7 +191,7 @@ def cmd_simulate(args) -> int:
 
 def _index_page(stage, title, report, results, methods) -> None:
     """``index.html``: the mosaic, the scores of every crop, the whole-frame results; self-contained."""
-    from lenssim import html
+    from lenssim_studies import html
 
     header = ["field [deg]", "box (r0, r1, c0, c1)", "sensor PSNR [dB] / SSIM"] + \
         [f"{RESTORATION_METHODS[m].label} PSNR [dB] / SSIM" for m in methods]
@@ -265,7 +267,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
         "ssim_sensor": scores["sensor"]["ssim"], "ssim_restored": scores["restored"]["ssim"],
         "resumed": frame.resumed}
     maps = {"sensor_db": scores["sensor"]["psnr_map_db"], "restored_db": scores["restored"]["psnr_map_db"],
-            "field_deg": tile_field_angles(ideal.shape, 256, psf.geometry)}
+            "field_deg": tile_field_angles(ideal.shape, 256, geometry=psf.geometry)}
     plot_field_psnr(maps, stage / "field_psnr.png",
                     title=f"{report['source']}: {psf.design.label()}, {fwc:g} e- full well")
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
@@ -337,7 +339,7 @@ def cmd_psnr_table(args) -> int:
 
 def cmd_fig8(args) -> int:
     from lenssim.files import check_output_dir, staged_output_dir
-    from pipeline.figure8 import figure8
+    from lenssim_studies.figure8 import figure8
 
     from pipeline.restoration import parse_restoration
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from lenssim import PARAMETERS, Design, load_designs
+from lenssim import PARAMETERS, Design
 from lenssim.torch_utils import DEVICE_CHOICES
 
 __all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
@@ -24,7 +24,9 @@ def add_design_arguments(p: argparse.ArgumentParser, *, named: bool = True) -> N
 
 
 def designs(path: str | None = None) -> dict[str, Design]:
-    return load_designs(path) if path else load_designs()
+    from lenssim_studies.paper import paper_designs
+
+    return paper_designs(path)
 
 
 def design_from_args(args, *, name: str = "custom") -> Design:
@@ -72,7 +74,8 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 def camera_from_args(args):
     """The paper's camera, with the glass and spectrum the arguments name."""
-    from lenssim import PAPER_CAMERA, Camera, Lens
+    from lenssim import Camera, Lens
+    from lenssim_studies.paper import PAPER_CAMERA
     from lenssim.spectrum import channel_spectra
 
     lens = PAPER_CAMERA.lens if not getattr(args, "glass", None) else Lens.from_dict({**PAPER_CAMERA.lens.to_dict(),

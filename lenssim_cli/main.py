@@ -10,7 +10,7 @@ import sys
 import warnings
 
 from lenssim import LensError, __version__
-from lenssim.cluster import ClusterError
+from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
 from . import camera, optics

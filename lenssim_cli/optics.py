@@ -6,13 +6,15 @@ import sys
 import time
 from pathlib import Path
 
-from lenssim import (CRITERIA, DEFAULT_NUMERICS, PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB, PARAMETERS, Design, evaluate,
-                     select_device)
+from lenssim import CRITERIA, DEFAULT_NUMERICS, PARAMETERS, Design, evaluate, select_device
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB
 from lenssim.files import json_text
 from lenssim.resources import builtin_configs, config_path
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
                      design_from_args, designs, table)
+from lenssim_studies.paper import PAPER_RHO0
 
 DEMO_DESIGNS = tuple(PAPER_DESIGNS)
 DEMO_CONFIG = "small_grid"
@@ -26,7 +28,7 @@ def _numerics(args, base=DEFAULT_NUMERICS):
 def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS, camera=PAPER_CAMERA) -> dict:
     """Every registered criterion of one design, as JSON-ready values keyed by criterion name (with colour
     channels: their mean, and ``NAME_per_channel``)."""
-    res = evaluate(camera, design, snr, device=select_device(device), numerics=numerics)
+    res = evaluate(camera, design, snr, device=select_device(device), numerics=numerics, rho0=PAPER_RHO0)
     params = design.complete().floats()
     out = {"parameters": params, **params}
     for name, c in CRITERIA.items():
@@ -68,7 +70,7 @@ def cmd_evaluate(args) -> int:
         from lenssim.focus import best_focus
 
         crit = args.best_focus
-        fr = best_focus(camera, design, crit, args.snr[len(args.snr) // 2], numerics=_numerics(args))
+        fr = best_focus(camera, design, crit, args.snr[len(args.snr) // 2], numerics=_numerics(args), rho0=PAPER_RHO0)
         print(f"best focus for {crit} at {args.snr[len(args.snr) // 2]:g} dB: focus_shift_um = {fr.focus_shift_um:.1f} "
               f"({fr.evaluations} evaluations)", file=sys.stderr)
         design = design.replace(focus_shift_um=round(fr.focus_shift_um, 2))
@@ -78,7 +80,7 @@ def cmd_evaluate(args) -> int:
     if args.wavefront == "exact":
         from lenssim.exact_wavefront import exact_criteria
 
-        ex = exact_criteria(camera, design, args.snr, numerics=_numerics(args))
+        ex = exact_criteria(camera, design, args.snr, numerics=_numerics(args), rho0=PAPER_RHO0)
         otf = [name for name, c in CRITERIA.items() if c.from_otf is not None]
         for name in otf:  # every OTF criterion from the exact wavefront, none left at its third-order value
             r[name] = [float(x) for x in ex[name]] if CRITERIA[name].per_snr else float(ex[name])
@@ -99,7 +101,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from lenssim.sweep import load_config, run_sweep
+    from lenssim_studies.sweep import load_config, run_sweep
 
     cfg = load_config(config_path(args.config))
     if args.max_fft_size:
@@ -122,7 +124,7 @@ def cmd_sweep(args) -> int:
 def cmd_optimum(args) -> int:
     import xarray as xr
 
-    from lenssim.tradeoff import find_optimum
+    from lenssim_studies.tradeoff import find_optimum
 
     path = Path(args.file)
     if not path.is_file():
@@ -150,8 +152,8 @@ def cmd_optimum(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from lenssim.sweep import load_config, run_sweep
-    from lenssim.tradeoff import find_optimum
+    from lenssim_studies.sweep import load_config, run_sweep
+    from lenssim_studies.tradeoff import find_optimum
 
     named = designs()
     select_device(args.device)
@@ -181,8 +183,8 @@ def cmd_demo(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from lenssim.report import reproduce
-    from lenssim.sweep import load_config
+    from lenssim_studies.report import reproduce
+    from lenssim_studies.sweep import load_config
 
     from lenssim.files import check_output_dir
 
@@ -202,7 +204,7 @@ def cmd_reproduce(args) -> int:
 def cmd_study(args) -> int:
     """``lenssim study white-light|exact-wavefront`` (lenssim.study)."""
     from lenssim.files import atomic_write_text, check_output_dir, json_text
-    from lenssim.study import STUDY_GRID, WhiteLightStudy, exact_along_tradeoff, exact_tradeoff_report, white_light_study
+    from lenssim_studies.study import STUDY_GRID, WhiteLightStudy, exact_along_tradeoff, exact_tradeoff_report, white_light_study
 
     if args.name == "exact-wavefront":
         check_output_dir(args.out)
@@ -252,7 +254,7 @@ def add_fft_limit_argument(p) -> None:
 
 
 def register(sub) -> None:
-    from lenssim import REFERENCE_SNR_DB
+    from lenssim_studies.paper import REFERENCE_SNR_DB
 
     configs = ", ".join(builtin_configs())
     e = sub.add_parser("evaluate", help="criteria of one design")

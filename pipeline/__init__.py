@@ -6,8 +6,7 @@ linear (:mod:`pipeline.colour_space`), optional gentle denoising of the input
 (:mod:`pipeline.noise`), the windowed spatially-variant blur with its exact per-pixel reference
 (:mod:`pipeline.blur`), the restoration methods and their registry (:mod:`pipeline.restoration`),
 PSNR/SSIM in sRGB (:mod:`pipeline.quality`), PSNR over the field (:mod:`pipeline.field_map`), the
-simulation of crops and whole frames (:mod:`pipeline.simulate`) and the Fig. 8 mosaic
-(:mod:`pipeline.figure8`). The optics come in as PSF providers (:class:`lenssim.LensPSF`).
+simulation of crops and whole frames (:mod:`pipeline.simulate`). The optics come in as PSF providers (:class:`lenssim.LensPSF`).
 Dependencies flow one way: ``pipeline`` uses :mod:`lenssim`, never the reverse, and never the
 command line (:mod:`lenssim_cli`).
 """
@@ -18,7 +17,7 @@ from .colour_space import linear_to_srgb, srgb_to_linear
 from .denoise import gentle_denoise
 from .field_map import field_psnr, plot_field_psnr
 from .io import ImageFileError, ImageInfo, read_image, write_image
-from .noise import ISO_FULL_WELL, add_poisson_noise, expose, full_well_for_iso, read_out
+from .noise import add_poisson_noise, expose, read_out
 from .photo import load_photo
 from .quality import psnr_map_srgb, psnr_srgb, ssim_srgb
 from .restoration import (RESTORATION_METHODS, Restoration, RestorationMethod, parse_restoration, restore,
@@ -30,7 +29,6 @@ from .simulate import (DEFAULT_METHODS, CropResult, FrameResult, crop_at_field_a
 
 __all__ = [
     "DEFAULT_METHODS",
-    "ISO_FULL_WELL",
     "PAPER_SCHEME",
     "RESTORATION_METHODS",
     "CropResult",
@@ -49,7 +47,6 @@ __all__ = [
     "crop_at_field_angle",
     "crops_from_frame",
     "field_psnr",
-    "full_well_for_iso",
     "gentle_denoise",
     "linear_to_srgb",
     "load_photo",

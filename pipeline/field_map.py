@@ -14,7 +14,8 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_CAMERA, FieldGeometry
+from lenssim import FieldGeometry
+
 from lenssim.files import atomic_write
 
 from .quality import encode_srgb, scores_encoded
@@ -22,16 +23,16 @@ from .quality import encode_srgb, scores_encoded
 __all__ = ["tile_field_angles", "field_psnr", "plot_field_psnr"]
 
 
-def tile_field_angles(shape, tile: int = 256, geometry: FieldGeometry | None = None) -> torch.Tensor:
+def tile_field_angles(shape, tile: int = 256, *, geometry: FieldGeometry) -> torch.Tensor:
     """Field angle (deg) of each ``tile`` x ``tile`` block's centre, ``(rows, cols)`` float64, for ``shape`` ``(..., H, W)``.
 
     Blocks as in :func:`pipeline.quality.psnr_map_srgb`; optical axis at the frame centre.
     """
-    return (geometry or PAPER_CAMERA.geometry).tile_field_angles(shape, tile)
+    return geometry.tile_field_angles(shape, tile)
 
 
 def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor, *, tile: int = 256,
-               geometry: FieldGeometry | None = None) -> dict:
+               geometry: FieldGeometry) -> dict:
     """``{"sensor_db", "restored_db", "field_deg"}``: ``(rows, cols)`` float64 tensors, one entry per tile."""
     for name, t in (("sensor", sensor), ("restored", restored)):
         if t.shape != ideal.shape or ideal.ndim != 4 or ideal.shape[0] != 1:
@@ -39,7 +40,7 @@ def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor
     ref = encode_srgb(ideal)  # once for both comparisons
     m_s = scores_encoded(ref, encode_srgb(sensor), tile=tile, ssim=False)["psnr_map_db"]
     m_r = scores_encoded(ref, encode_srgb(restored), tile=tile, ssim=False)["psnr_map_db"]
-    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, geometry)}
+    return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, geometry=geometry)}
 
 
 def plot_field_psnr(maps: dict, path, *, title: str = "") -> Path:

@@ -1,9 +1,9 @@
 """Sensor noise (paper Section 3.2-3.3): photon (Poisson) noise, optional read noise and ADC.
 
 The blurred linear image's maximum is scaled to the full-well capacity (electrons), each pixel is
-Poisson-sampled, and the result is scaled back. The paper's sensor (:data:`lenssim.PAPER_SENSOR`):
-3,200 e- at ISO 100 (the expected level, SNR ~27.6 dB), 800 at ISO 400 and 12,800 at ISO 25, no
-read noise, no quantisation. A :class:`lenssim.Sensor` with ``read_noise_e > 0`` adds Gaussian
+Poisson-sampled, and the result is scaled back. The paper's sensor
+(:data:`lenssim_studies.paper.PAPER_SENSOR`): 3,200 e- at ISO 100 (the expected level, SNR ~27.6 dB), 800 at
+ISO 400 and 12,800 at ISO 25, no read noise, no quantisation. A :class:`lenssim.Sensor` with ``read_noise_e > 0`` adds Gaussian
 read noise (electrons RMS) and with ``bit_depth`` quantises the electrons to ``2^bits - 1`` levels
 over the full well. Randomness comes only from the explicit ``generator`` (or ``seed``), so
 results are reproducible.
@@ -13,22 +13,14 @@ from __future__ import annotations
 
 import torch
 
-from lenssim import PAPER_SENSOR, Sensor
+from lenssim import Sensor
 
 from .checks import check_full_well, check_image
 
-__all__ = ["ISO_FULL_WELL", "full_well_for_iso", "add_poisson_noise", "expose", "read_out", "read_noise_variance"]
-
-ISO_FULL_WELL = dict(PAPER_SENSOR.full_well_e)
-"""The paper's full-well capacity (electrons) per ISO (from :data:`lenssim.PAPER_SENSOR`)."""
+__all__ = ["add_poisson_noise", "expose", "read_out", "read_noise_variance"]
 
 
-def full_well_for_iso(iso: int, sensor: Sensor = PAPER_SENSOR) -> float:
-    """Full-well capacity (electrons) of ``sensor`` at ``iso`` (the paper's: 25, 100 or 400)."""
-    return sensor.full_well_for_iso(iso)
-
-
-def read_out(electrons: torch.Tensor, sensor: Sensor, full_well: float, *, generator: torch.Generator) -> torch.Tensor:
+def read_out(electrons: torch.Tensor, sensor: Sensor | None, full_well: float, *, generator: torch.Generator) -> torch.Tensor:
     """Read noise and ADC quantisation of ``sensor`` applied to photo-electron counts (any shape).
 
     Gaussian read noise of ``sensor.read_noise_e`` electrons RMS (drawn from ``generator``), then,
@@ -36,6 +28,8 @@ def read_out(electrons: torch.Tensor, sensor: Sensor, full_well: float, *, gener
     sensor has neither: the counts come back unchanged (and no random number is drawn).
     """
     out = electrons
+    if sensor is None:  # an ideal sensor: photon noise only
+        return out
     if sensor.read_noise_e > 0:
         noise = torch.randn(out.shape, generator=generator, dtype=out.dtype, device=out.device)
         out = out + sensor.read_noise_e * noise
@@ -46,13 +40,13 @@ def read_out(electrons: torch.Tensor, sensor: Sensor, full_well: float, *, gener
     return out
 
 
-def read_noise_variance(sensor: Sensor, electrons_per_unit: float) -> float:
+def read_noise_variance(sensor: Sensor | None, electrons_per_unit: float) -> float:
     """Variance (squared linear image units) of the read noise and ADC rounding, for the Wiener filter."""
-    var_e = sensor.read_noise_e**2
+    var_e = 0.0 if sensor is None else sensor.read_noise_e**2
     return var_e / electrons_per_unit**2 if electrons_per_unit != float("inf") else 0.0
 
 
-def expose(image: torch.Tensor, electrons_per_unit: float, sensor: Sensor, full_well: float, *,
+def expose(image: torch.Tensor, electrons_per_unit: float, sensor: Sensor | None, full_well: float, *,
            generator: torch.Generator) -> torch.Tensor:
     """The sensor's reading of a linear image (any shape, >= 0): Poisson photo-electrons at
     ``electrons_per_unit`` per unit of the image, then ``sensor``'s read noise and quantisation (``full_well``
@@ -67,9 +61,9 @@ def expose(image: torch.Tensor, electrons_per_unit: float, sensor: Sensor, full_
 
 
 def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch.Generator | None = None,
-                      seed: int | None = None, sensor: Sensor = PAPER_SENSOR) -> torch.Tensor:
+                      seed: int | None = None, sensor: Sensor | None = None) -> torch.Tensor:
     """Poisson noise on a linear image ``(B, C, H, W)`` >= 0, with its maximum at ``full_well`` electrons,
-    then ``sensor``'s read noise and quantisation (none for the paper's sensor).
+    then ``sensor``'s read noise and quantisation (``None``: an ideal sensor, photon noise only).
 
     Exactly one of ``generator`` and ``seed`` must be given. Returns the same shape, dtype and device.
     """

@@ -8,18 +8,25 @@ import torch
 from .colour_space import srgb_to_linear
 from .io import read_image
 
-__all__ = ["load_photo", "DEFAULT_SCENE_NAME"]
-
-DEFAULT_SCENE_NAME = "generated resolution scene 6000x4000"
+__all__ = ["load_photo", "scene_name"]
 
 
-def load_photo(spec: str | None) -> tuple[torch.Tensor, str]:
+def scene_name(camera) -> str:
+    """The description of the generated default scene for ``camera``."""
+    return f"generated resolution scene {camera.sensor.width_px}x{camera.sensor.height_px}"
+
+
+def load_photo(spec: str | None, camera=None) -> tuple[torch.Tensor, str]:
     """Linear ``(1, C, H, W)`` float32 image and a description, from a file path, ``skimage:NAME`` (an 8-bit
-    sample image that scikit-image ships) or ``None`` (the generated default scene)."""
+    sample image that scikit-image ships) or ``None``: the generated default scene, of ``camera``'s sensor size
+    with its targets at field angles of ``camera``'s geometry (a :class:`lenssim.Camera`, needed then)."""
     if spec is None:
         from .scene import resolution_scene
 
-        return resolution_scene(), DEFAULT_SCENE_NAME
+        if camera is None:
+            raise ValueError("the generated default scene needs the camera (its sensor size and field geometry)")
+        return (resolution_scene(camera.sensor.height_px, camera.sensor.width_px, geometry=camera.geometry),
+                scene_name(camera))
     if spec.startswith("skimage:"):
         import skimage.data
 

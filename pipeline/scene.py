@@ -16,7 +16,8 @@ import math
 
 import torch
 
-from lenssim import PAPER_CAMERA, FieldGeometry
+from lenssim import FieldGeometry
+
 
 __all__ = ["resolution_scene", "target_tile"]
 
@@ -60,7 +61,7 @@ def _diagonal_positions(height: int, width: int, tile: int, geometry: FieldGeome
 
 
 def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, tile: int = 256,
-                     spacing: int = 640, geometry: FieldGeometry | None = None) -> torch.Tensor:
+                     spacing: int = 640, geometry: FieldGeometry) -> torch.Tensor:
     """The default scene: linear RGB ``(1, 3, height, width)`` float32 (``geometry``, default the paper
     camera's, places the diagonal targets)."""
     if height < tile or width < tile:
@@ -74,7 +75,7 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
     img = bg
     tiles = [target_tile(tile, k) for k in range(3)]
     colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]], dtype=torch.float64)
-    diagonal = _diagonal_positions(height, width, tile, geometry or PAPER_CAMERA.geometry)
+    diagonal = _diagonal_positions(height, width, tile, geometry)
     clear = lambda r, c: all(abs(r - dr) >= tile + 8 or abs(c - dc) >= tile + 8 for dr, dc, _ in diagonal)  # noqa: E731
     k = 0
     for r in range(spacing // 2 - tile // 2, height - tile + 1, spacing):

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_SENSOR, FieldGeometry, PSFProvider, Sensor, frame_center
+from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
+
 from lenssim.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
@@ -80,16 +81,15 @@ CROP_SHIFT_WARN_DEG = 0.25
 """A crop moved inside the frame by more than this (degrees of field) is reported with a warning."""
 
 
-def crop_at_field_angle(shape, alpha_deg: float, size: int = 256, geometry: FieldGeometry | None = None,
+def crop_at_field_angle(shape, alpha_deg: float, size: int, geometry: FieldGeometry,
                         azimuth_deg: float | None = None) -> tuple[int, int, int, int]:
     """Box of ``size`` px centred at field angle ``alpha_deg`` (default: along the frame diagonal), in the
-    field geometry of ``geometry`` (default: the paper's camera).
+    field geometry of ``geometry`` (a camera's ``geometry``).
 
     The angle must lie within the frame (0 up to its corners' field angle) and the box inside it; a
     box near the edge is moved inside, and if that moves its centre by more than
     :data:`CROP_SHIFT_WARN_DEG` a :class:`lenssim.validate.ModelValidityWarning` gives its true angle.
     """
-    geometry = geometry or PAPER_CAMERA.geometry
     H, W = shape[-2:]
     size = check_int("crop size", size, 1, min(H, W))
     edge = geometry.max_field_angle_deg(shape)
@@ -123,7 +123,7 @@ def check_methods(methods, method_options: dict | None = None) -> tuple[Restorat
 
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
-                   sensor: Sensor = PAPER_SENSOR, progress=None, dtype: torch.dtype = torch.float32,
+                   sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
                    restoration_psf: PSFProvider | None = None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``) at each box ``(r0, r1, c0, c1)``.
 
@@ -208,7 +208,7 @@ def _provider_key(psf: PSFProvider):
 
 
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
-                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor = PAPER_SENSOR,
+                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
                    restoration_psf: PSFProvider | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
@@ -277,9 +277,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     return _restore_frame(noisy, ideal, restoration_psf, method, sensor, e, scheme, progress, seconds, resumed=False)
 
 
-def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry | None = None) -> list[CropResult]:
+def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry) -> list[CropResult]:
     """:class:`CropResult` for boxes ``(r0, r1, c0, c1)`` cut from a full-frame :class:`FrameResult`."""
-    geometry = geometry or PAPER_CAMERA.geometry
     out = []
     for box in boxes:
         r0, r1, c0, c1 = box

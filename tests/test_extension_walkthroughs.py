@@ -8,12 +8,16 @@ import math
 import pytest
 import torch
 
-from lenssim import CRITERIA, PAPER_CAMERA, PARAMETERS, Camera, Design, Lens, LensPSF, Numerics, Spectrum
+from lenssim import CRITERIA, PARAMETERS, Camera, Design, LensPSF, Numerics, Spectrum
+
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
 from lenssim.cost import surface_cost
 from lenssim.paraxial import seidel_surface_sums
-from lenssim.sweep import SweepConfig, run_sweep
-from lenssim.tradeoff import find_optimum
+from lenssim_studies.sweep import SweepConfig, run_sweep
+from lenssim_studies.tradeoff import find_optimum
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
 
 D = torch.float64
 FAST = Numerics(min_size=128, oversample=1)
@@ -21,9 +25,9 @@ FAST = Numerics(min_size=128, oversample=1)
 
 def test_walkthrough_a_wavelength_band_is_a_spectrum():
     """No code change: a Spectrum (or a [spectrum] config section) is taken by every PSF, criterion and blur."""
-    green = Camera(spectrum=Spectrum((0.50, 0.53, 0.56), (0.25, 0.5, 0.25)))
-    r = evaluate(green, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
-    mono = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
+    green = Camera(spectrum=Spectrum((0.50, 0.53, 0.56), (0.25, 0.5, 0.25)), lens=PAPER_LENS, sensor=PAPER_SENSOR)
+    r = evaluate(green, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST, rho0=PAPER_RHO0)
+    mono = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST, rho0=PAPER_RHO0)
     assert torch.isfinite(r["mse_r"]).all() and r["fft_size"].shape == (15,)
     assert float(r["rms_w"]) < float(mono["rms_w"])  # waves of a longer mean wavelength: fewer of them
     p, _ = psf_at(green, Design(s=-0.775, Q_back=-2.4), 0.0, 2.0, n=256)
@@ -47,7 +51,7 @@ def test_walkthrough_a_second_aspheric_surface(tmp_path):
     both = surface_cost(c1, torch.tensor(1.5, dtype=D), 2.0) + surface_cost(c2, torch.tensor(-2.4, dtype=D), 2.0)
     assert float(slope_departure_cost(lens, d)) == pytest.approx(float(both), rel=1e-12)
     # a sweep over (s, Q_front) takes its dimension names from the design
-    cam = Camera(Lens(field_angles_deg=(0.0, 10.0)))
+    cam = Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 10.0)), PAPER_SENSOR, PAPER_SPECTRUM)
     cfg = SweepConfig(camera=cam, grid={"s": (-0.8, -0.7, 0.05), "Q_front": (-1.0, 1.0, 1.0)}, snr_db=(27.6,),
                       numerics=FAST)
     ds = run_sweep(cfg, tmp_path / "front.nc", show_progress=False)
@@ -72,10 +76,10 @@ def test_walkthrough_a_restoration_method():
     from pipeline import RESTORATION_METHODS, crop_at_field_angle, resolution_scene, simulate_crops
 
     assert "tikhonov" in {m.name for m in pkgutil.iter_modules(package.__path__)} and "tikhonov" in RESTORATION_METHODS
-    ideal = resolution_scene(400, 600, seed=1)
-    box = crop_at_field_angle(ideal.shape, 0.3, 48)
+    ideal = resolution_scene(400, 600, seed=1, geometry=PAPER_CAMERA.geometry)
+    box = crop_at_field_angle(ideal.shape, 0.3, 48, PAPER_CAMERA.geometry)
     r = simulate_crops(ideal, LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4)), 3200.0, [box],
-                       methods=("wiener", "tikhonov:weight=0.003"))[0]
+                       methods=("wiener", "tikhonov:weight=0.003"), sensor=PAPER_SENSOR)[0]
     assert set(r.scores) == {"sensor", "wiener", "tikhonov"} and r.images["tikhonov"].shape == r.ideal.shape
 
 
@@ -91,9 +95,9 @@ def test_walkthrough_a_design_criterion(tmp_path):
 
     files = {m.name for m in pkgutil.iter_modules(package.__path__)}
     assert {"strehl", "mtf50"} <= files and {"strehl", "mtf50"} <= set(CRITERIA)
-    r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST)
+    r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST, rho0=PAPER_RHO0)
     assert 0 < float(r["strehl"]) < 1 and r["strehl_alpha"].shape == (15,)
-    cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 10.0))), grid={"s": (-0.8, -0.7, 0.05), "Q": (-3.0, -1.0, 1.0)},
+    cfg = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 10.0)), PAPER_SENSOR, PAPER_SPECTRUM), grid={"s": (-0.8, -0.7, 0.05), "Q": (-3.0, -1.0, 1.0)},
                       snr_db=(27.6,), numerics=FAST)
     ds = run_sweep(cfg, tmp_path / "c.nc", show_progress=False)
     assert ds["strehl"].dims == ("s", "Q_back") and ds["strehl_alpha"].dims == ("s", "Q_back", "alpha")

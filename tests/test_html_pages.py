@@ -10,10 +10,12 @@ import subprocess
 
 import pytest
 
-from lenssim import Camera, Lens, Numerics
-from lenssim.report import reproduce
-from lenssim.sweep import SweepConfig
+from lenssim import Camera, Numerics
+from lenssim_studies.report import reproduce
+from lenssim_studies.sweep import SweepConfig
 from lenssim_cli.main import main
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_SENSOR, PAPER_SPECTRUM
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed (apt-get install chromium)")
@@ -39,7 +41,7 @@ def simulated(tmp_path_factory):
 @pytest.fixture(scope="module")
 def reproduced(tmp_path_factory):
     out = tmp_path_factory.mktemp("repro")
-    cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 7.0, 14.0))),
+    cfg = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 7.0, 14.0)), PAPER_SENSOR, PAPER_SPECTRUM),
                       grid={"s": (-1.0, -0.5, 0.25), "Q": (-4.0, 0.0, 1.0)}, numerics=Numerics(min_size=128, oversample=1))
     reproduce(out, cfg, show_progress=False)
     return out

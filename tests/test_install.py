@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = ("pyproject.toml", "README.md", "lenssim", "pipeline", "lenssim_cli", "configs")
+SOURCES = ("pyproject.toml", "README.md", "lenssim", "pipeline", "lenssim_studies", "lenssim_cli", "configs")
 
 
 @pytest.fixture(scope="module")

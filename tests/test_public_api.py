@@ -11,9 +11,10 @@ import torch
 
 import lenssim
 import pipeline
-from lenssim import (PAPER_CAMERA, PAPER_DESIGNS, Design, LensPSF, check_shape, evaluate, otf_quarter_spectrum, psf,
-                     psf_at, spectral_coefficients)
+from lenssim import Design, LensPSF, check_shape, evaluate, otf_quarter_spectrum, psf, psf_at, spectral_coefficients
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import WindowScheme, add_poisson_noise, blur_windowed, wiener_windowed
+from lenssim_studies.paper import PAPER_RHO0
 
 E2E = PAPER_DESIGNS["end_to_end_paper"]
 TOL = {torch.float32: 1e-4, torch.float64: 1e-10}
@@ -48,8 +49,8 @@ def test_psf_at_and_design_tensors_follow_device_and_dtype(device_dtype):
 
 def test_evaluate_runs_on_the_device(device_dtype):
     dev, dt = device_dtype
-    r = evaluate(PAPER_CAMERA, E2E, [27.6], fft_size=256, dtype=dt, device=dev)
-    ref = evaluate(PAPER_CAMERA, E2E, [27.6], fft_size=256, dtype=torch.float64)
+    r = evaluate(PAPER_CAMERA, E2E, [27.6], fft_size=256, dtype=dt, device=dev, rho0=PAPER_RHO0)
+    ref = evaluate(PAPER_CAMERA, E2E, [27.6], fft_size=256, dtype=torch.float64, rho0=PAPER_RHO0)
     assert r["mse_r"].dtype == torch.float64  # criteria are accumulated in float64 whatever the OTF dtype
     assert r["mse_r"].device.type == dev.type
     _close(r["mse_r"], ref["mse_r"], dt)

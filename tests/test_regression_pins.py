@@ -57,6 +57,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from lenssim_studies.paper import PAPER_RHO0, PAPER_SENSOR
+from lenssim_studies.paper import PAPER_SNR_DB
 
 PINS = Path(__file__).with_name("pins.json")
 
@@ -111,20 +113,21 @@ def _stats(t: torch.Tensor) -> list[float]:
 
 
 def _evaluate_pins():
-    from lenssim import PAPER_CAMERA, Design, evaluate
+    from lenssim import Design, evaluate
+    from lenssim_studies.paper import PAPER_CAMERA
 
     out = {}
     for name, (s, Q) in PAPER_DESIGNS.items():
-        r = evaluate(PAPER_CAMERA, Design(s=s, Q_back=Q))
+        r = evaluate(PAPER_CAMERA, Design(s=s, Q_back=Q), rho0=PAPER_RHO0, snr_db=PAPER_SNR_DB)
         out[name] = {k: r[k].double().flatten().tolist() for k in
                      ("rms_w", "rms_w_piston_removed", "rms_w_alpha", "mse_s", "mse_r", "mse_r_alpha", "cost", "fft_size")}
     return out
 
 
 def _sweep_pins(tmp: Path):
-    from lenssim.figures import table1
-    from lenssim.sweep import load_config, run_sweep
-    from lenssim.tradeoff import find_optimum, tradeoff
+    from lenssim_studies.figures import table1
+    from lenssim_studies.sweep import load_config, run_sweep
+    from lenssim_studies.tradeoff import find_optimum, tradeoff
 
     cfg_path = tmp / "tiny.toml"
     cfg_path.write_text(TINY)
@@ -148,7 +151,8 @@ def _sweep_pins(tmp: Path):
 
 
 def _psf_pins():
-    from lenssim import PAPER_CAMERA, Design, otf_quarter_spectrum, psf_at, spectral_coefficients
+    from lenssim import Design, otf_quarter_spectrum, psf_at, spectral_coefficients
+    from lenssim_studies.paper import PAPER_CAMERA
 
     x = torch.tensor([0.0, 1.2, -3.0], dtype=torch.float64)
     y = torch.tensor([0.0, -2.0, 4.5], dtype=torch.float64)
@@ -160,7 +164,8 @@ def _psf_pins():
 
 
 def _pipeline_pins(anchor: str):
-    from lenssim import PAPER_CAMERA, Design, LensPSF
+    from lenssim import Design, LensPSF
+    from lenssim_studies.paper import PAPER_CAMERA
     from pipeline import WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
@@ -170,17 +175,18 @@ def _pipeline_pins(anchor: str):
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     blurred = blur_windowed(img, e2e, scheme=scheme, optical_center=oc)
     restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=scheme, optical_center=oc)
-    big = resolution_scene(600, 800, tile=128, spacing=256)
+    big = resolution_scene(600, 800, tile=128, spacing=256, geometry=PAPER_CAMERA.geometry)
     res = simulate_crops(big, LensPSF(PAPER_CAMERA, Design(s=-0.725, Q_back=-10.0)), [3200.0, 800.0],
                          [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme,
-                         dtype=torch.float64)  # float64: no Poisson count flips between hosts (module docstring)
+                         dtype=torch.float64, sensor=PAPER_SENSOR)  # float64: no Poisson count flips between hosts (module docstring)
     crops = [[r.scores["sensor"]["psnr_db"], r.scores["wiener"]["psnr_db"], r.scores["sensor"]["ssim"],
               r.scores["wiener"]["ssim"], r.field_deg] for per in res for r in per]
     return {"blur": _stats(blurred), "wiener": _stats(restored), "crops": crops}
 
 
 def _fitted_pins():
-    from lenssim import PAPER_CAMERA, Design, LensPSF
+    from lenssim import Design, LensPSF
+    from lenssim_studies.paper import PAPER_CAMERA
     from pipeline import PAPER_SCHEME, blur_windowed, wiener_windowed
 
     g = torch.Generator().manual_seed(3)

@@ -28,7 +28,8 @@ import math
 
 import torch
 
-from lenssim import PAPER_RHO0, PSFProvider, image_psd
+from lenssim import PSFProvider, image_psd
+
 from lenssim.validate import check_real
 
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
@@ -40,9 +41,13 @@ __all__ = ["wiener_windowed", "WIENER_STATS_PX"]
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
 
+WIENER_RHO0 = 0.97
+"""The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
+model, Section 2.3; a method option, ``wiener:rho0=...``)."""
+
 
 def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_unit: float,
-                    read_noise_var: float = 0.0, rho0: float = PAPER_RHO0, stats: int = WIENER_STATS_PX,
+                    read_noise_var: float = 0.0, rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with Poisson noise.
@@ -91,16 +96,18 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
 
 
 def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, optical_center=None, region=None,
-            progress=None, stats=WIENER_STATS_PX):
+            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0):
     return wiener_windowed(observed, psf, electrons_per_unit=electrons_per_unit, read_noise_var=read_noise_var,
-                           stats=stats, scheme=scheme, optical_center=optical_center, region=region, progress=progress)
+                           stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region, progress=progress)
 
 
 def _check(options):
     stats = options["stats"]
     if isinstance(stats, bool) or not (isinstance(stats, int) and stats >= 2):
         raise ValueError(f"wiener option stats={stats!r} is not allowed: an integer >= 2 (px, at most the window)")
+    if not 0 < options["rho0"] < 1:
+        raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
 
 
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
-                           _wiener, (("stats", WIENER_STATS_PX),), check=_check))
+                           _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0)), check=_check))

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 import lenssim.cost
-from lenssim import PAPER_CAMERA, Design, LensError, slope_departure_cost
+from lenssim import Design, LensError, slope_departure_cost
+from lenssim_studies.paper import PAPER_CAMERA
 
 
 def test_a_non_finite_asphere_cost_is_a_lens_error_not_a_name_error(monkeypatch):

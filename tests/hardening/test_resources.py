@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import pytest
 
-from lenssim import PAPER_CAMERA, Design, Numerics, evaluate
+from lenssim import Design, Numerics, evaluate
+
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.validate import ResourceLimitError, check_memory
 from lenssim_cli.main import main
+from lenssim_studies.paper import PAPER_RHO0
 
 
 @pytest.mark.parametrize("Q", ["-1e3", "-1e6"])
@@ -19,7 +22,7 @@ def test_a_huge_fft_is_refused_with_the_limit_and_its_flag(capsys, Q):
 
 def test_the_fft_limit_is_a_setting():
     with pytest.raises(ResourceLimitError, match="max_fft_size = 512") as exc:
-        evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=Numerics(max_fft_size=512))
+        evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=Numerics(max_fft_size=512), rho0=PAPER_RHO0)
     assert exc.value.setting == "max_fft_size" and "at 14 deg" in str(exc.value)
 
 

@@ -10,13 +10,17 @@ import numpy as np
 import pytest
 import torch
 
-from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensPSF, Numerics
-from lenssim.sweep import SweepConfig, run_sweep
+from lenssim import Camera, Design, LensPSF, Numerics
+
+from lenssim_studies.paper import PAPER_CAMERA
+from lenssim_studies.sweep import SweepConfig, run_sweep
 from lenssim.validate import ResumeWarning
 from pipeline import resolution_scene, simulate_frame, write_image
 from pipeline.blur import WindowScheme
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_SENSOR, PAPER_SPECTRUM
 
-CFG = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 10.0))), grid={"s": (-1.0, -0.5, 0.25), "Q": (-3.0, 0.0, 1.5)},
+CFG = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 10.0)), PAPER_SENSOR, PAPER_SPECTRUM), grid={"s": (-1.0, -0.5, 0.25), "Q": (-3.0, 0.0, 1.5)},
                   snr_db=(27.6,), numerics=Numerics(min_size=64, oversample=1))
 
 
@@ -69,14 +73,14 @@ def test_temporaries_of_a_killed_run_are_removed(tmp_path, reference):
 
 
 def test_a_replaced_checkpoint_image_is_not_trusted(tmp_path):
-    ideal = resolution_scene(600, 900, seed=3)[..., :300, :400]
+    ideal = resolution_scene(600, 900, seed=3, geometry=PAPER_CAMERA.geometry)[..., :300, :400]
     psf = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     scheme = WindowScheme(256, 32, 64)
-    first = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    first = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     other = torch.rand_like(first.sensor)
     write_image(tmp_path / "sensor_linear.exr", other, bits="float")  # same size, other pixels
     with pytest.warns(ResumeWarning, match="does not match its stamp"):
-        again = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+        again = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert not again.resumed and torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
-    resumed = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    resumed = simulate_frame(ideal, psf, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert resumed.resumed and torch.equal(resumed.restored, first.restored)

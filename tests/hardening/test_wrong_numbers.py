@@ -11,14 +11,18 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensError, LensPSF, Numerics, evaluate, noise_variance
+from lenssim import Camera, Design, LensError, LensPSF, Numerics, evaluate, noise_variance
+
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.files import json_text
 from lenssim.validate import ModelValidityWarning, NumericalError
 from pipeline import (add_poisson_noise, blur_windowed, crop_at_field_angle, gentle_denoise, richardson_lucy_windowed,
                       simulate_crops, wiener_windowed)
 from pipeline.blur import WindowScheme
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
 
-CAM2 = Camera(Lens(field_angles_deg=(0.0, 10.0)))
+CAM2 = Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 10.0)), PAPER_SENSOR, PAPER_SPECTRUM)
 FAST = Numerics(min_size=64, oversample=1)
 PSF = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 SCHEME = WindowScheme(64, 16, 32)
@@ -30,7 +34,7 @@ FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
 def test_evaluate_is_finite_or_refuses(s, Q):
     with _quiet():
         try:
-            r = evaluate(CAM2, Design(s=s, Q_back=Q), [27.6], numerics=FAST.replace(max_fft_size=1024))
+            r = evaluate(CAM2, Design(s=s, Q_back=Q), [27.6], numerics=FAST.replace(max_fft_size=1024), rho0=PAPER_RHO0)
         except (LensError, ValueError):
             return
     for k in ("rms_w", "mse_s", "mse_r", "cost"):
@@ -64,7 +68,8 @@ def test_noise_variance_is_finite_positive_or_refuses(snr):
 
 def test_the_cost_is_finite_up_to_the_conic_limit():
     """Just inside the limit (Q_back < 48.5933 at s = -0.775) the cost was NaN; now finite and growing."""
-    from lenssim import PAPER_LENS, slope_departure_cost
+    from lenssim import slope_departure_cost
+    from lenssim_studies.paper import PAPER_LENS
 
     with _quiet():
         c = [float(slope_departure_cost(PAPER_LENS, Design(s=-0.775, Q_back=q))) for q in (40.0, 48.0, 48.59, 48.5932)]
@@ -85,7 +90,7 @@ def test_full_well_outside_the_model_is_refused(value):
     with pytest.raises(ValueError, match="full_well"):
         add_poisson_noise(img, value, seed=0)
     with pytest.raises(ValueError, match="full_well"):
-        simulate_crops(img, PSF, value, [(0, 16, 0, 16)], scheme=SCHEME)
+        simulate_crops(img, PSF, value, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR)
 
 
 @pytest.mark.parametrize("bad", ["nan", "inf", "-inf"])
@@ -98,19 +103,19 @@ def test_a_non_finite_pixel_is_refused_by_every_image_function(fn, bad):
             "rl": lambda: richardson_lucy_windowed(img, PSF, iterations=2, scheme=SCHEME),
             "denoise": lambda: gentle_denoise(img, 0.5),
             "noise": lambda: add_poisson_noise(img, 800.0, seed=0),
-            "simulate": lambda: simulate_crops(img, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME)}[fn]
+            "simulate": lambda: simulate_crops(img, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR)}[fn]
     with pytest.raises(ValueError, match=r"NaN or infinite pixel values \(first at index \(0, 1, 7, 9\)"):
         call()
 
 
 @pytest.mark.parametrize("fn, match", [
     (lambda x: add_poisson_noise(-x, 800.0, seed=0), "negative values"),
-    (lambda x: simulate_crops(-x, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME), "negative values"),
-    (lambda x: simulate_crops(x * 0, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME), "black"),
+    (lambda x: simulate_crops(-x, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), "negative values"),
+    (lambda x: simulate_crops(x * 0, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), "black"),
     (lambda x: blur_windowed((x * 255).to(torch.uint8), PSF, scheme=SCHEME), "dtype torch.uint8"),
     (lambda x: wiener_windowed(x, PSF, electrons_per_unit=100.0, read_noise_var=-1.0, scheme=SCHEME), "read_noise_var"),
     (lambda x: wiener_windowed(x, PSF, electrons_per_unit=math.nan, scheme=SCHEME), "electrons_per_unit"),
-    (lambda x: simulate_crops(x, PSF, 800.0, [(0, 99, 0, 16)], scheme=SCHEME), r"box \(0, 99, 0, 16\)"),
+    (lambda x: simulate_crops(x, PSF, 800.0, [(0, 99, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), r"box \(0, 99, 0, 16\)"),
 ])
 def test_nonsense_images_and_settings_are_refused(fn, match):
     x = torch.rand(1, 1, 40, 40, dtype=torch.float64) + 0.1
@@ -122,12 +127,12 @@ def test_nonsense_images_and_settings_are_refused(fn, match):
                                           (-5.0, "field angle=-5.0"), (math.nan, "field angle=nan")])
 def test_crops_outside_the_frame_are_refused_not_moved(angle, match):
     with pytest.raises(ValueError, match=match):
-        crop_at_field_angle((1, 3, 600, 800), angle, 64)
+        crop_at_field_angle((1, 3, 600, 800), angle, 64, PAPER_CAMERA.geometry)
 
 
 def test_a_crop_moved_inside_the_frame_says_so():
     with pytest.warns(ModelValidityWarning, match="moved inside, to 1.29 deg"):
-        crop_at_field_angle((1, 3, 600, 800), 1.63, 200)
+        crop_at_field_angle((1, 3, 600, 800), 1.63, 200, PAPER_CAMERA.geometry)
 
 
 @pytest.mark.parametrize("name", ["psf", "otf", "otf_quarter", "wavefront", "rms_wavefront", "max_wavefront_slope",

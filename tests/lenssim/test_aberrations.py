@@ -1,10 +1,12 @@
+import dataclasses
 import math
 
 import pytest
 import torch
 
-from lenssim import (PAPER_LENS, TERMS, Design, ThinLens, field_rms_wavefront, rms_wavefront, seidel_sums, wavefront,
-                     wavefront_coefficients, wavefront_gradient)
+from lenssim import TERMS, Design, field_rms_wavefront, rms_wavefront, seidel_sums, wavefront, wavefront_coefficients, wavefront_gradient
+
+from lenssim_studies.paper import PAPER_LENS
 from lenssim.paraxial import Surface, seidel_surface_sums
 from lenssim.raytrace import transverse_aberration
 
@@ -34,7 +36,7 @@ def test_closed_form_matches_surface_by_surface_seidel_sums(s, Q, alpha):
 
 @pytest.mark.parametrize("p", [-0.5, 0.3])
 def test_closed_form_matches_surface_sums_at_finite_conjugates(p):
-    lens = ThinLens(position_factor=p)
+    lens = dataclasses.replace(PAPER_LENS, position_factor=p)
     t_img = lens.image_distance_mm  # marginal ray leaves the lens towards the axial image point
     y = lens.pupil_radius_mm
     u_in = -y / t_img + y / lens.focal_length_mm  # thin lens: u' = u - y/f
@@ -64,7 +66,7 @@ def test_third_order_matches_exact_ray_trace_at_small_aperture(s, Q):
     R, T = R[m], T[m]
     errs = []
     for y in (0.2, 0.05):
-        lens = ThinLens(pupil_radius_mm=y)
+        lens = dataclasses.replace(PAPER_LENS, pupil_radius_mm=y)
         eps_r, eps_t = transverse_aberration(lens, design(s, Q), alpha, R, T)
         c = wavefront_coefficients(lens, design(s, Q), [alpha], wavelength_um=LAMBDA_UM)[0]
         g_r, g_t = wavefront_gradient(c * LAMBDA_UM * 1e-3, R, T)
@@ -77,7 +79,7 @@ def test_third_order_matches_exact_ray_trace_at_small_aperture(s, Q):
 
 def test_ray_trace_coma_sign_flips_with_the_conventions_of_the_notes():
     """The coma of NOTES.md (-S_II) belongs to a meridional axis pointing away from the image."""
-    lens = ThinLens(pupil_radius_mm=0.1)
+    lens = dataclasses.replace(PAPER_LENS, pupil_radius_mm=0.1)
     s, Q, alpha = -0.725, -10.0, 2.0
     R = torch.tensor([1.0, -1.0], dtype=D)
     eps_r, _ = transverse_aberration(lens, design(s, Q), alpha, R, torch.zeros(2, dtype=D))

@@ -7,14 +7,16 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from lenssim.cluster import ClusterError, _chunk_task, compute_chunks, dask_client  # noqa: E402
-from lenssim.lens import Lens  # noqa: E402
+import lenssim_studies.cluster  # noqa: E402
+from lenssim_studies.cluster import ClusterError, _chunk_task, compute_chunks, dask_client  # noqa: E402
 from lenssim.camera import Camera  # noqa: E402
 from lenssim.numerics import FAST_NUMERICS  # noqa: E402
-from lenssim.sweep import SweepConfig, _checksum, _compute_chunk, run_sweep  # noqa: E402
+from lenssim_studies.sweep import SweepConfig, _checksum, _compute_chunk, run_sweep  # noqa: E402
 from lenssim.torch_utils import select_device  # noqa: E402
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_SENSOR, PAPER_SPECTRUM
 
-CFG = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 5.0, 10.0, 14.0))),
+CFG = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 5.0, 10.0, 14.0)), PAPER_SENSOR, PAPER_SPECTRUM),
                   grid={"s": (-1.5, 0.0, 0.25), "Q_back": (-6.0, 0.0, 2.0)}, numerics=FAST_NUMERICS)
 
 
@@ -57,9 +59,8 @@ def test_a_scheduler_address_is_used_and_an_absent_one_is_a_clear_error(serial_f
         out = tmp_path / "remote.nc"
         run_sweep(CFG, out, device="cpu", show_progress=False, scheduler=cluster.scheduler_address)
     assert out.read_bytes() == serial_file.read_bytes()
-    import lenssim.cluster
 
-    monkeypatch.setattr(lenssim.cluster, "CONNECT_TIMEOUT_S", 2)
+    monkeypatch.setattr(lenssim_studies.cluster, "CONNECT_TIMEOUT_S", 2)
     with pytest.raises(ConnectionError, match="no dask scheduler answers at 'tcp://127.0.0.1:9'"):
         run_sweep(CFG, tmp_path / "none.nc", device="cpu", show_progress=False, scheduler="tcp://127.0.0.1:9")
 

@@ -7,16 +7,20 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_CAMERA, Camera, Design, Lens, LensPSF, Numerics, Sensor, Spectrum, evaluate
+from lenssim import Camera, Design, LensPSF, Numerics, Spectrum, evaluate
+
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.aberrations import wavefront_coefficients, wavefront_gradient
 from lenssim.glass import C_LINE_UM, D_LINE_UM, F_LINE_UM, load_glasses
 from lenssim.raytrace import trace_rays, transverse_aberration
 from lenssim.spectrum import channel_spectra
 from lenssim.validate import ModelValidityWarning
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
 
 D = torch.float64
-BK7 = Lens(glass="N-BK7")
-FINE = Sensor(pixel_pitch_um=1.2)  # Nyquist down to 0.384 um: no aliasing in visible light
+BK7 = dataclasses.replace(PAPER_LENS, glass="N-BK7")
+FINE = dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=1.2)  # Nyquist down to 0.384 um: no aliasing in visible light
 
 
 def test_catalogue_glasses_match_their_data_sheets():
@@ -56,7 +60,7 @@ def test_defocus_matches_an_exact_ray_trace_at_small_aperture(lam, shift_um):
     R, T = torch.meshgrid(r, r, indexing="ij")
     m = R**2 + T**2 <= 1
     R, T = R[m], T[m]
-    lens = Lens(glass="N-BK7", pupil_radius_mm=0.05)
+    lens = dataclasses.replace(PAPER_LENS, glass="N-BK7", pupil_radius_mm=0.05)
     d = Design(s=torch.tensor(-0.775, dtype=D), Q_back=torch.tensor(-2.4, dtype=D),
                focus_shift_um=torch.tensor(shift_um, dtype=D))
     eps_r, eps_t = transverse_aberration(lens, d, 2.0, R, T, wavelength_um=lam)
@@ -88,7 +92,7 @@ def test_channel_spectra_come_from_colour_science_and_sum_to_one():
 
 
 def test_channel_psfs_sum_to_one_and_blur_each_channel(tmp_path):
-    cam = Camera(Lens(glass="N-BK7"), FINE, channels=channel_spectra(per_channel=3))
+    cam = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7"), FINE, channels=channel_spectra(per_channel=3), spectrum=PAPER_SPECTRUM)
     p = LensPSF(cam, Design(s=-0.775, Q_back=-2.4))
     assert p.channels == 3
     out = p.psf_at_pixels(torch.tensor([0, 40]), torch.tensor([0, 60]), (0.0, 0.0), 128)
@@ -104,8 +108,8 @@ def test_channel_psfs_sum_to_one_and_blur_each_channel(tmp_path):
 
 
 def test_criteria_per_channel_and_their_mean():
-    cam = Camera(Lens(glass="N-BK7", field_angles_deg=(0.0, 10.0)), FINE, channels=channel_spectra(per_channel=2))
-    r = evaluate(cam, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=Numerics(min_size=128, oversample=1))
+    cam = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7", field_angles_deg=(0.0, 10.0)), FINE, channels=channel_spectra(per_channel=2), spectrum=PAPER_SPECTRUM)
+    r = evaluate(cam, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=Numerics(min_size=128, oversample=1), rho0=PAPER_RHO0)
     assert r["mse_r_per_channel"].shape == (3, 1)
     torch.testing.assert_close(r["mse_r"], r["mse_r_per_channel"].mean(dim=0))
     assert torch.isfinite(r["mse_r_per_channel"]).all()
@@ -113,7 +117,7 @@ def test_criteria_per_channel_and_their_mean():
 
 def test_the_paper_sensor_undersamples_blue_light_and_says_so():
     with pytest.warns(ModelValidityWarning, match="undersample"):
-        LensPSF(Camera(channels=channel_spectra(per_channel=2)), Design(s=-0.775, Q_back=-2.4))
+        LensPSF(Camera(channels=channel_spectra(per_channel=2), lens=PAPER_LENS, sensor=PAPER_SENSOR, spectrum=PAPER_SPECTRUM), Design(s=-0.775, Q_back=-2.4))
 
 
 def test_the_default_number_of_wavelengths_per_channel_is_converged():
@@ -121,21 +125,21 @@ def test_the_default_number_of_wavelengths_per_channel_is_converged():
     the d line: blue and red light defocused by 1-2 waves, where the quadrature converges slowest)."""
     from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL as K
 
-    lens = Lens(glass="N-BK7", field_angles_deg=(0.0, 7.0, 14.0))
+    lens = dataclasses.replace(PAPER_LENS, glass="N-BK7", field_angles_deg=(0.0, 7.0, 14.0))
     num = Numerics(min_size=128, oversample=1)
-    v = [evaluate(Camera(lens, FINE, channels=channel_spectra(per_channel=k)), Design(s=-0.775, Q_back=-2.4), [27.6],
-                  numerics=num)["mse_r_per_channel"][:, 0] for k in (K, 2 * K)]
+    v = [evaluate(Camera(lens, FINE, channels=channel_spectra(per_channel=k), spectrum=PAPER_SPECTRUM), Design(s=-0.775, Q_back=-2.4), [27.6],
+                  numerics=num, rho0=PAPER_RHO0)["mse_r_per_channel"][:, 0] for k in (K, 2 * K)]
     assert float(((v[0] - v[1]) / v[1]).abs().max()) < 7e-3
 
 
 def test_best_focus_finds_the_minimum_of_a_scan():
     from lenssim.focus import best_focus
 
-    cam = Camera(Lens(glass="N-BK7", field_angles_deg=(0.0, 7.0)), FINE, Spectrum((0.48, 0.55, 0.62), (1, 1, 1)))
+    cam = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7", field_angles_deg=(0.0, 7.0)), FINE, Spectrum((0.48, 0.55, 0.62), (1, 1, 1)))
     num = Numerics(min_size=128, oversample=1)
     d = Design(s=-0.775, Q_back=-2.4)
-    r = best_focus(cam, d, "mse_r", 27.6, bounds_um=(-150.0, 150.0), tol_um=1.0, numerics=num)
-    scan = {z: float(evaluate(cam, d.replace(focus_shift_um=z), [27.6], numerics=num)["mse_r"][0])
+    r = best_focus(cam, d, "mse_r", 27.6, bounds_um=(-150.0, 150.0), tol_um=1.0, numerics=num, rho0=PAPER_RHO0)
+    scan = {z: float(evaluate(cam, d.replace(focus_shift_um=z), [27.6], numerics=num, rho0=PAPER_RHO0)["mse_r"][0])
             for z in range(-150, 151, 25)}
     z_best = min(scan, key=scan.get)
     assert abs(r.focus_shift_um - z_best) <= 25 and r.value <= min(scan.values()) + 1e-12
@@ -144,7 +148,7 @@ def test_best_focus_finds_the_minimum_of_a_scan():
 def test_windowed_colour_blur_matches_the_exact_per_pixel_reference_above_70_db():
     from pipeline.blur import PAPER_SCHEME, blur_exact, blur_windowed
 
-    cam = Camera(Lens(glass="N-BK7"), FINE, channels=channel_spectra(per_channel=3))
+    cam = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7"), FINE, channels=channel_spectra(per_channel=3), spectrum=PAPER_SPECTRUM)
     p = LensPSF(cam, Design(s=-0.775, Q_back=-2.4, focus_shift_um=-20.0))
     g = torch.Generator().manual_seed(0)
     img = torch.nn.functional.avg_pool2d(torch.rand(1, 3, 640, 640, generator=g, dtype=D), 3, 1, 1)
@@ -161,7 +165,7 @@ def test_windowed_colour_blur_matches_the_exact_per_pixel_reference_above_70_db(
 
 def test_a_sweep_can_optimise_the_focus_at_every_design(tmp_path):
     from lenssim.focus import best_focus
-    from lenssim.sweep import load_config, run_sweep
+    from lenssim_studies.sweep import load_config, run_sweep
 
     cfg = tmp_path / "focus.toml"
     cfg.write_text('[lens]\nfield_angles_deg = [0, 7, 14]\n[grid]\ns = [-0.8, -0.7, 0.1]\nQ = [-3.0, -2.0, 1.0]\n'
@@ -172,9 +176,9 @@ def test_a_sweep_can_optimise_the_focus_at_every_design(tmp_path):
     assert ds["focus_shift_um"].dims == ("s", "Q_back") and ds["focus_shift_um"].attrs["units"] == "um"
     z = float(ds["focus_shift_um"].sel(s=-0.8, Q_back=-3.0))
     ref = best_focus(c.camera, Design(s=-0.8, Q_back=-3.0), "mse_r", 27.6, bounds_um=(-300, 300), tol_um=0.5,
-                     numerics=c.numerics)
+                     numerics=c.numerics, rho0=PAPER_RHO0)
     assert z == pytest.approx(ref.focus_shift_um, abs=2.0)
-    at0 = evaluate(c.camera, Design(s=-0.8, Q_back=-3.0), [27.6], numerics=c.numerics)["mse_r"][0]
+    at0 = evaluate(c.camera, Design(s=-0.8, Q_back=-3.0), [27.6], numerics=c.numerics, rho0=PAPER_RHO0)["mse_r"][0]
     assert float(ds["mse_r"].sel(s=-0.8, Q_back=-3.0, snr=27.6)) <= float(at0)
     bad = tmp_path / "bad.toml"
     bad.write_text('[grid]\nfocus_shift_um = [-10, 10, 5]\n[focus]\ncriterion = "mse_r"\n')
@@ -186,21 +190,22 @@ def test_the_exact_wavefront_fit_reduces_to_third_order_at_small_aperture_and_di
     """Item 6: W fitted to an exact ray trace. At a 0.05 mm pupil its Seidel monomials equal the third-order
     coefficients (coma, astigmatism, curvature to 0.2%); at the paper's f/6.25 the MSE_R it gives differs
     from third order's by about 1%, and the RMS_W design stays ~37% worse than the end-to-end one."""
-    from lenssim import FAST_NUMERICS, PAPER_DESIGNS
+    from lenssim import FAST_NUMERICS
+    from lenssim_studies.paper import PAPER_DESIGNS
     from lenssim.exact_wavefront import EXACT_TERMS, exact_criteria, exact_wavefront_coefficients
     from lenssim.psf_bank import spectral_coefficients
 
-    cam = Camera(Lens(pupil_radius_mm=0.05))
+    cam = Camera(dataclasses.replace(PAPER_LENS, pupil_radius_mm=0.05), PAPER_SENSOR, PAPER_SPECTRUM)
     d = Design(s=-0.775, Q_back=-2.4)
     c = exact_wavefront_coefficients(cam, d, 2.0)
     at = {(t.a, t.b): float(v) for t, v in zip(EXACT_TERMS, c)}
     third = spectral_coefficients(cam, d, [2.0])[0, 0]
     for (a, b), k in (((1, 1), 1), ((0, 2), 2), ((1, 0), 3)):
         assert at[(a, b)] == pytest.approx(float(third[k]), rel=3e-3)
-    cam3 = Camera(Lens(field_angles_deg=(0.0, 7.0, 14.0)))
-    e = {n: float(exact_criteria(cam3, PAPER_DESIGNS[n], [27.6], numerics=FAST_NUMERICS)["mse_r"][0])
+    cam3 = Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 7.0, 14.0)), PAPER_SENSOR, PAPER_SPECTRUM)
+    e = {n: float(exact_criteria(cam3, PAPER_DESIGNS[n], [27.6], numerics=FAST_NUMERICS, rho0=PAPER_RHO0)["mse_r"][0])
          for n in ("rms_w_paper", "end_to_end_paper")}
-    s = {n: float(evaluate(cam3, PAPER_DESIGNS[n], [27.6], numerics=FAST_NUMERICS)["mse_r"][0]) for n in e}
+    s = {n: float(evaluate(cam3, PAPER_DESIGNS[n], [27.6], numerics=FAST_NUMERICS, rho0=PAPER_RHO0)["mse_r"][0]) for n in e}
     for n in e:
         assert abs(e[n] / s[n] - 1) < 0.03
     assert e["rms_w_paper"] / e["end_to_end_paper"] == pytest.approx(s["rms_w_paper"] / s["end_to_end_paper"], rel=0.02)

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -5,7 +6,9 @@ import pytest
 import torch
 from scipy import optimize
 
-from lenssim import PAPER_LENS, Design, LensError, ThinLens, best_fit_sphere_curvature
+from lenssim import Design, LensError, best_fit_sphere_curvature
+
+from lenssim_studies.paper import PAPER_LENS
 from lenssim import slope_departure_cost as _cost
 from lenssim import slope_departure_cost_third_order as _cost3
 
@@ -52,7 +55,7 @@ def test_best_fit_sphere_matches_a_brute_force_fit():
 
 def test_third_order_limit_at_small_aperture():
     # next order is ~(1 + Q) c^2 y^2: 0.4 % at y = 0.2 mm, s = -2, Q = -10; 16x less at 0.05 mm
-    lens = ThinLens(pupil_radius_mm=0.05)
+    lens = dataclasses.replace(PAPER_LENS, pupil_radius_mm=0.05)
     for s, Q in [(-2.0, -10.0), (-0.5, 1.0)]:
         exact = float(slope_departure_cost(lens, s, Q, n_points=4001))
         assert exact == pytest.approx(float(slope_departure_cost_third_order(lens, s, Q)), rel=1e-3)

@@ -4,12 +4,16 @@ import torch
 
 from lenssim import CRITERIA
 
-from lenssim import DEFAULT_NUMERICS, PAPER_LENS, Camera, Design, Lens
+from lenssim import DEFAULT_NUMERICS, Camera, Design
+
+from lenssim_studies.paper import PAPER_LENS
 from lenssim import slope_departure_cost as _cost
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
-from lenssim.tradeoff import iso_cost_curve
+from lenssim_studies.tradeoff import iso_cost_curve
+import dataclasses
+from lenssim_studies.paper import PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
 
-CAM3 = Camera(Lens(field_angles_deg=(0.0, 7.0, 14.0)))
+CAM3 = Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 7.0, 14.0)), PAPER_SENSOR, PAPER_SPECTRUM)
 NUM = DEFAULT_NUMERICS.replace(min_size=128, oversample=1)
 
 
@@ -19,7 +23,7 @@ def slope_departure_cost(lens, s, Q):
 
 @pytest.mark.parametrize("criterion", ["mse_r", "mse_s"])
 def test_autograd_through_the_whole_chain_matches_finite_differences(criterion):
-    f = DifferentiableCriterion(CAM3, 27.6, criterion, numerics=NUM)
+    f = DifferentiableCriterion(CAM3, 27.6, criterion, numerics=NUM, rho0=PAPER_RHO0)
     x = torch.tensor([-0.8, -2.3], dtype=torch.float64, requires_grad=True)
     (g,) = torch.autograd.grad(f(x), x)
     for i, h in enumerate((1e-5, 1e-4)):
@@ -76,7 +80,7 @@ def test_projected_descent_finds_a_known_iso_cost_optimum():
 
 def test_projected_descent_agrees_with_a_dense_scan_of_the_real_model():
     level = 5.5e-4
-    f = DifferentiableCriterion(CAM3, 27.6, "mse_r", numerics=NUM)
+    f = DifferentiableCriterion(CAM3, 27.6, "mse_r", numerics=NUM, rho0=PAPER_RHO0)
     r = optimise_on_iso_cost(f, (-1.0, -1.8), level)
     s = np.linspace(r.design["s"] - 0.05, r.design["s"] + 0.05, 11)
     cs, cq, cb = iso_cost_curve(CAM3.lens, level, s)

@@ -1,9 +1,15 @@
 import math
 
 import pytest
+
+from lenssim_studies.config import paper_lens_with, paper_sensor_with
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_LENS, PAPER_SENSOR, Camera, Design, LensError, Sensor, Spectrum, ThinLens
+from lenssim import Camera, Design, LensError, Spectrum
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_LENS, PAPER_SENSOR
+import dataclasses
+from lenssim_studies.paper import PAPER_SPECTRUM
 
 
 def test_paper_lens_derived_quantities():
@@ -25,10 +31,10 @@ def test_6000x4000_sensor_spans_12p7_degrees():
 
 def test_the_sensor_pitch_does_not_move_with_the_wavelength():
     for lam in (0.45, 0.5, 0.65):
-        assert Camera(spectrum=Spectrum.monochromatic(lam)).pixel_pitch_um == 1.5625
+        assert Camera(spectrum=Spectrum.monochromatic(lam), lens=PAPER_LENS, sensor=PAPER_SENSOR).pixel_pitch_um == 1.5625
     with pytest.warns(UserWarning, match="undersample wavelengths below 0.5 um"):
-        Camera(spectrum=Spectrum.monochromatic(0.45)).pupil_radius_px(256, 0.45)
-    assert Camera(sensor=Sensor(pixel_pitch_um=1.0)).pupil_radius_px(256, 0.5) == pytest.approx(256 * 1.0 / 6.25)
+        Camera(spectrum=Spectrum.monochromatic(0.45), lens=PAPER_LENS, sensor=PAPER_SENSOR).pupil_radius_px(256, 0.45)
+    assert Camera(sensor=dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=1.0), lens=PAPER_LENS, spectrum=PAPER_SPECTRUM).pupil_radius_px(256, 0.5) == pytest.approx(256 * 1.0 / 6.25)
 
 
 @pytest.mark.parametrize(
@@ -50,7 +56,7 @@ def test_the_sensor_pitch_does_not_move_with_the_wavelength():
 )
 def test_unphysical_lens_is_refused_with_its_name(kw, name):
     with pytest.raises(LensError, match=name):
-        ThinLens.from_dict(kw)
+        paper_lens_with(kw)  # the paper's lens with one value changed
 
 
 @pytest.mark.parametrize("kw, name", [({"pixel_pitch_um": 0.0}, "pixel_pitch_um"), ({"width_px": 0}, "width_px"),
@@ -58,7 +64,7 @@ def test_unphysical_lens_is_refused_with_its_name(kw, name):
                                       ({"full_well_e": ((100, -5.0),)}, "full_well_e")])
 def test_unphysical_sensor_is_refused_with_its_name(kw, name):
     with pytest.raises(ValueError, match=name):
-        Sensor(**kw)
+        paper_sensor_with(kw)
 
 
 def test_spectrum_normalises_weights_and_refuses_nonsense():

@@ -1,8 +1,11 @@
 import pytest
 import torch
 
-from lenssim import (CRITERIA, PAPER_CAMERA, Camera, Design, LensError, Numerics, Spectrum, evaluate, fft_size, image_psd,
-                     noise_variance, otf, otf_criteria_bank, spectral_coefficients)
+from lenssim import CRITERIA, Camera, Design, LensError, Numerics, Spectrum, evaluate, fft_size, image_psd, noise_variance, otf, otf_criteria_bank, spectral_coefficients
+
+from lenssim_studies.paper import PAPER_CAMERA
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR
+from lenssim_studies.paper import PAPER_SNR_DB
 
 D = torch.float64
 SNR = (21.6, 27.6, 33.6)
@@ -15,7 +18,7 @@ def coeffs_for(s, Q, alphas):
 
 
 def mse_bank(c, sizes, snr, oversample=2):
-    out = otf_criteria_bank(CAM, c, sizes, snr, numerics=Numerics(oversample=oversample))
+    out = otf_criteria_bank(CAM, c, sizes, snr, numerics=Numerics(oversample=oversample), rho0=PAPER_RHO0)
     return out["mse_s"], out["mse_r"]
 
 
@@ -29,7 +32,7 @@ def test_mse_matches_an_explicit_wiener_filter_on_the_full_grid():
     n = 384
     ms, mr = mse_bank(c, torch.full((2,), n), SNR, oversample=1)
     H = otf(CAM, c, n)
-    P = image_psd(n, dtype=D)
+    P = image_psd(n, dtype=D, rho0=PAPER_RHO0)
     for j, s2 in enumerate(noise_variance(SNR)):
         Hw = P * H.conj() / (H.abs() ** 2 * P + s2)
         err_r = (Hw * H - 1).abs() ** 2 * P + Hw.abs() ** 2 * s2
@@ -44,7 +47,7 @@ def test_mse_matches_monte_carlo_images():
     c = coeffs_for(-0.775, -2.4, [8.0])
     ms, mr = mse_bank(c, torch.tensor([n]), [27.6], oversample=1)
     H = otf(CAM, c, n)[0]
-    P = image_psd(n, dtype=D)
+    P = image_psd(n, dtype=D, rho0=PAPER_RHO0)
     s2 = float(noise_variance(27.6))
     g = torch.Generator().manual_seed(0)
     X = torch.fft.fft2(torch.randn(reps, n, n, generator=g, dtype=D)) * P.sqrt()  # correlated field
@@ -61,7 +64,7 @@ def test_restoration_never_worse_and_noise_monotone():
     g = torch.Generator().manual_seed(3)
     s = torch.rand(12, generator=g, dtype=D) * 3 - 2
     Q = torch.rand(12, generator=g, dtype=D) * 11.2 - 10
-    r = evaluate(CAM, design(s, Q), SNR, fft_size=256)
+    r = evaluate(CAM, design(s, Q), SNR, fft_size=256, rho0=PAPER_RHO0)
     assert torch.all(r["mse_r"] <= r["mse_s"])
     assert torch.all(r["mse_r_alpha"] <= r["mse_s_alpha"])
     assert torch.all(r["mse_r"][:, 1:] < r["mse_r"][:, :-1])  # better with more signal
@@ -77,7 +80,7 @@ def test_perfect_lens_limits():
     with pytest.warns(UserWarning, match="outside"):  # 100 dB: the end of the allowed range, beyond the validated one
         ms, mr = mse_bank(c, torch.tensor([512]), [100.0], oversample=1)
     m = 512
-    P = image_psd(m, dtype=D)
+    P = image_psd(m, dtype=D, rho0=PAPER_RHO0)
     k = torch.fft.fftfreq(m, dtype=D)
     beyond = (torch.hypot(k[:, None], k[None, :]) >= 0.5).to(D)
     assert float(mr[0, 0]) == pytest.approx(float((P * beyond).mean()), rel=0.05)  # rim samples at |f| ~ 0.5
@@ -117,30 +120,30 @@ def test_metrics_converge_in_fft_size_full_field_corners(design):
 
 
 def test_evaluate_outputs_and_override():
-    r = evaluate(CAM, design(torch.tensor([-0.775, -0.725]), torch.tensor([-2.4, -10.0])), SNR)
+    r = evaluate(CAM, design(torch.tensor([-0.775, -0.725]), torch.tensor([-2.4, -10.0])), SNR, rho0=PAPER_RHO0)
     assert r["rms_w"].shape == (2,) and r["mse_s"].shape == (2, 3) and r["mse_r_alpha"].shape == (2, 15, 3)
     assert r["fft_size"].shape == (2, 15) and r["cost"].shape == (2,)
     assert float(r["rms_w"][1]) < float(r["rms_w"][0])
-    r2 = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256)
+    r2 = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256, rho0=PAPER_RHO0)
     assert torch.all(r2["fft_size"] == 256)
     assert set(CRITERIA) <= set(r2)
     with pytest.raises(ValueError, match="fft_size=255"):
-        evaluate(CAM, design(-0.775, -2.4), fft_size=255)
+        evaluate(CAM, design(-0.775, -2.4), fft_size=255, rho0=PAPER_RHO0, snr_db=PAPER_SNR_DB)
     with pytest.raises(LensError, match="Q_back=30"):
-        evaluate(CAM, design(-2.0, 30.0))
+        evaluate(CAM, design(-2.0, 30.0), rho0=PAPER_RHO0, snr_db=PAPER_SNR_DB)
 
 
 def test_a_spectrum_of_one_repeated_wavelength_changes_nothing():
     """The spectral machinery (weights, per-wavelength OTFs) with one wavelength twice equals one wavelength."""
-    two = Camera(spectrum=Spectrum((0.5, 0.5), (0.5, 0.5)))
-    a = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D)
-    b = evaluate(two, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D)
+    two = Camera(spectrum=Spectrum((0.5, 0.5), (0.5, 0.5)), lens=PAPER_LENS, sensor=PAPER_SENSOR)
+    a = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D, rho0=PAPER_RHO0)
+    b = evaluate(two, design(-0.775, -2.4), [27.6], fft_size=256, dtype=D, rho0=PAPER_RHO0)
     for k in ("rms_w", "mse_s", "mse_r", "cost"):
         torch.testing.assert_close(b[k], a[k], rtol=1e-12, atol=0)
 
 
 def test_criteria_registry_names_every_result():
-    r = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256)
+    r = evaluate(CAM, design(-0.775, -2.4), [27.6], fft_size=256, rho0=PAPER_RHO0)
     for name, c in CRITERIA.items():
         assert r[name].shape == ((1,) if c.per_snr else ())
         assert c.units and c.label and (c.from_otf is None) != (c.from_design is None)

@@ -4,9 +4,12 @@ import pytest
 import torch
 from scipy.special import j1
 
-from lenssim import (PAPER_CAMERA, PAPER_LENS, Camera, Design, Numerics, Spectrum, fft_size, otf, otf_quarter, psf, psf_at,
-                     pupil_amplitude, spectral_coefficients, wavefront)
+from lenssim import Camera, Design, Numerics, Spectrum, fft_size, otf, otf_quarter, psf, psf_at, pupil_amplitude, spectral_coefficients, wavefront
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_LENS
 from lenssim.psf_bank import nice_fft_size
+import dataclasses
+from lenssim_studies.paper import PAPER_SENSOR, PAPER_SPECTRUM
 
 D = torch.float64
 CAM = PAPER_CAMERA
@@ -41,21 +44,19 @@ def test_pupil_fills_half_the_grid_at_the_nyquist_pitch():
     assert CAM.pupil_radius_px(256, LAMBDA_UM) == pytest.approx(64.0)
     amp, _ = pupil_amplitude(CAM, 256, dtype=D)
     assert float(amp.sum()) == pytest.approx(math.pi * 64**2, rel=1e-4)  # anti-aliased area
-    from lenssim import Sensor
 
     with pytest.raises(ValueError, match="pixel_pitch_um=3.2 is not allowed.*would not fit"):
-        Camera(sensor=Sensor(pixel_pitch_um=3.2)).pupil_radius_px(256, LAMBDA_UM)
+        Camera(sensor=dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=3.2), lens=PAPER_LENS, spectrum=PAPER_SPECTRUM).pupil_radius_px(256, LAMBDA_UM)
     with pytest.warns(UserWarning, match="undersample wavelengths below 0.64 um"):
-        assert Camera(sensor=Sensor(pixel_pitch_um=2.0)).pupil_radius_px(256, LAMBDA_UM) == pytest.approx(81.92)
+        assert Camera(sensor=dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=2.0), lens=PAPER_LENS, spectrum=PAPER_SPECTRUM).pupil_radius_px(256, LAMBDA_UM) == pytest.approx(81.92)
 
 
 def test_undersampled_psf_samples_are_the_continuous_psf_at_the_pixel_centres():
     """A pitch coarser than Nyquist: the FFT still gives the Airy pattern's values at the pixel centres
     (the aliasing is the sampling's, as a real sensor's), checked against the closed form."""
-    from lenssim import Sensor
 
     with pytest.warns(UserWarning, match="undersample"):
-        cam = Camera(sensor=Sensor(pixel_pitch_um=2.2))
+        cam = Camera(sensor=dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=2.2), lens=PAPER_LENS, spectrum=PAPER_SPECTRUM)
         n = 256
         p = psf(cam, ZERO, n)[0]
     c = n // 2
@@ -249,11 +250,11 @@ def test_polychromatic_psf_is_the_weighted_sum_and_its_mtf_the_weighted_analytic
     """A spectrum's PSF is the weighted sum of unit-sum PSFs on the fixed pixel grid; diffraction-limited,
     its MTF is the weighted sum of the analytic MTFs with cut-offs Delta / (lambda f#)."""
     lams, w = (0.45, 0.55, 0.65), (0.2, 0.5, 0.3)
-    cam = Camera(sensor=CAM.sensor.__class__(pixel_pitch_um=1.4), spectrum=Spectrum(lams, w))
+    cam = Camera(sensor=dataclasses.replace(CAM.sensor, pixel_pitch_um=1.4), spectrum=Spectrum(lams, w), lens=PAPER_LENS)
     n = 512
     p = psf(cam, torch.zeros(1, 3, 4, dtype=D), n)[0]
     assert float(p.sum()) == pytest.approx(1.0, abs=1e-12)
-    parts = [psf(Camera(sensor=cam.sensor, spectrum=Spectrum.monochromatic(l)), ZERO, n)[0] for l in lams]
+    parts = [psf(Camera(sensor=cam.sensor, spectrum=Spectrum.monochromatic(l), lens=PAPER_LENS), ZERO, n)[0] for l in lams]
     torch.testing.assert_close(p, sum(wi * q for wi, q in zip(w, parts)), rtol=0, atol=1e-15)
     H = otf(cam, torch.zeros(1, 3, 4, dtype=D), n)[0]
     k = torch.fft.fftfreq(n, dtype=D)
@@ -269,7 +270,7 @@ def test_polychromatic_psf_is_the_weighted_sum_and_its_mtf_the_weighted_analytic
 
 def test_monochromatic_spectrum_gives_back_the_single_wavelength_psf_exactly():
     c = coeffs(-0.775, -2.4, [9.0])
-    two = Camera(spectrum=Spectrum((0.5, 0.5), (0.3, 0.7)))
+    two = Camera(spectrum=Spectrum((0.5, 0.5), (0.3, 0.7)), lens=PAPER_LENS, sensor=PAPER_SENSOR)
     p1 = psf(CAM, c, 256)
     p2 = psf(two, c.expand(1, 2, 4), 256)
     torch.testing.assert_close(p2, p1, rtol=0, atol=1e-15)
@@ -280,12 +281,14 @@ def test_a_spectrum_otf_summed_before_its_transform_equals_the_weighted_per_wave
     wavelength on its own (otf_quarter) and weights the OTFs."""
     import warnings
 
-    from lenssim import PAPER_CAMERA, Camera, Design, Lens, Spectrum
+    from lenssim import Camera, Design, Spectrum
+
+    from lenssim_studies.paper import PAPER_CAMERA
     from lenssim.psf_bank import otf_quarter, otf_quarter_spectrum, spectral_coefficients
     from lenssim.validate import ModelValidityWarning
 
     spec = Spectrum((0.46, 0.52, 0.61), (0.2, 0.5, 0.3))
-    cam = Camera(Lens(glass="N-BK7"), PAPER_CAMERA.sensor, spec)
+    cam = Camera(dataclasses.replace(PAPER_LENS, glass="N-BK7"), PAPER_CAMERA.sensor, spec)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ModelValidityWarning)
         c = spectral_coefficients(cam, Design(s=-0.775, Q_back=-2.4), [0.0, 9.0]).to(torch.float64)  # (A, K, T)

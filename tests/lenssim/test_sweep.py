@@ -4,10 +4,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenssim import PAPER_SENSOR, Camera, Design, Lens, Numerics, evaluate
-from lenssim.sweep import SweepConfig, grid_values, load_config, run_sweep
-from lenssim.tradeoff import find_optimum
+from lenssim import Camera, Design, Numerics, evaluate
+
+from lenssim_studies.paper import PAPER_SENSOR
+from lenssim_studies.sweep import SweepConfig, grid_values, load_config, run_sweep
+from lenssim_studies.tradeoff import find_optimum
 from lenssim_cli.main import main
+import dataclasses
+from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SPECTRUM
 
 TINY = """
 [lens]
@@ -39,7 +43,7 @@ def test_grid_values_match_the_paper_counts():
 def test_sweep_values_equal_direct_evaluation(tiny_cfg, tmp_path):
     ds = run_sweep(tiny_cfg, tmp_path / "a.nc", show_progress=False)
     assert dict(ds.sizes) == {"s": 3, "Q_back": 3, "alpha": 3, "snr": 2}
-    r = evaluate(tiny_cfg.camera, Design(s=-0.75, Q_back=-2.0), (21.6, 27.6), numerics=Numerics(min_size=128))
+    r = evaluate(tiny_cfg.camera, Design(s=-0.75, Q_back=-2.0), (21.6, 27.6), numerics=Numerics(min_size=128), rho0=PAPER_RHO0)
     np.testing.assert_allclose(ds["mse_r"].sel(s=-0.75, Q_back=-2.0).values, r["mse_r"].numpy(), rtol=1e-6)
     np.testing.assert_allclose(float(ds["cost"].sel(s=-0.75, Q_back=0.0)), 0.0, atol=1e-15)
     assert ds["mse_s"].attrs["units"].startswith("1")
@@ -71,7 +75,7 @@ def test_sweep_never_overwrites_foreign_files(tiny_cfg, tmp_path):
     with pytest.raises(FileExistsError, match="photo.nc"):
         run_sweep(tiny_cfg, foreign, show_progress=False)
     assert foreign.read_bytes() == b"not a sweep"
-    other = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0,))), grid={"s": (-1.0, -1.0, 0.1), "Q": (0.0, 0.0, 0.1)},
+    other = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0,)), PAPER_SENSOR, PAPER_SPECTRUM), grid={"s": (-1.0, -1.0, 0.1), "Q": (0.0, 0.0, 0.1)},
                         numerics=Numerics(min_size=64))
     run_sweep(other, tmp_path / "x.nc", show_progress=False, max_chunks=0)
     with pytest.raises(FileExistsError, match="different config"):

@@ -5,12 +5,16 @@ import pytest
 import torch
 import xarray as xr
 
-from lenssim import PAPER_LENS, Camera, Design, Lens, Numerics
+from lenssim import Camera, Design, Numerics
+
+from lenssim_studies.paper import PAPER_LENS
 from lenssim import slope_departure_cost as _cost
-from lenssim.figures import all_figures, table1
-from lenssim.report import reproduce
-from lenssim.sweep import SweepConfig
-from lenssim.tradeoff import iso_cost_curve, min_cost_for_quality, tradeoff
+from lenssim_studies.figures import all_figures, table1
+from lenssim_studies.report import reproduce
+from lenssim_studies.sweep import SweepConfig
+from lenssim_studies.tradeoff import iso_cost_curve, min_cost_for_quality, tradeoff
+import dataclasses
+from lenssim_studies.paper import PAPER_SENSOR, PAPER_SPECTRUM
 
 
 def slope_departure_cost(lens, s, Q):
@@ -85,7 +89,7 @@ def test_figures_and_table_render_headless(tmp_path):
 
 
 def test_reproduce_reuses_its_outputs(tmp_path):
-    cfg = SweepConfig(camera=Camera(Lens(field_angles_deg=(0.0, 7.0, 14.0))),
+    cfg = SweepConfig(camera=Camera(dataclasses.replace(PAPER_LENS, field_angles_deg=(0.0, 7.0, 14.0)), PAPER_SENSOR, PAPER_SPECTRUM),
                       grid={"s": (-1.0, -0.5, 0.25), "Q": (-4.0, 0.0, 1.0)}, numerics=Numerics(min_size=128, oversample=1))
     report = reproduce(tmp_path, cfg, show_progress=False)
     text = report.read_text()
@@ -108,7 +112,7 @@ def test_a_criterion_to_maximise_is_maximised_along_the_curves_and_in_the_grid()
         assert float(best["s"]) == pytest.approx(float(mirror["s"]), abs=1e-9)
         assert float(best["value"]) == pytest.approx(2.0 - float(mirror["value"]), abs=1e-9)
     assert min_cost_for_quality(t, "strehl", 1.0 - 1e-6) == 5e-5  # "at least" for a criterion to maximise
-    from lenssim.tradeoff import find_optimum
+    from lenssim_studies.tradeoff import find_optimum
 
     assert find_optimum(ds, "strehl")["value"] == pytest.approx(float(ds["strehl"].max()))
     assert find_optimum(ds, "strehl")["design"] == find_optimum(ds, "rms_w")["design"]

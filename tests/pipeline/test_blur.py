@@ -5,7 +5,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenssim import PAPER_CAMERA, Design, FunctionPSF, LensPSF
+from lenssim import Design, FunctionPSF, LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA
 from pipeline.blur import (WindowScheme, axis_positions, blur_exact, blur_windowed, core_irfft2,
                            FIT_SIZES, fitted_windows, fold_psf, tent_weights, window_centres)
 
@@ -235,7 +237,7 @@ def test_fitted_windows_are_as_accurate_as_the_paper_windows_on_a_structured_sce
     import pipeline.blur as blur_module
     from pipeline import resolution_scene
 
-    scene = resolution_scene(1024, 1024, seed=1, tile=128, spacing=256).double()
+    scene = resolution_scene(1024, 1024, seed=1, tile=128, spacing=256, geometry=PAPER_CAMERA.geometry).double()
     g = torch.Generator().manual_seed(0)
     rows, cols = torch.randint(300, 724, (32,), generator=g), torch.randint(300, 724, (32,), generator=g)
     ref = blur_exact(scene, E2E, rows, cols, n=512, optical_center=center)

@@ -3,9 +3,10 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_SENSOR
+from lenssim_studies.paper import PAPER_SENSOR
 from pipeline.field_map import field_psnr, plot_field_psnr
 from pipeline.quality import psnr_srgb
+from lenssim_studies.paper import PAPER_CAMERA
 
 
 def test_field_psnr_tiles_and_angles(tmp_path):
@@ -13,7 +14,7 @@ def test_field_psnr_tiles_and_angles(tmp_path):
     ideal = torch.rand(1, 3, 192, 320, generator=g)
     sensor = (ideal + 0.05 * torch.randn(ideal.shape, generator=g)).clamp(0, 1)
     restored = (ideal + 0.01 * torch.randn(ideal.shape, generator=g)).clamp(0, 1)
-    maps = field_psnr(ideal, sensor, restored, tile=64)
+    maps = field_psnr(ideal, sensor, restored, tile=64, geometry=PAPER_CAMERA.geometry)
     assert maps["restored_db"].shape == (3, 5) and (maps["restored_db"] > maps["sensor_db"]).all()
     assert float(maps["field_deg"][1, 2]) == 0.0  # the middle tile's centre is the optical axis
     # the corner tile: centre 2 tiles across and 1 down from the axis, through the lens's geometry

@@ -2,8 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import ImageFileError, add_poisson_noise, full_well_for_iso, linear_to_srgb, read_image, \
+from pipeline import ImageFileError, add_poisson_noise, linear_to_srgb, read_image, \
     srgb_to_linear, write_image
+from lenssim_studies.paper import PAPER_SENSOR
 
 
 def ramp(c=3, h=24, w=32):
@@ -80,7 +81,7 @@ def test_srgb_round_trip_and_reference():
 
 @pytest.mark.parametrize("iso", [25, 100, 400])
 def test_poisson_noise_statistics(iso):
-    fwc = full_well_for_iso(iso)
+    fwc = PAPER_SENSOR.full_well_for_iso(iso)
     level = 0.4
     img = torch.full((1, 1, 256, 256), level, dtype=torch.float64)
     img[..., 0, 0] = 1.0  # the maximum maps to the full well
@@ -96,7 +97,7 @@ def test_noise_errors():
     with pytest.raises(ValueError, match="exactly one of generator= or seed="):
         add_poisson_noise(img, 3200.0)
     with pytest.raises(ValueError, match="iso=200"):
-        full_well_for_iso(200)
+        PAPER_SENSOR.full_well_for_iso(200)
     with pytest.raises(ValueError, match="full_well=0"):
         add_poisson_noise(img, 0, seed=0)
     with pytest.raises(ValueError, match="negative"):

@@ -3,7 +3,9 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_CAMERA, Design, FunctionPSF, LensPSF
+from lenssim import Design, FunctionPSF, LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA
 from pipeline import add_poisson_noise
 from pipeline.blur import WindowScheme, blur_windowed
 from pipeline.quality import psnr_srgb, ssim_srgb

@@ -4,31 +4,34 @@ import math
 import pytest
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_SENSOR, Design, LensPSF
+from lenssim import Design, LensPSF
+
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_SENSOR
 from lenssim_cli.main import main
 from pipeline.blur import WindowScheme
 from pipeline.io import read_image
 from pipeline.scene import resolution_scene, target_tile
 from pipeline.simulate import crop_at_field_angle, crops_from_frame, simulate_crops, simulate_frame
+import dataclasses
 
 E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 
 
 def test_scene_is_deterministic_and_in_range():
-    a = resolution_scene(600, 900, seed=1)
+    a = resolution_scene(600, 900, seed=1, geometry=PAPER_CAMERA.geometry)
     assert a.shape == (1, 3, 600, 900) and a.dtype == torch.float32
-    assert torch.equal(a, resolution_scene(600, 900, seed=1))
+    assert torch.equal(a, resolution_scene(600, 900, seed=1, geometry=PAPER_CAMERA.geometry))
     assert float(a.min()) >= 0.02 and float(a.max()) <= 0.95
     star = target_tile(64, 0)
     assert set(torch.unique(star).tolist()) <= {0.0, 0.5, 1.0}
     with pytest.raises(ValueError, match="smaller than one"):
-        resolution_scene(100, 100)
+        resolution_scene(100, 100, geometry=PAPER_CAMERA.geometry)
 
 
 def test_crops_sit_at_the_requested_field_angle():
     shape = (1, 3, 4000, 6000)
     for a in (0.0, 5.0, 9.0):
-        r0, r1, c0, c1 = crop_at_field_angle(shape, a, 256)
+        r0, r1, c0, c1 = crop_at_field_angle(shape, a, 256, PAPER_CAMERA.geometry)
         cy, cx = (r0 + r1 - 1) / 2 - 1999.5, (c0 + c1 - 1) / 2 - 2999.5
         alpha = math.degrees(math.atan(math.hypot(cy, cx) * PAPER_SENSOR.pixel_pitch_um * 1e-3 / 25))
         assert alpha == pytest.approx(a, abs=0.02)
@@ -86,28 +89,27 @@ def test_fig8_mosaic(tmp_path):
 
 
 def test_crops_at_several_iso_share_one_blur_and_equal_separate_runs():
-    ideal = resolution_scene(600, 900, seed=2)
-    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48)]
-    both = simulate_crops(ideal, E2E, [800.0, 12800.0], boxes, seed=4)
+    ideal = resolution_scene(600, 900, seed=2, geometry=PAPER_CAMERA.geometry)
+    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48, PAPER_CAMERA.geometry)]
+    both = simulate_crops(ideal, E2E, [800.0, 12800.0], boxes, seed=4, sensor=PAPER_SENSOR)
     for fwc, res in zip((800.0, 12800.0), both):
-        alone = simulate_crops(ideal, E2E, fwc, boxes, seed=4)[0]
+        alone = simulate_crops(ideal, E2E, fwc, boxes, seed=4, sensor=PAPER_SENSOR)[0]
         assert torch.equal(res[0].images["wiener"], alone.images["wiener"])
         assert res[0].scores["sensor"] == alone.scores["sensor"]
     assert both[1][0].scores["wiener"]["psnr_db"] > both[0][0].scores["wiener"]["psnr_db"]  # ISO 25 beats ISO 400
     with pytest.raises(ValueError, match="full_well=-1.0"):
-        simulate_crops(ideal, E2E, [-1.0], boxes)
+        simulate_crops(ideal, E2E, [-1.0], boxes, sensor=PAPER_SENSOR)
     with pytest.raises(ValueError, match="restoration method 'tv' is not known"):
-        simulate_crops(ideal, E2E, 800.0, boxes, methods=("tv",))
+        simulate_crops(ideal, E2E, 800.0, boxes, methods=("tv",), sensor=PAPER_SENSOR)
 
 
 def test_sensor_read_noise_and_adc_enter_the_sensor_image():
     """A sensor with read noise and a 4-bit ADC: the sensor image gets worse, and only at the quantised levels."""
-    from lenssim import Sensor
 
-    ideal = resolution_scene(600, 900, seed=2)
-    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48)]
-    clean = simulate_crops(ideal, E2E, 800.0, boxes, seed=4)[0]
-    noisy = simulate_crops(ideal, E2E, 800.0, boxes, seed=4, sensor=Sensor(read_noise_e=20.0, bit_depth=4))[0]
+    ideal = resolution_scene(600, 900, seed=2, geometry=PAPER_CAMERA.geometry)
+    boxes = [crop_at_field_angle(ideal.shape, 0.5, 48, PAPER_CAMERA.geometry)]
+    clean = simulate_crops(ideal, E2E, 800.0, boxes, seed=4, sensor=PAPER_SENSOR)[0]
+    noisy = simulate_crops(ideal, E2E, 800.0, boxes, seed=4, sensor=dataclasses.replace(PAPER_SENSOR, read_noise_e=20.0, bit_depth=4))[0]
     assert noisy.scores["sensor"]["psnr_db"] < clean.scores["sensor"]["psnr_db"] - 0.3
     e = 800.0 / float(ideal.amax())
     levels = noisy.sensor * e / (800.0 / 15)  # digital numbers
@@ -115,21 +117,21 @@ def test_sensor_read_noise_and_adc_enter_the_sensor_image():
 
 
 def test_full_frame_resumes_from_its_checkpoint(tmp_path):
-    ideal = resolution_scene(600, 900, seed=3)[..., :300, :400]
+    ideal = resolution_scene(600, 900, seed=3, geometry=PAPER_CAMERA.geometry)[..., :300, :400]
     scheme = WindowScheme(256, 32, 64)
-    first = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    first = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert not first.resumed and (tmp_path / "sensor_linear.exr").exists()
-    again = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path)
+    again = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert again.resumed and "blur" not in again.seconds
     assert torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
-    other = simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)
+    other = simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert not other.resumed and not torch.equal(other.sensor, first.sensor)  # another seed: recomputed
     for changed in (WindowScheme(256, 32, 64, fit=False), WindowScheme(256, 32, 64, anchor="origin")):
-        simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path)  # the checkpoint: seed 2
-        assert not simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=changed, checkpoint=tmp_path).resumed
+        simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)  # the checkpoint: seed 2
+        assert not simulate_frame(ideal, E2E, 3200.0, seed=2, scheme=changed, checkpoint=tmp_path, sensor=PAPER_SENSOR).resumed
     # crops cut from the frame are the frame's pixels, at their own field angle
-    box = crop_at_field_angle(ideal.shape, 0.3, 64)
-    c = crops_from_frame(ideal, first, [box])[0]
+    box = crop_at_field_angle(ideal.shape, 0.3, 64, PAPER_CAMERA.geometry)
+    c = crops_from_frame(ideal, first, [box], PAPER_CAMERA.geometry)[0]
     assert torch.equal(c.images["wiener"], first.restored[..., box[0]:box[1], box[2]:box[3]])
     assert c.field_deg == pytest.approx(0.3, abs=0.02) and c.scores["wiener"]["psnr_db"] > c.scores["sensor"]["psnr_db"]
 
@@ -159,10 +161,10 @@ def test_simulate_full_frame_command(tmp_path, capsys):
 
 
 def test_default_crops_land_on_the_diagonal_targets():
-    scene = resolution_scene()
+    scene = resolution_scene(geometry=PAPER_CAMERA.geometry)
     star, bars = target_tile(256, 0), target_tile(256, 1)
     for a, t in ((0.0, star), (4.0, star), (12.0, star), (6.0, bars)):
-        r0, r1, c0, c1 = crop_at_field_angle(scene.shape, a, 256)
+        r0, r1, c0, c1 = crop_at_field_angle(scene.shape, a, 256, PAPER_CAMERA.geometry)
         grey = scene[0, 0, r0:r1, c0:c1]  # the white-lit channel: 0.05 + 0.9 * target
         err = float((grey - (0.05 + 0.9 * t).clamp(0.02, 0.95)).abs().mean())
         assert err < 0.02, (a, err)  # within a pixel or two of the target's centre
@@ -201,18 +203,18 @@ def test_restoration_with_a_wrong_psf_loses_what_the_right_one_gains():
     """Blur and restoration PSFs apart: the image blurred by one lens and restored with the PSFs of a
     deliberately wrong one (the conventional design, far sharper off axis) scores worse than restored
     with its own; the sensor image is the same either way (same blur, same seed)."""
-    ideal = resolution_scene(600, 900, seed=2)
-    boxes = [crop_at_field_angle(ideal.shape, 0.5, 64)]
+    ideal = resolution_scene(600, 900, seed=2, geometry=PAPER_CAMERA.geometry)
+    boxes = [crop_at_field_angle(ideal.shape, 0.5, 64, PAPER_CAMERA.geometry)]
     wrong = LensPSF(PAPER_CAMERA, Design(s=0.5, Q_back=-10.0))
-    right = simulate_crops(ideal, E2E, 3200.0, boxes, seed=4, methods=("wiener", "tikhonov"))[0]
-    mis = simulate_crops(ideal, E2E, 3200.0, boxes, seed=4, methods=("wiener", "tikhonov"), restoration_psf=wrong)[0]
+    right = simulate_crops(ideal, E2E, 3200.0, boxes, seed=4, methods=("wiener", "tikhonov"), sensor=PAPER_SENSOR)[0]
+    mis = simulate_crops(ideal, E2E, 3200.0, boxes, seed=4, methods=("wiener", "tikhonov"), restoration_psf=wrong, sensor=PAPER_SENSOR)[0]
     assert torch.equal(right.sensor, mis.sensor)
     for m in ("wiener", "tikhonov"):
         assert mis.scores[m]["psnr_db"] < right.scores[m]["psnr_db"] - 0.5
     ideal = ideal[..., :300, :400]
     scheme = WindowScheme(256, 32, 64)
-    own = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, method="tikhonov")
-    other = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, method="tikhonov", restoration_psf=wrong)
+    own = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, method="tikhonov", sensor=PAPER_SENSOR)
+    other = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, method="tikhonov", restoration_psf=wrong, sensor=PAPER_SENSOR)
     assert torch.equal(own.sensor, other.sensor) and own.method == "tikhonov"
     err = lambda r: float(((r.restored - ideal) ** 2).mean())  # noqa: E731
     assert err(other) > 1.2 * err(own)

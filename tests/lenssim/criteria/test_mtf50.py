@@ -9,17 +9,18 @@ import pytest
 import torch
 from scipy import optimize
 
-from lenssim import PAPER_CAMERA
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.aberrations import COEFFICIENT_NAMES
 from lenssim.criteria.mtf50 import first_crossing
 from lenssim.metrics import otf_criteria_bank
+from lenssim_studies.paper import PAPER_RHO0
 
 
 def _mtf50(coeffs: dict, n: int = 256) -> float:
     c = torch.zeros(1, 1, len(COEFFICIENT_NAMES), dtype=torch.float64)
     for k, v in coeffs.items():
         c[0, 0, COEFFICIENT_NAMES.index(k)] = v
-    return float(otf_criteria_bank(PAPER_CAMERA, c, torch.tensor([n]), [27.6], criteria=("mtf50",))["mtf50"][0])
+    return float(otf_criteria_bank(PAPER_CAMERA, c, torch.tensor([n]), [27.6], criteria=("mtf50",), rho0=PAPER_RHO0)["mtf50"][0])
 
 
 def test_an_aberration_free_lens_meets_the_closed_form():

@@ -8,15 +8,18 @@ import math
 import pytest
 import torch
 
-from lenssim import CRITERIA, PAPER_CAMERA, Design, FAST_NUMERICS, evaluate
+from lenssim import CRITERIA, Design, FAST_NUMERICS, evaluate
+
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.criteria import ROLES, SENSES, Criterion, register
+from lenssim_studies.paper import PAPER_RHO0
 
 DESIGNS = Design(s=torch.tensor([-0.775, -0.2]), Q_back=torch.tensor([-2.4, -6.0]))
 
 
 @pytest.fixture(scope="module")
 def result():
-    return evaluate(PAPER_CAMERA, DESIGNS, [21.6, 27.6], numerics=FAST_NUMERICS)
+    return evaluate(PAPER_CAMERA, DESIGNS, [21.6, 27.6], numerics=FAST_NUMERICS, rho0=PAPER_RHO0)
 
 
 @pytest.mark.parametrize("name", list(CRITERIA))
@@ -38,7 +41,7 @@ def test_every_otf_quality_criterion_prefers_the_sharper_lens(name):
     """The paper's end-to-end design at 0 deg against the same lens at 10 deg (far more aberrated): every
     OTF quality criterion, read by its sense, prefers the axis."""
     c = CRITERIA[name]
-    r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST_NUMERICS)
+    r = evaluate(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), [27.6], numerics=FAST_NUMERICS, rho0=PAPER_RHO0)
     axis, off = r[f"{name}_alpha"][0], r[f"{name}_alpha"][10]
     assert bool((c.sign * (off - axis) > 0).all())
 

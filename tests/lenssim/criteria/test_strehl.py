@@ -9,16 +9,17 @@ import pytest
 import torch
 from scipy import integrate
 
-from lenssim import PAPER_CAMERA
+from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.aberrations import COEFFICIENT_NAMES
 from lenssim.metrics import otf_criteria_bank
+from lenssim_studies.paper import PAPER_RHO0
 
 
 def _strehl(coeffs: dict, n: int = 256) -> float:
     c = torch.zeros(1, 1, len(COEFFICIENT_NAMES), dtype=torch.float64)
     for k, v in coeffs.items():
         c[0, 0, COEFFICIENT_NAMES.index(k)] = v
-    out = otf_criteria_bank(PAPER_CAMERA, c, torch.tensor([n]), [27.6], criteria=("strehl",))
+    out = otf_criteria_bank(PAPER_CAMERA, c, torch.tensor([n]), [27.6], criteria=("strehl",), rho0=PAPER_RHO0)
     return float(out["strehl"][0])
 
 

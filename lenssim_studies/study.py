@@ -32,19 +32,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .camera import Camera
-from .cost import slope_departure_cost
-from .criteria import CRITERIA
-from .design import Design
-from .files import atomic_write_text, json_text
-from .focus import best_focus
-from .lens import Lens
-from .metrics import evaluate
-from .numerics import FAST_NUMERICS, Numerics
+from lenssim.camera import Camera
+from lenssim.cost import slope_departure_cost
+from lenssim.criteria import CRITERIA
+from lenssim.design import Design
+from lenssim.files import atomic_write_text, json_text
+from lenssim.focus import best_focus
+from lenssim.lens import Lens
+from lenssim.metrics import evaluate
+from lenssim.numerics import FAST_NUMERICS, Numerics
 from .paper import PAPER_CAMERA, PAPER_COST_LEVELS, PAPER_DESIGNS, PAPER_SNR_DB, REFERENCE_SNR_DB
-from .psf_bank import spectral_coefficients
-from .spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
-from .validate import check_int
+from lenssim.psf_bank import spectral_coefficients
+from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
+from lenssim.validate import check_int
+from lenssim_studies.paper import PAPER_RHO0
 
 __all__ = ["WhiteLightStudy", "study_camera", "criterion_value", "white_light_study", "STUDY_GRID",
            "exact_along_tradeoff", "exact_tradeoff_report", "EXACT_STUDY_LEVELS"]
@@ -110,7 +111,7 @@ def criterion_value(camera: Camera, design: Design, criterion: str, snr_db: floa
                        for cam in camera.channel_cameras()]
                 vals[name] = float(torch.stack([torch.as_tensor(v, dtype=torch.float64) for v in per]).mean())
         return vals
-    r = evaluate(camera, design, [snr_db], numerics=numerics)
+    r = evaluate(camera, design, [snr_db], numerics=numerics, rho0=PAPER_RHO0)
     return {name: float(r[name].reshape(-1)[0]) for name in CRITERIA}
 
 
@@ -227,7 +228,7 @@ def _study_glass(glass: str, study: WhiteLightStudy, out: Path, log, show_progre
     e2e_paper = PAPER_DESIGNS["end_to_end_paper"]
     log(f"{glass}: best focus of the paper's end-to-end design (MSE_R at {snr:g} dB)")
     z0 = best_focus(camera, e2e_paper, "mse_r", snr, bounds_um=STUDY_FOCUS_BOUNDS_UM, tol_um=2.0,
-                    numerics=study.numerics).focus_shift_um
+                    numerics=study.numerics, rho0=PAPER_RHO0).focus_shift_um
     z0 = round(z0, 1)
     cfg = SweepConfig(camera=camera, grid=dict(study.grid), snr_db=study.snr_db, numerics=study.numerics,
                       fixed={"focus_shift_um": z0})
@@ -324,7 +325,7 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
     Returns one dict per level: ``third_order`` and ``exact`` optima (``s``, ``Q_back``, ``mse_r``) and
     ``exact_at_third_order`` (the exact MSE_R of the third-order optimum).
     """
-    from .exact_wavefront import exact_criteria
+    from lenssim.exact_wavefront import exact_criteria
     from .tradeoff import iso_cost_curve
 
     s_all = np.arange(s_range[0], s_range[1] + 1e-12, s_step)
@@ -345,13 +346,13 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
         return cs[keep], cq[keep]
 
     def exact_mse_r(s_, q_):
-        return float(exact_criteria(camera, Design(s=float(s_), Q_back=float(q_)), [snr_db], numerics=numerics)["mse_r"][0])
+        return float(exact_criteria(camera, Design(s=float(s_), Q_back=float(q_)), [snr_db], numerics=numerics, rho0=PAPER_RHO0)["mse_r"][0])
 
     for level in levels:
         cs, cq = on_curve(float(level), s_all)
         if len(cs) < 3:
             continue
-        r = evaluate(camera, Design(s=torch.from_numpy(cs), Q_back=torch.from_numpy(cq)), [snr_db], numerics=numerics)
+        r = evaluate(camera, Design(s=torch.from_numpy(cs), Q_back=torch.from_numpy(cq)), [snr_db], numerics=numerics, rho0=PAPER_RHO0)
         v3 = r["mse_r"][:, 0].numpy()
         s3, m3 = parabola(cs, v3)
         s3c, q3c = on_curve(float(level), [s3])

@@ -67,8 +67,9 @@ def _numeric_malloc() -> None:
 
 def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int) -> tuple[int, dict, str]:
     """On a worker: chunk ``index`` of the sweep ``config`` -> ``(index, arrays, sha256 of the arrays)``."""
-    from .sweep import SweepConfig, _checksum, _compute_chunk
-    from .torch_utils import select_device
+    from .chunks import _checksum, _compute_chunk
+    from .config import SweepConfig
+    from lenssim.torch_utils import select_device
 
     _numeric_malloc()
 
@@ -102,7 +103,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None):
         with client:
             yield client
         return
-    from .validate import check_int
+    from lenssim.validate import check_int
 
     workers = check_int("workers", workers, 1)
     import dask
@@ -119,7 +120,7 @@ def compute_chunks(client, cfg, indices, *, device: str = "auto", threads: int |
     in the order they finish, each checked against the checksum computed where it was made."""
     from distributed import as_completed
 
-    from .sweep import _checksum
+    from .chunks import _checksum
 
     threads = int(threads or torch.get_num_threads())
     config, digest = cfg.to_dict(), cfg.digest()

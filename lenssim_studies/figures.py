@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .design import PARAMETERS
-from .files import atomic_write, atomic_write_text
+from lenssim.design import PARAMETERS
+from lenssim.files import atomic_write, atomic_write_text
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import design_dims
 from .tradeoff import find_optimum
@@ -162,7 +162,7 @@ def table1(ds: xr.Dataset, out_dir: Path, snr: float = REFERENCE_SNR_DB) -> tupl
     Each row: ``design`` (the criterion's label), ``parameters`` ``{name: value}``, ``mse_r``,
     ``mse_r_relative``, ``cost_Ca``.
     """
-    from .criteria import CRITERIA
+    from lenssim.criteria import CRITERIA
 
     dims = design_dims(ds)
     rows = []

@@ -24,12 +24,13 @@ import torch
 import xarray as xr
 from scipy.interpolate import RectBivariateSpline
 
-from .cost import DEFAULT_COST_POINTS, slope_departure_cost
-from .criteria import CRITERIA, validate_criterion
-from .design import Design
-from .lens import Lens
+from lenssim.cost import DEFAULT_COST_POINTS, slope_departure_cost
+from lenssim.criteria import CRITERIA, validate_criterion
+from lenssim.design import Design
+from lenssim.lens import Lens
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import SweepConfig, design_dims
+from lenssim_studies.paper import PAPER_LENS
 
 __all__ = ["PAPER_COST_LEVELS", "iso_cost_curve", "criteria_of", "tradeoff", "min_cost_for_quality", "TradeoffPoint",
            "find_optimum"]
@@ -134,7 +135,7 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
     dims = _two_dims(ds)
     cfg = SweepConfig.from_dict(json.loads(ds.attrs["config"])) if "config" in ds.attrs else None
     if lens is None:
-        lens = cfg.lens if cfg is not None else Lens()
+        lens = cfg.lens if cfg is not None else PAPER_LENS
     cost_points = cost_points or (cfg.numerics.cost_points if cfg is not None else DEFAULT_COST_POINTS)
     if cfg is not None and set(cfg.fixed) - {"focus_shift_um"}:
         raise ValueError(f"the trade-off's iso-cost curves are those of the two gridded parameters alone; this sweep "

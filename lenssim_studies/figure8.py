@@ -11,14 +11,16 @@ from pathlib import Path
 
 import torch
 
-from lenssim import PAPER_CAMERA, PAPER_DESIGNS, Camera, Design, LensPSF
-from lenssim.files import atomic_write
-from lenssim.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
+from lenssim import Camera, Design, LensPSF
 
-from .colour_space import linear_to_srgb
-from .figures import tile_label
-from .restoration import Restoration
-from .simulate import crop_at_field_angle, simulate_crops
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
+from lenssim.files import atomic_write
+from lenssim_studies.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
+
+from pipeline.colour_space import linear_to_srgb
+from pipeline.figures import tile_label
+from pipeline.restoration import Restoration
+from pipeline.simulate import crop_at_field_angle, simulate_crops
 
 __all__ = ["PAPER_FIG8_ANGLES", "figure8"]
 

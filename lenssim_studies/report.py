@@ -14,7 +14,7 @@ import numpy as np
 import xarray as xr
 
 from .figures import TABLE1_CRITERIA, all_figures, table1
-from .files import atomic_write, atomic_write_text
+from lenssim.files import atomic_write, atomic_write_text
 from .paper import PAPER_COST_LEVELS, PAPER_DESIGNS, REFERENCE_SNR_DB
 from .sweep import SweepConfig, design_dims, run_sweep
 from .tradeoff import find_optimum, min_cost_for_quality, tradeoff
@@ -127,7 +127,7 @@ FIGURE_CAPTIONS = {
 
 def write_index(out: Path, ds: xr.Dataset, report: str, rows: list[dict], snr: float) -> Path:
     """``out/index.html``: the report (claims vs measured), Table 1 and Figures 3-6 in one self-contained page."""
-    from . import html
+    from lenssim_studies import html
 
     dims = design_dims(ds)
     t1 = html.table(["design (optimises)", *dims, f"MSE_R at {snr:g} dB", "relative to best", "C_a"],

@@ -1,0 +1,57 @@
+"""One chunk of a sweep (one value of the first grid parameter, all values of the others): what it holds,
+how it is computed and its checksum. Shared by the serial sweep (:mod:`lenssim_studies.sweep`) and the dask
+workers (:mod:`lenssim_studies.cluster`), which import it and not each other.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import torch
+
+from lenssim.criteria import CRITERIA
+from lenssim.design import Design
+from lenssim.metrics import evaluate
+
+__all__ = ["_chunk_keys", "_compute_chunk", "_checksum"]
+
+
+def _chunk_keys(cfg=None) -> tuple[str, ...]:
+    keys = []
+    for name, c in CRITERIA.items():
+        keys += [name, f"{name}_alpha"] if c.from_otf is not None else [name]
+    extra = ("focus_shift_um",) if cfg is not None and cfg.focus is not None else ()
+    return tuple(keys) + ("rms_w_alpha", "rms_w_piston_removed", "fft_size") + extra
+
+
+def _compute_chunk(cfg, i: int, device, progress) -> dict:
+    rest = cfg.dims[1:]
+    axes = np.meshgrid(*(cfg.values(d) for d in rest), indexing="ij") if rest else []
+    first = cfg.values(cfg.dims[0])[i]
+    vals = {d: torch.from_numpy(np.ascontiguousarray(a)) for d, a in zip(rest, axes)}
+    shape = axes[0].shape if rest else ()
+    vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64)
+    vals.update({k: torch.full(shape, v, dtype=torch.float64) for k, v in cfg.fixed.items()})
+    if cfg.focus is not None:
+        from lenssim.focus import best_focus_batch
+
+        f = cfg.focus
+        z, _ = best_focus_batch(cfg.camera, Design(vals), f["criterion"], f["snr_db"], bounds_um=f["bounds_um"],
+                                tol_um=f["tol_um"], numerics=cfg.numerics, device=device, rho0=cfg.rho0,
+                                psd_model=cfg.psd_model)
+        vals["focus_shift_um"] = z
+    res = evaluate(cfg.camera, Design(vals), cfg.snr_db, rho0=cfg.rho0, psd_model=cfg.psd_model,
+                   numerics=cfg.numerics, device=device, progress=progress)
+    if cfg.focus is not None:
+        res["focus_shift_um"] = vals["focus_shift_um"]
+    return {k: res[k].cpu().numpy() for k in _chunk_keys(cfg)}
+
+
+def _checksum(chunk: dict) -> str:
+    h = hashlib.sha256()
+    for k in sorted(chunk):
+        a = np.ascontiguousarray(chunk[k])
+        h.update(f"{k}|{a.dtype}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
