@@ -26,6 +26,7 @@ from lenssim_studies.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.figures import mosaic_figure
+from pipeline.simulate import MAP_TILE_PX
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
                      design_from_args, designs)
@@ -34,9 +35,6 @@ DEFAULT_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 TABLE_ANGLES_DEG = (1.0, 5.0, 9.0)
 MIN_CROP_PX = 16
 MIN_IMAGE_PX = 32
-MAP_TILE_PX = 256
-FRAME_COPIES = 12
-"""Frame-sized float32 buffers a --full-frame run holds at its peak (measured 3.4 GiB at 24 MP, 3 channels)."""
 
 
 def _check_common(args) -> None:
@@ -142,8 +140,9 @@ def cmd_simulate(args) -> int:
             raise ValueError(f"--full-frame needs an image of at least {MAP_TILE_PX} x {MAP_TILE_PX} px (one tile of "
                              f"the PSNR map); {source!r} is {W} x {H}: simulate crops instead")
         from lenssim.validate import check_memory
+        from pipeline.simulate import frame_memory_bytes
 
-        check_memory(FRAME_COPIES * ideal.numel() * 4, f"--full-frame on a {W} x {H} image", _memory_limit(args))
+        check_memory(frame_memory_bytes(ideal.shape), f"--full-frame on a {W} x {H} image", _memory_limit(args))
     if args.denoise:
         from pipeline import gentle_denoise
 
@@ -233,9 +232,8 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     from tqdm import tqdm
 
     from pipeline.blur import window_count
-    from pipeline.field_map import plot_field_psnr, tile_field_angles
-    from pipeline.quality import encode_srgb, scores_encoded
-    from pipeline.simulate import crops_from_frame, simulate_frame
+    from pipeline.field_map import plot_field_psnr
+    from pipeline.simulate import crops_from_frame, score_frame, simulate_frame
 
     n = window_count(ideal.shape, scheme)
     checkpoint = out / ".checkpoint"
@@ -244,30 +242,18 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
                                checkpoint=checkpoint, sensor=psf.camera.sensor, method=method)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
-    # each image is sRGB-encoded once, for its PNG and for all its scores
-    frame.seconds["write"], frame.seconds["metrics"] = 0.0, 0.0
-    ref = encode_srgb(ideal)
-    scores = {}
-    for kind in ("sensor", "restored"):
-        t0 = time.perf_counter()
-        img = getattr(frame, kind)
-        enc = encode_srgb(img)
+    def write(kind, enc, img):  # each image is sRGB-encoded once, for its PNG and for all its scores
         write_image(stage / f"{kind}.png", torch.from_numpy(enc).permute(2, 0, 1), bits=args.bits)
         if args.exr:
             write_image(stage / f"{kind}_linear.exr", img, bits="float")
-        t1 = time.perf_counter()
-        scores[kind] = scores_encoded(ref, enc, tile=256)
-        frame.seconds["write"] += t1 - t0
-        frame.seconds["metrics"] += time.perf_counter() - t1
+
+    scores = score_frame(ideal, frame, psf.geometry, tile=MAP_TILE_PX, on_encoded=write)
+    frame.seconds.update(scores.pop("seconds"))
     t0 = time.perf_counter()
+    maps = scores.pop("maps")
     report["full_frame"] = {
         "shape_c_h_w": list(ideal.shape[1:]), "windows_per_pass": n, "electrons_per_unit": frame.electrons_per_unit,
-        "method": frame.method,
-        "psnr_sensor_db": scores["sensor"]["psnr_db"], "psnr_restored_db": scores["restored"]["psnr_db"],
-        "ssim_sensor": scores["sensor"]["ssim"], "ssim_restored": scores["restored"]["ssim"],
-        "resumed": frame.resumed}
-    maps = {"sensor_db": scores["sensor"]["psnr_map_db"], "restored_db": scores["restored"]["psnr_map_db"],
-            "field_deg": tile_field_angles(ideal.shape, 256, geometry=psf.geometry)}
+        "method": frame.method, **scores, "resumed": frame.resumed}
     plot_field_psnr(maps, stage / "field_psnr.png",
                     title=f"{report['source']}: {psf.design.label()}, {fwc:g} e- full well")
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null

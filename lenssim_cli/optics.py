@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -105,7 +106,7 @@ def cmd_sweep(args) -> int:
 
     cfg = load_config(config_path(args.config))
     if args.max_fft_size:
-        cfg.numerics = cfg.numerics.replace(max_fft_size=args.max_fft_size)
+        cfg = dataclasses.replace(cfg, numerics=cfg.numerics.replace(max_fft_size=args.max_fft_size))  # validated again
     select_device(args.device)
     t0 = time.perf_counter()
     if args.workers is not None and args.workers < 1:
@@ -190,7 +191,7 @@ def cmd_reproduce(args) -> int:
 
     cfg = load_config(config_path(args.config or REPRODUCE_CONFIG))
     if args.max_fft_size:
-        cfg.numerics = cfg.numerics.replace(max_fft_size=args.max_fft_size)
+        cfg = dataclasses.replace(cfg, numerics=cfg.numerics.replace(max_fft_size=args.max_fft_size))  # validated again
     check_output_dir(args.out)
     select_device(args.device)
     t0 = time.perf_counter()

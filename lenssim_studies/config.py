@@ -53,7 +53,7 @@ def grid_values(start: float, stop: float, step: float) -> np.ndarray:
     return np.round(start + step * np.arange(grid_count(start, stop, step)), 10)
 
 
-@dataclass
+@dataclass(frozen=True)
 class SweepConfig:
     """A sweep: camera, grid ``{parameter: (start, stop, step)}``, SNRs (dB), image model, numerics."""
 
@@ -84,15 +84,15 @@ class SweepConfig:
             grid[name] = (start, stop, step)
         if not grid:
             raise ValueError("the grid names no design parameter; e.g. s = [start, stop, step]")
-        self.grid = grid
+        object.__setattr__(self, "grid", grid)
         fixed = {}
         for k, v in dict(self.fixed).items():
             name = parameter_name(k)
             if name in grid or name in fixed:
                 raise ValueError(f"design parameter {name} is both fixed and gridded (or fixed twice)")
             fixed[name] = check_real(f"fixed {name}", v)
-        self.fixed = fixed
-        self.snr_db = tuple(float(x) for x in self.snr_db)
+        object.__setattr__(self, "fixed", fixed)
+        object.__setattr__(self, "snr_db", tuple(float(x) for x in self.snr_db))
         if self.focus is not None:
             from lenssim.focus import FOCUS_BOUNDS_UM
 
@@ -105,9 +105,9 @@ class SweepConfig:
             crit = f.get("criterion", "mse_r")
             if crit not in CRITERIA:
                 raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(CRITERIA)}")
-            self.focus = {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
+            object.__setattr__(self, "focus", {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
                           "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
-                          "tol_um": float(f.get("tol_um", 1.0))}
+                          "tol_um": float(f.get("tol_um", 1.0))})
         if self.psd_model not in PSD_MODELS:
             raise ValueError(f"psd_model={self.psd_model!r} is not allowed: one of {', '.join(PSD_MODELS)}")
 

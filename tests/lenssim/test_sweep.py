@@ -136,3 +136,14 @@ def test_cli_evaluate_json_and_errors(capsys):
     assert main(["evaluate", "--s", "-2", "--snr", "27.6", "--json"]) == 0  # Q_back takes its default 0
     assert json.loads(capsys.readouterr().out)["Q_back"] == 0.0
     assert PAPER_SENSOR.pixel_pitch_um == 1.5625
+
+
+def test_a_config_cannot_change_after_its_validation():
+    """A SweepConfig is frozen: a change goes through dataclasses.replace, which validates again."""
+    import dataclasses
+
+    cfg = SweepConfig(grid={"s": (-1.0, -0.5, 0.25), "Q": (-3.0, 0.0, 1.5)})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.snr_db = (1e9,)
+    with pytest.raises(ValueError, match="psd_model"):
+        dataclasses.replace(cfg, psd_model="nope")

@@ -241,3 +241,18 @@ def test_any_registered_method_with_options_on_crops_psnr_table_fig8_and_the_ful
     f8 = tmp_path / "f8"
     assert main(["fig8", "skimage:camera", "--angles", "0", "--crop", "48", "--restore", "tikhonov",
                  "--out", str(f8)]) == 0
+
+
+def test_score_frame_equals_the_per_image_metrics():
+    from pipeline.quality import psnr_srgb, ssim_srgb
+    from pipeline.simulate import score_frame
+
+    ideal = resolution_scene(600, 900, seed=3, geometry=PAPER_CAMERA.geometry)[..., :256, :512]
+    frame = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=WindowScheme(256, 32, 64), sensor=PAPER_SENSOR)
+    seen = []
+    s = score_frame(ideal, frame, PAPER_CAMERA.geometry, on_encoded=lambda kind, enc, img: seen.append(kind))
+    assert seen == ["sensor", "restored"]
+    assert s["psnr_sensor_db"] == psnr_srgb(ideal, frame.sensor) and s["ssim_restored"] == ssim_srgb(ideal, frame.restored)
+    assert s["maps"]["restored_db"].shape == (1, 2) and s["maps"]["field_deg"].shape == (1, 2)
+    with pytest.raises(ValueError, match="smaller than one 512-px tile"):
+        score_frame(ideal, frame, PAPER_CAMERA.geometry, tile=512)
