@@ -24,11 +24,10 @@ from .camera import Camera
 from .design import Design
 from .geometry import FieldGeometry
 from .numerics import DEFAULT_NUMERICS, Numerics
-from .psf_bank import max_wavefront_slope, psf_at, spectral_coefficients
+from .psf_bank import max_wavefront_slope, spectral_coefficients
+from .wavefront_models import validate_wavefront_model
 
-__all__ = ["PSFProvider", "LensPSF", "FunctionPSF", "WAVEFRONT_MODELS"]
-
-WAVEFRONT_MODELS = ("third_order", "exact")
+__all__ = ["PSFProvider", "LensPSF", "FunctionPSF"]
 
 
 class PSFProvider:
@@ -65,14 +64,13 @@ class LensPSF(PSFProvider):
     design: Design
     numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
     wavefront: str = "third_order"
-    """``third_order`` (the paper's Seidel model) or ``exact``: the wavefront fitted to an exact ray trace at
-    each PSF's field angle (:mod:`lenssim.exact_wavefront`; one-wavelength cameras)."""
+    """A model of :data:`lenssim.wavefront_models.WAVEFRONT_MODELS`: ``third_order`` (the paper's Seidel model) or
+    ``exact`` (the wavefront fitted to an exact ray trace at each PSF's field angle; one-wavelength cameras)."""
 
     def __post_init__(self):
-        if self.wavefront not in WAVEFRONT_MODELS:
-            raise ValueError(f"wavefront={self.wavefront!r} is not allowed: one of {', '.join(WAVEFRONT_MODELS)}")
-        if self.wavefront == "exact" and (self.camera.channels or len(self.camera.spectrum) != 1):
-            raise ValueError("wavefront='exact' takes a one-wavelength camera (no colour channels)")
+        model = validate_wavefront_model(self.wavefront)
+        if model.check is not None:
+            model.check(self.camera)
         d = self.design.to(torch.float64)
         self.camera.lens.check_design(d)
         d.floats()  # one design: every parameter a single value
@@ -99,22 +97,7 @@ class LensPSF(PSFProvider):
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows).to(device), torch.as_tensor(cols).to(device),
                                               optical_center)
-        if self.wavefront == "exact":
-            return self._exact_psfs(x_mm, y_mm, n, centered, dtype)
-        d = self._design_like(y_mm)
-        ps = [psf_at(cam, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=self.numerics)[0]
-              for cam in self.camera.channel_cameras()]
-        return ps[0] if not self.camera.channels else torch.stack(ps, dim=1)
-
-    def _exact_psfs(self, x_mm, y_mm, n, centered, dtype):
-        from .exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
-        from .psf_bank import psf
-
-        alpha = self.geometry.field_angle_deg(x_mm, y_mm).cpu()
-        c = torch.stack([exact_wavefront_coefficients(self.camera, self.design, float(a)) for a in alpha])
-        az = torch.rad2deg(torch.atan2(y_mm, x_mm)).flatten()
-        return psf(self.camera, c[:, None].to(x_mm.device), n, azimuth_deg=az, centered=centered, dtype=dtype,
-                   numerics=self.numerics, terms=EXACT_TERMS)
+        return validate_wavefront_model(self.wavefront).psfs(self, x_mm, y_mm, n, centered, dtype)
 
     def fingerprint(self) -> str:
         """A stable description of these PSFs (camera, design, numerics), e.g. for checkpoints."""
@@ -137,8 +120,7 @@ class LensPSF(PSFProvider):
             c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)
             for k, lam in enumerate(cam.spectrum.wavelengths_um):
                 half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]), lam).to(half))
-        if self.wavefront == "exact":  # fifth and higher orders: allow 25% more than third order's support
-            half = half * 1.25
+        half = half * validate_wavefront_model(self.wavefront).support_factor
         return (torch.ceil(2 * half).to(torch.int64) + self.numerics.margin_px)[inv]
 
 

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from lenssim import CRITERIA, DEFAULT_NUMERICS, PARAMETERS, Design, evaluate, select_device
+from lenssim import CRITERIA, DEFAULT_NUMERICS, PARAMETERS, Design, select_device
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB
 from lenssim.files import json_text
@@ -26,10 +26,14 @@ def _numerics(args, base=DEFAULT_NUMERICS):
     return base.replace(max_fft_size=args.max_fft_size) if getattr(args, "max_fft_size", None) else base
 
 
-def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS, camera=PAPER_CAMERA) -> dict:
-    """Every registered criterion of one design, as JSON-ready values keyed by criterion name (with colour
-    channels: their mean, and ``NAME_per_channel``)."""
-    res = evaluate(camera, design, snr, device=select_device(device), numerics=numerics, rho0=PAPER_RHO0)
+def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS, camera=PAPER_CAMERA,
+                    wavefront: str = "third_order") -> dict:
+    """Every registered criterion of one design under the ``wavefront`` model, as JSON-ready values keyed by
+    criterion name (with colour channels: their mean, and ``NAME_per_channel``)."""
+    from lenssim.wavefront_models import validate_wavefront_model
+
+    model = validate_wavefront_model(wavefront)
+    res = model.evaluate(camera, design, snr, rho0=PAPER_RHO0, numerics=numerics, device=select_device(device))
     params = design.complete().floats()
     out = {"parameters": params, **params}
     for name, c in CRITERIA.items():
@@ -44,6 +48,7 @@ def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_
     out["snr_db"] = [float(v) for v in res["snr_db"]]
     out["fft_size_per_angle"] = [int(v) for v in res["fft_size"]]
     out["alpha_deg"] = [float(v) for v in res["alpha_deg"]]
+    out["wavefront"] = f"{model.name}: {model.label}"
     return out
 
 
@@ -77,17 +82,7 @@ def cmd_evaluate(args) -> int:
         design = design.replace(focus_shift_um=round(fr.focus_shift_um, 2))
     if args.wavefront == "exact" and (camera.channels or len(camera.spectrum) != 1):
         raise ValueError("--wavefront exact takes a one-wavelength spectrum (--spectrum paper)")
-    r = evaluate_design(design, args.snr, args.device, _numerics(args), camera)
-    if args.wavefront == "exact":
-        from lenssim.exact_wavefront import exact_criteria
-
-        ex = exact_criteria(camera, design, args.snr, numerics=_numerics(args), rho0=PAPER_RHO0)
-        otf = [name for name, c in CRITERIA.items() if c.from_otf is not None]
-        for name in otf:  # every OTF criterion from the exact wavefront, none left at its third-order value
-            r[name] = [float(x) for x in ex[name]] if CRITERIA[name].per_snr else float(ex[name])
-        r["fft_size_per_angle"] = [int(v) for v in ex["fft_size"]]
-        r["wavefront"] = (f"exact: {', '.join(CRITERIA[n].label for n in otf)} from the wavefront fitted to an exact "
-                          "ray trace (RMS_W stays the third-order one; C_a is exact either way)")
+    r = evaluate_design(design, args.snr, args.device, _numerics(args), camera, wavefront=args.wavefront)
     if args.json:
         print(json_text({"design": design.name or "custom", **r}))
     else:

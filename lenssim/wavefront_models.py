@@ -1,0 +1,100 @@
+"""Wavefront models, as a registry: how a design's wavefront at a field point is obtained.
+
+* ``third_order``: the paper's Seidel (third-order) wavefront of the thin lens, in closed form
+  (:func:`lenssim.aberrations.wavefront_coefficients`; any spectrum);
+* ``exact``: the wavefront fitted to an exact ray trace through the real surfaces at each field angle
+  (:mod:`lenssim.exact_wavefront`; one-wavelength cameras).
+
+A model gives the PSFs of a :class:`lenssim.LensPSF` at image points (:attr:`WavefrontModel.psfs`), every
+registered criterion of designs (:attr:`WavefrontModel.evaluate`: the OTF criteria from its wavefront, the
+design criteria as they are) and the factor by which its PSF support may exceed third order's. The PSF
+provider, ``lenssim evaluate --wavefront`` and ``lenssim simulate --wavefront`` read this table; a new model
+(e.g. a measured wavefront) is one entry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["WavefrontModel", "WAVEFRONT_MODELS", "validate_wavefront_model"]
+
+
+@dataclass(frozen=True)
+class WavefrontModel:
+    """``psfs(provider, x_mm, y_mm, n, centered, dtype) -> (P, n, n)`` or ``(P, C, n, n)``;
+    ``evaluate(camera, design, snr_db, *, rho0, numerics, device) -> {criterion: tensor}`` (as
+    :func:`lenssim.metrics.evaluate`); ``check(camera)`` raises ``ValueError`` for a camera the model cannot
+    serve; ``support_factor``: how much wider than third order's geometric support its PSFs may be."""
+
+    name: str
+    label: str
+    psfs: Callable
+    evaluate: Callable
+    check: Callable | None = None
+    support_factor: float = 1.0
+
+
+def _third_order_psfs(provider, x_mm, y_mm, n, centered, dtype):
+    from .psf_bank import psf_at
+
+    d = provider.design.map(lambda v: torch.full_like(y_mm, float(v.reshape(()))))
+    ps = [psf_at(cam, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=provider.numerics)[0]
+          for cam in provider.camera.channel_cameras()]
+    return ps[0] if not provider.camera.channels else torch.stack(ps, dim=1)
+
+
+def _third_order_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
+    from .metrics import evaluate
+
+    return evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
+
+
+def _one_wavelength(camera):
+    if camera.channels or len(camera.spectrum) != 1:
+        raise ValueError("wavefront='exact' takes a one-wavelength camera (no colour channels)")
+
+
+def _exact_psfs(provider, x_mm, y_mm, n, centered, dtype):
+    from .exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
+    from .psf_bank import psf
+
+    alpha = provider.geometry.field_angle_deg(x_mm, y_mm).cpu()
+    c = torch.stack([exact_wavefront_coefficients(provider.camera, provider.design, float(a)) for a in alpha])
+    az = torch.rad2deg(torch.atan2(y_mm, x_mm)).flatten()
+    return psf(provider.camera, c[:, None].to(x_mm.device), n, azimuth_deg=az, centered=centered, dtype=dtype,
+               numerics=provider.numerics, terms=EXACT_TERMS)
+
+
+def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
+    """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
+    at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
+    from .criteria import CRITERIA
+    from .exact_wavefront import exact_criteria
+    from .metrics import evaluate
+
+    _one_wavelength(camera)
+    out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
+    ex = exact_criteria(camera, design, snr_db, rho0=rho0, numerics=numerics)
+    for name, c in CRITERIA.items():
+        if c.from_otf is not None:
+            out[name], out[f"{name}_alpha"] = ex[name], ex[f"{name}_alpha"]
+    out["fft_size"] = ex["fft_size"]
+    return out
+
+
+WAVEFRONT_MODELS: dict[str, WavefrontModel] = {m.name: m for m in (
+    WavefrontModel("third_order", "third order (Seidel, closed form)", _third_order_psfs, _third_order_evaluate),
+    WavefrontModel("exact", "exact (fitted to a real ray trace; RMS_W stays third order)", _exact_psfs, _exact_evaluate,
+                   check=_one_wavelength, support_factor=1.25),  # fifth and higher orders: 25% more support
+)}
+"""The registry: name -> :class:`WavefrontModel`."""
+
+
+def validate_wavefront_model(name: str) -> WavefrontModel:
+    """The registered model ``name``; ``ValueError`` listing the valid names otherwise."""
+    if name not in WAVEFRONT_MODELS:
+        raise ValueError(f"wavefront={name!r} is not allowed: one of {', '.join(WAVEFRONT_MODELS)}")
+    return WAVEFRONT_MODELS[name]
