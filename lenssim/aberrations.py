@@ -98,26 +98,6 @@ def _design_and_angles(design: Design, alpha_deg):
     return design.to(dtype=dtype, device=device), as_tensor(alpha_deg, dtype=dtype, device=device)
 
 
-def _seidel(lens: Lens, design: Design, alpha, wavelength_um=None):
-    n = lens.refractive_index if wavelength_um is None else lens.glass.index(wavelength_um)
-    y, p = lens.pupil_radius_mm, lens.position_factor_at(wavelength_um)
-    K = lens.power(wavelength_um)
-    s = design["s"]
-    H = y * torch.tan(torch.deg2rad(alpha))
-    bracket = (n / (n - 1)) ** 2 + (n + 2) / (n * (n - 1) ** 2) * s**2 \
-        + 4 * (n + 1) / (n * (n - 1)) * s * p + (3 * n + 2) / n * p**2
-    S1 = y**4 * K**3 / 4 * bracket
-    n_before = 1.0
-    for surf in lens.surfaces(design, wavelength_um):  # conic contributions (zero for spheres)
-        if surf.aspheric:
-            S1 = S1 + (surf.n_after - n_before) * surf.conic * surf.curvature**3 * y**4
-        n_before = surf.n_after
-    S2 = (y**2 * K**2 * H / 2) * ((n + 1) / (n * (n - 1)) * s + (2 * n + 1) / n * p)
-    S3 = H**2 * K
-    S4 = H**2 * K / n
-    return torch.stack(torch.broadcast_tensors(S1, S2, S3, S4), dim=-1)
-
-
 def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool = False,
                 wavelength_um: float | None = None) -> torch.Tensor:
     """Seidel sums ``(S_I, S_II, S_III, S_IV)`` in mm.
@@ -143,8 +123,8 @@ def seidel_sums(lens: Lens, design: Design, alpha_deg=None, *, elementwise: bool
         alpha_deg = lens.field_angles_deg
     design, alpha = _design_and_angles(design, alpha_deg)
     if elementwise:
-        return _seidel(lens, design, alpha, wavelength_um)
-    return _seidel(lens, design.unsqueeze(-1), alpha, wavelength_um)
+        return lens.seidel_sums(design, alpha, wavelength_um)
+    return lens.seidel_sums(design.unsqueeze(-1), alpha, wavelength_um)
 
 
 def defocus_mm(lens: Lens, design: Design, wavelength_um: float | None = None) -> torch.Tensor:

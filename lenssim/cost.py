@@ -109,7 +109,7 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
         if surf.aspheric:
             c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64),
                                            as_tensor(surf.conic, dtype=torch.float64))
-            cost = surface_cost(c, Q, lens.pupil_radius_mm, n_points)
+            cost = surface_cost(c, Q, surf.semi_aperture_mm or lens.pupil_radius_mm, n_points)
             if not bool(torch.isfinite(cost).all()):
                 bad = int(torch.nonzero(~torch.isfinite(cost.reshape(-1)))[0])
                 at = ", ".join(f"{k}={float(torch.broadcast_to(v, cost.shape).reshape(-1)[bad])!r}" for k, v in d64.values.items())
@@ -127,5 +127,6 @@ def slope_departure_cost_third_order(lens: Lens, design: Design) -> torch.Tensor
     for surf in lens.surfaces(design):
         if surf.aspheric:
             c = as_tensor(surf.curvature)
-            total = total + as_tensor(surf.conic, like=c).abs() * c.abs() ** 3 * lens.pupil_radius_mm**3 / 175**0.5
+            y = surf.semi_aperture_mm or lens.pupil_radius_mm
+            total = total + as_tensor(surf.conic, like=c).abs() * c.abs() ** 3 * y**3 / 175**0.5
     return total

@@ -155,9 +155,37 @@ class Lens:
         """
         c1, c2 = self.curvatures(design["s"])
         n = self.refractive_index if wavelength_um is None else self.glass.index(wavelength_um)
-        front = (Surface(c1, design["Q_front"], n, 0.0, aspheric=True, conic_name="Q_front") if "Q_front" in design
-                 else Surface(c1, 0.0, n, 0.0, aspheric=False))
-        return [front, Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back")]
+        y = self.pupil_radius_mm  # thin lens, stop at the lens: both surfaces are used over the pupil
+        front = (Surface(c1, design["Q_front"], n, 0.0, aspheric=True, conic_name="Q_front", semi_aperture_mm=y)
+                 if "Q_front" in design else Surface(c1, 0.0, n, 0.0, aspheric=False, semi_aperture_mm=y))
+        return [front, Surface(c2, design["Q_back"], 1.0, 0.0, aspheric=True, conic_name="Q_back", semi_aperture_mm=y)]
+
+    @property
+    def stop_index(self) -> int:
+        """The aperture stop is at the lens: its first surface (zero thickness)."""
+        return 0
+
+    def seidel_sums(self, design: Design, alpha, wavelength_um: float | None = None) -> torch.Tensor:
+        """``(S_I, S_II, S_III, S_IV)`` (mm) by the thin lens's closed forms (Welford ch. 8): the fast path of the
+        :class:`lenssim.optical_system.OpticalSystem` protocol, equal to the general surface-by-surface sums
+        (:func:`lenssim.optical_system.surface_seidel_sums`; tested). ``alpha`` (deg) broadcasts with the design."""
+        n = self.refractive_index if wavelength_um is None else self.glass.index(wavelength_um)
+        y, p = self.pupil_radius_mm, self.position_factor_at(wavelength_um)
+        K = self.power(wavelength_um)
+        s = design["s"]
+        H = y * torch.tan(torch.deg2rad(alpha))
+        bracket = (n / (n - 1)) ** 2 + (n + 2) / (n * (n - 1) ** 2) * s**2 \
+            + 4 * (n + 1) / (n * (n - 1)) * s * p + (3 * n + 2) / n * p**2
+        S1 = y**4 * K**3 / 4 * bracket
+        n_before = 1.0
+        for surf in self.surfaces(design, wavelength_um):  # conic contributions (zero for spheres)
+            if surf.aspheric:
+                S1 = S1 + (surf.n_after - n_before) * surf.conic * surf.curvature**3 * y**4
+            n_before = surf.n_after
+        S2 = (y**2 * K**2 * H / 2) * ((n + 1) / (n * (n - 1)) * s + (2 * n + 1) / n * p)
+        S3 = H**2 * K
+        S4 = H**2 * K / n
+        return torch.stack(torch.broadcast_tensors(S1, S2, S3, S4), dim=-1)
 
     def power(self, wavelength_um: float | None = None) -> float:
         """Paraxial power ``K = (n(lambda) - 1)(c1 - c2)`` (1/mm); ``1 / focal_length_mm`` at the reference index."""

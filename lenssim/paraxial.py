@@ -34,7 +34,8 @@ class Surface:
     curvature : 1/mm; conic : conic constant kappa (0 = sphere);
     n_after : refractive index after the surface; thickness_after_mm : distance to the next one;
     aspheric : the conic is a free design parameter (named ``conic_name``): counted by the
-    industrial cost (:mod:`lenssim.cost`).
+    industrial cost (:mod:`lenssim.cost`); semi_aperture_mm : the clear radius over which the surface is
+    used (and made: the cost's aperture); None: the system's pupil radius.
     """
 
     curvature: float | torch.Tensor
@@ -43,6 +44,7 @@ class Surface:
     thickness_after_mm: float = 0.0
     aspheric: bool = False
     conic_name: str | None = None
+    semi_aperture_mm: float | None = None
 
 
 def seidel_surface_sums(surfaces, h, u, hbar, ubar, n_object: float = 1.0) -> torch.Tensor:
