@@ -93,6 +93,10 @@ def image_psd(n: int, rho0: float, *, model: str = "discrete", dtype=torch.float
 
     Unit-variance normalisation: ``P_x.mean() == 1`` for ``model="discrete"`` once ``n`` exceeds the
     correlation length many times (on small grids the mean is the periodised correlation at lag 0).
+
+    References
+    ----------
+    .. [1] Optics Express 31(10), 16897 (2023), Section 2.3: the separable ``rho0^|r|`` image model.
     """
     if not (isinstance(n, int) and n >= 2 and n % 2 == 0):
         raise ValueError(f"n={n!r} is not allowed: an even integer >= 2")

@@ -91,6 +91,22 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
     A camera with colour ``channels`` is evaluated channel by channel: each result is then the mean
     over the channels, and ``NAME_per_channel`` holds the channels' values on a leading axis
     (``fft_size`` is the largest over the channels).
+
+    References
+    ----------
+    .. [1] Optics Express 31(10), 16897 (2023), Section 2.3, Eqs. (4)-(6) (the expected MSEs) and Section 2.2,
+       Eq. (3) (``C_a``).
+
+    Examples
+    --------
+    >>> import torch
+    >>> from lenssim import FAST_NUMERICS, Camera, ConstantGlass, Design, Lens, Sensor, Spectrum
+    >>> lens = Lens(focal_length_mm=25.0, pupil_radius_mm=2.0, glass=ConstantGlass(1.5), field_angles_deg=(0.0, 7.0))
+    >>> camera = Camera(lens, Sensor(pixel_pitch_um=1.5625, width_px=6000, height_px=4000), Spectrum.monochromatic(0.5))
+    >>> designs = Design(s=torch.tensor([-0.775, -0.725]), Q_back=torch.tensor([-2.4, -10.0]))
+    >>> r = evaluate(camera, designs, [21.6, 27.6], rho0=0.97, numerics=FAST_NUMERICS)
+    >>> tuple(r["mse_r"].shape), tuple(r["mse_r_alpha"].shape), tuple(r["cost"].shape)
+    ((2, 2), (2, 2, 2), (2,))
     """
     if camera.channels:
         parts = [evaluate(c, design, snr_db, rho0=rho0, psd_model=psd_model, fft_size=fft_size, numerics=numerics,

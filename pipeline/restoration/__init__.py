@@ -144,7 +144,16 @@ def _typed(name: str, key: str, value, default):
 
 
 def parse_restoration(spec: str) -> Restoration:
-    """``"NAME"`` or ``"NAME:key=value,key=value"`` -> a checked :class:`Restoration`."""
+    """``"NAME"`` or ``"NAME:key=value,key=value"`` -> a checked :class:`Restoration` (values take the type of the
+    option's default).
+
+    Examples
+    --------
+    >>> parse_restoration("richardson_lucy:iterations=30")
+    Restoration(name='richardson_lucy', options={'iterations': 30})
+    >>> parse_restoration("tikhonov").to_dict()
+    {'name': 'tikhonov', 'options': {'weight': 0.01}}
+    """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"restoration {spec!r} is not allowed: NAME or NAME:key=value,... with NAME one of "
                          f"{', '.join(RESTORATION_METHODS)}")

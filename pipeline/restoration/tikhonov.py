@@ -17,15 +17,19 @@ References
 
 Examples
 --------
+A delta PSF with no regularisation restores the image exactly:
+
 >>> import math, torch
->>> from lenssim import PAPER_CAMERA, FunctionPSF
+>>> from lenssim import FieldGeometry, FunctionPSF
 >>> from pipeline import WindowScheme
 >>> from pipeline.restoration import restore
->>> delta = lambda rows, cols, n: torch.zeros(len(rows), n, n, dtype=torch.float64).index_put_(
-...     (torch.arange(len(rows)), torch.tensor(n // 2), torch.tensor(n // 2)), torch.tensor(1.0, dtype=torch.float64))
+>>> def delta(x_mm, y_mm, n):
+...     p = torch.zeros(len(x_mm), n, n, dtype=torch.float64)
+...     p[:, n // 2, n // 2] = 1
+...     return p
 >>> x = torch.rand(1, 1, 64, 64, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
->>> y = restore("tikhonov:weight=0", x, FunctionPSF(delta, PAPER_CAMERA.geometry), electrons_per_unit=math.inf,
-...             scheme=WindowScheme(64, 16, 32))
+>>> psf = FunctionPSF(delta, FieldGeometry(focal_length_mm=25.0, pixel_pitch_um=1.5625))
+>>> y = restore("tikhonov:weight=0", x, psf, electrons_per_unit=math.inf, scheme=WindowScheme(64, 16, 32))
 >>> bool(torch.allclose(y, x, atol=1e-12))
 True
 """
