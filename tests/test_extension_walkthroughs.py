@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from lenssim import CRITERIA, PARAMETERS, Camera, Design, LensPSF, Numerics, Spectrum
+from lenssim import CRITERIA, PARAMETERS, Camera, Design, Lens, LensPSF, Numerics, Spectrum
 
 from lenssim_studies.paper import PAPER_CAMERA
 from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
@@ -105,3 +105,33 @@ def test_walkthrough_a_design_criterion(tmp_path):
     assert find_optimum(ds, "strehl")["value"] == pytest.approx(float(ds["strehl"].max()))
     assert find_optimum(ds, "mtf50")["value"] == pytest.approx(float(ds["mtf50"].max()))
     assert find_optimum(ds, "mse_r")["value"] == pytest.approx(float(ds["mse_r"].min()))
+
+def test_walkthrough_a_wavefront_model():
+    """One entry in lenssim.wavefront_models.WAVEFRONT_MODELS: the exact model was added so; the provider and
+    `lenssim evaluate --wavefront` read it by name (generic checks in tests/lenssim/test_wavefront_models.py)."""
+    from lenssim.wavefront_models import WAVEFRONT_MODELS
+
+    assert {"third_order", "exact"} <= set(WAVEFRONT_MODELS)
+    p = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), wavefront="exact")
+    assert p.psf_at_pixels(torch.tensor([400.0]), torch.tensor([300.0]), (0.0, 0.0), 128).shape == (1, 128, 128)
+
+
+def test_walkthrough_an_optical_system():
+    """A new optical system implements the OpticalSystem protocol: here the thin lens described by its
+    surfaces alone, its Seidel sums from the general surface-by-surface route. The wavefront, and so every PSF
+    and criterion, is the same as the closed-form lens's."""
+    import dataclasses as dc
+
+    from lenssim.aberrations import wavefront_coefficients
+    from lenssim.optical_system import OpticalSystem, surface_seidel_sums
+
+    @dc.dataclass(frozen=True, kw_only=True)
+    class SurfacePrescription(Lens):
+        def seidel_sums(self, design, alpha, wavelength_um=None):
+            return surface_seidel_sums(self, design, alpha, wavelength_um)
+
+    general = SurfacePrescription(**{f.name: getattr(PAPER_LENS, f.name) for f in dc.fields(PAPER_LENS)})
+    assert isinstance(general, OpticalSystem)
+    d = Design(s=torch.tensor([-0.775, 0.3], dtype=D), Q_back=torch.tensor([-2.4, -6.0], dtype=D))
+    torch.testing.assert_close(wavefront_coefficients(general, d, wavelength_um=0.5),
+                               wavefront_coefficients(PAPER_LENS, d, wavelength_um=0.5), rtol=1e-12, atol=1e-12)
