@@ -16,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lenssim_studies.paper import PAPER_CAMERA, REFERENCE_SNR_DB
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
-from lenssim_studies.tradeoff import PAPER_COST_LEVELS, iso_cost_curve
-from lenssim_studies.paper import PAPER_RHO0
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_COST_LEVELS, PAPER_GRID, PAPER_RHO0, REFERENCE_SNR_DB
+from lenssim_studies.tradeoff import iso_cost_curve
 
 
 def main() -> None:
@@ -41,7 +40,7 @@ def main() -> None:
         x0 = (-1.0, float(cq[0]))
         f = DifferentiableCriterion(PAPER_CAMERA, args.snr, "mse_r", rho0=PAPER_RHO0)
         t0 = time.perf_counter()
-        r = optimise_on_iso_cost(f, x0, level)
+        r = optimise_on_iso_cost(f, x0, level, bounds={k: v[:2] for k, v in PAPER_GRID.items()})  # the paper's grid
         dt = time.perf_counter() - t0
         g = grid.isel(level=j) if grid is not None else None
         gtxt = f"({float(g['s']):.4f}, {float(g['Q_back']):.3f}) | {float(g['value']):.5f}" if g is not None else "- | -"
