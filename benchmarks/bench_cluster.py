@@ -20,8 +20,8 @@ from pathlib import Path
 
 import torch
 
-from lenssim.numerics import FAST_NUMERICS
-from lenssim.resources import config_path
+from lenssim.model.numerics import FAST_NUMERICS
+from lenssim.io.resources import config_path
 from lenssim_studies.sweep import SweepConfig, load_config, run_sweep
 
 

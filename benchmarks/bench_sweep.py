@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import lenssim.psf_bank as psf_bank
+import lenssim.optics.psf_bank as psf_bank
 
-from lenssim.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
-from lenssim.resources import config_path
+from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
+from lenssim.io.resources import config_path
 from lenssim_studies.sweep import load_config, run_sweep
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -19,7 +19,7 @@ import torch
 from lenssim import Camera, Design, LensPSF, Numerics, evaluate
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
+from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
 from lenssim.validate import ModelValidityWarning
 from pipeline import resolution_scene
 from pipeline.blur import blur_windowed

@@ -17,7 +17,7 @@ from pathlib import Path
 from lenssim import LensPSF
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from lenssim.files import atomic_write_text
+from lenssim.io.files import atomic_write_text
 from lenssim_studies.paper import ISO_FOR_SNR
 from pipeline import load_photo
 from pipeline.simulate import crop_at_field_angle, simulate_crops

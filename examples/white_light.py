@@ -27,7 +27,7 @@ from lenssim import Camera, LensPSF, otf, psf_at, spectral_coefficients  # noqa:
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.focus import best_focus  # noqa: E402
-from lenssim.spectrum import channel_spectra  # noqa: E402
+from lenssim.model.spectrum import channel_spectra  # noqa: E402
 from lenssim.validate import ModelValidityWarning  # noqa: E402
 from pipeline import crop_at_field_angle, load_photo, simulate_crops  # noqa: E402
 from pipeline.figures import mosaic_figure  # noqa: E402

@@ -15,7 +15,7 @@ in. See docs/architecture.md.
 
 __version__ = "0.2.0"
 
-from .aberrations import (
+from .optics.aberrations import (
     COEFFICIENT_NAMES,
     TERMS,
     field_rms_wavefront,
@@ -25,22 +25,22 @@ from .aberrations import (
     wavefront_coefficients,
     wavefront_gradient,
 )
-from .camera import Camera
+from .model.camera import Camera
 from .checks import check_shape
-from .cost import best_fit_sphere_curvature, slope_departure_cost, slope_departure_cost_third_order
+from .optics.cost import best_fit_sphere_curvature, slope_departure_cost, slope_departure_cost_third_order
 from .criteria import CRITERIA, Criterion, validate_criterion
-from .design import PARAMETERS, Design, Parameter, load_designs, parameter_name
-from .geometry import FieldGeometry, frame_center
-from .glass import ConstantGlass
-from .image_model import image_psd, noise_variance, psd_continuous
-from .lens import Lens, LensError
+from .model.design import PARAMETERS, Design, Parameter, load_designs, parameter_name
+from .model.geometry import FieldGeometry, frame_center
+from .model.glass import ConstantGlass
+from .optics.image_model import image_psd, noise_variance, psd_continuous
+from .model.lens import Lens, LensError
 from .metrics import evaluate, otf_criteria_bank
-from .numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
-from .psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
+from .model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
+from .optics.psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
                        pupil_amplitude, spectral_coefficients)
-from .psf_provider import FunctionPSF, LensPSF, PSFProvider
-from .sensor import Sensor
-from .spectrum import Spectrum
+from .optics.psf_provider import FunctionPSF, LensPSF, PSFProvider
+from .model.sensor import Sensor
+from .model.spectrum import Spectrum
 from .torch_utils import select_device
 
 __all__ = [

@@ -7,7 +7,7 @@ step is taken along it, and the point is pulled back onto ``C_a = level`` by New
 the cost gradient. FFT sizes are fixed per field angle at the start (piecewise-constant in the
 design, so they carry no gradient). The optimisation vector ``x`` holds the design parameters
 named in ``names`` (default the paper's ``s``, ``Q_back``); coordinates are scaled by each
-parameter's typical step (:data:`lenssim.design.PARAMETERS`: the paper's grid steps, 0.025 in s,
+parameter's typical step (:data:`lenssim.model.design.PARAMETERS`: the paper's grid steps, 0.025 in s,
 0.1 in Q) so all parameters move comparably.
 """
 
@@ -17,13 +17,13 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .camera import Camera
-from .cost import slope_departure_cost
+from .model.camera import Camera
+from .optics.cost import slope_departure_cost
 from .criteria import OTFContext, quarter_weights, validate_criterion
-from .design import PARAMETERS, Design, parameter_name
-from .image_model import image_psd_quarter, noise_variance
-from .numerics import DEFAULT_NUMERICS, Numerics
-from .psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
+from .model.design import PARAMETERS, Design, parameter_name
+from .optics.image_model import image_psd_quarter, noise_variance
+from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .optics.psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
 
 __all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost"]
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .camera import Camera
+from .model.camera import Camera
 from .criteria import validate_criterion
-from .design import Design
+from .model.design import Design
 from .metrics import evaluate
-from .numerics import DEFAULT_NUMERICS, Numerics
+from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .validate import check_real
 
 __all__ = ["FocusResult", "best_focus", "best_focus_batch", "FOCUS_BOUNDS_UM"]

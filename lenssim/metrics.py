@@ -1,8 +1,8 @@
 """The design criteria for batches of designs: OTF banks by FFT size, in bounded-memory chunks.
 
 For each field angle of the lens and each noise level the OTF criteria of :mod:`lenssim.criteria`
-(``mse_s``, ``mse_r``) are computed from the pixel-sampled OTF (:func:`lenssim.psf_bank.otf_quarter`,
-weighted over the camera's spectrum) and the image model of :mod:`lenssim.image_model`, then
+(``mse_s``, ``mse_r``) are computed from the pixel-sampled OTF (:func:`lenssim.optics.psf_bank.otf_quarter`,
+weighted over the camera's spectrum) and the image model of :mod:`lenssim.optics.image_model`, then
 averaged over the field; the design criteria (``rms_w``, ``cost``) come from the wavefront
 coefficients and the surfaces.
 """
@@ -13,15 +13,15 @@ from collections.abc import Callable
 
 import torch
 
-from .aberrations import N_TERMS
-from .camera import Camera
+from .optics.aberrations import N_TERMS
+from .model.camera import Camera
 from .checks import check_shape
 from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
-from .design import Design
-from .image_model import image_psd_quarter, noise_variance
-from .numerics import DEFAULT_NUMERICS, Numerics
-from .psf_bank import fft_size as choose_fft_size
-from .psf_bank import otf_quarter_spectrum, spectral_coefficients
+from .model.design import Design
+from .optics.image_model import image_psd_quarter, noise_variance
+from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .optics.psf_bank import fft_size as choose_fft_size
+from .optics.psf_bank import otf_quarter_spectrum, spectral_coefficients
 from .torch_utils import as_tensor, chunk_budget_bytes
 from .validate import NumericalError, ResourceLimitError, check_memory
 
@@ -34,7 +34,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
                       terms=None) -> dict[str, torch.Tensor]:
     """OTF criteria ``{name: (P, S)}`` (``(P,)`` for a criterion that does not depend on the SNR; float64) for
     field-axis coefficient sets ``(P, K, T)`` (``terms``: their monomial table, default
-    :data:`lenssim.aberrations.TERMS`). Each criterion receives an :class:`lenssim.criteria.OTFContext`.
+    :data:`lenssim.optics.aberrations.TERMS`). Each criterion receives an :class:`lenssim.criteria.OTFContext`.
 
     PSFs are grouped by FFT size ``sizes`` ``(P,)`` and processed in chunks of at most
     ``numerics.chunk_bytes`` of working memory on a CPU (a share of the free memory on a GPU:
@@ -86,7 +86,7 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
     SNR else ``(*)``; per field angle ``NAME_alpha`` ``(*, A, S)`` (``(*, A)``) for the OTF criteria and
     ``rms_w_alpha`` ``(*, A)``; ``rms_w_piston_removed`` ``(*)``; ``fft_size`` ``(*, A)`` (the FFT size
     used for each PSF); ``snr_db`` ``(S,)``; ``alpha_deg`` ``(A,)``. ``fft_size`` overrides the
-    automatic choice (:func:`lenssim.psf_bank.fft_size`). The OTFs are computed in ``dtype``.
+    automatic choice (:func:`lenssim.optics.psf_bank.fft_size`). The OTFs are computed in ``dtype``.
 
     A camera with colour ``channels`` is evaluated channel by channel: each result is then the mean
     over the channels, and ``NAME_per_channel`` holds the channels' values on a leading axis

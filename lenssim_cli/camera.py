@@ -21,7 +21,7 @@ import torch
 from lenssim import LensPSF, select_device
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from lenssim.files import atomic_write_text, json_text
+from lenssim.io.files import atomic_write_text, json_text
 from lenssim_studies.paper import PAPER_FIG8_ANGLES_DEG
 from pipeline import RESTORATION_METHODS, load_photo, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
@@ -100,7 +100,7 @@ def _methods(args):
 
 
 def cmd_simulate(args) -> int:
-    from lenssim.files import check_output_dir, staged_output_dir
+    from lenssim.io.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
     from pipeline.blur import WindowScheme
     from pipeline.checks import check_full_well
@@ -268,7 +268,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
 
 
 def cmd_psnr_table(args) -> int:
-    from lenssim.files import check_output_dir, staged_output_dir
+    from lenssim.io.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
 
     _check_common(args)
@@ -324,7 +324,7 @@ def cmd_psnr_table(args) -> int:
 
 
 def cmd_fig8(args) -> int:
-    from lenssim.files import check_output_dir, staged_output_dir
+    from lenssim.io.files import check_output_dir, staged_output_dir
     from lenssim_studies.figure8 import figure8
 
     from pipeline.restoration import parse_restoration

@@ -57,7 +57,7 @@ def add_device_argument(p: argparse.ArgumentParser) -> None:
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     """``--glass NAME``, ``--spectrum NAME``, ``--illuminant NAME``, ``--wavelengths-per-channel N``."""
-    from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
+    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
 
     p.add_argument("--glass", help="a glass of the catalogue (configs/glasses.toml: paper, N-BK7, N-SF5, PMMA); "
                                    "default: the paper's non-dispersive n = 1.5")
@@ -76,7 +76,7 @@ def camera_from_args(args):
     """The paper's camera, with the glass and spectrum the arguments name."""
     from lenssim import Camera, Lens
     from lenssim_studies.paper import PAPER_CAMERA
-    from lenssim.spectrum import channel_spectra
+    from lenssim.model.spectrum import channel_spectra
 
     lens = PAPER_CAMERA.lens if not getattr(args, "glass", None) else Lens.from_dict({**PAPER_CAMERA.lens.to_dict(),
                                                                                        "glass": args.glass,

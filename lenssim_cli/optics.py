@@ -10,8 +10,8 @@ from pathlib import Path
 from lenssim import CRITERIA, DEFAULT_NUMERICS, PARAMETERS, Design, select_device
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB
-from lenssim.files import json_text
-from lenssim.resources import builtin_configs, config_path
+from lenssim.io.files import json_text
+from lenssim.io.resources import builtin_configs, config_path
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
                      design_from_args, designs, table)
@@ -30,7 +30,7 @@ def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_
                     wavefront: str = "third_order") -> dict:
     """Every registered criterion of one design under the ``wavefront`` model, as JSON-ready values keyed by
     criterion name (with colour channels: their mean, and ``NAME_per_channel``)."""
-    from lenssim.wavefront_models import validate_wavefront_model
+    from lenssim.optics.wavefront_models import validate_wavefront_model
 
     model = validate_wavefront_model(wavefront)
     res = model.evaluate(camera, design, snr, rho0=PAPER_RHO0, numerics=numerics, device=select_device(device))
@@ -182,7 +182,7 @@ def cmd_reproduce(args) -> int:
     from lenssim_studies.report import reproduce
     from lenssim_studies.sweep import load_config
 
-    from lenssim.files import check_output_dir
+    from lenssim.io.files import check_output_dir
 
     cfg = load_config(config_path(args.config or REPRODUCE_CONFIG))
     if args.max_fft_size:
@@ -199,7 +199,7 @@ def cmd_reproduce(args) -> int:
 
 def cmd_study(args) -> int:
     """``lenssim study white-light|exact-wavefront`` (lenssim.study)."""
-    from lenssim.files import atomic_write_text, check_output_dir, json_text
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text
     from lenssim_studies.study import STUDY_GRID, WhiteLightStudy, exact_along_tradeoff, exact_tradeoff_report, white_light_study
 
     if args.name == "exact-wavefront":
@@ -313,7 +313,7 @@ def register(sub) -> None:
                     help="glasses (configs/glasses.toml; 'paper' = the paper's one-wavelength model as baseline)")
     st.add_argument("--spectrum", default="Nikon 5100 (NPL)", help="camera RGB sensitivities (colour-science)")
     st.add_argument("--illuminant", default="D65")
-    from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
+    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
     st.add_argument("--wavelengths-per-channel", type=int, default=DEFAULT_WAVELENGTHS_PER_CHANNEL, metavar="N")
     st.add_argument("--grid-step", type=float, nargs=2, metavar=("DS", "DQ"),
                     help="steps of the (s, Q_back) grid (default 0.125 0.8 over s -1.5..0.25, Q_back -10..1.2)")

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from lenssim.criteria import CRITERIA
-from lenssim.design import Design
+from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
 __all__ = ["_chunk_keys", "_compute_chunk", "_checksum"]

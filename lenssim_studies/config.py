@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenssim.camera import Camera
+from lenssim.model.camera import Camera
 from lenssim.criteria import CRITERIA
-from lenssim.design import Design, parameter_name
-from lenssim.files import read_toml
-from lenssim.image_model import PSD_MODELS
-from lenssim.lens import Lens, LensError
-from lenssim.numerics import DEFAULT_NUMERICS, Numerics
-from lenssim.sensor import Sensor
-from lenssim.spectrum import Spectrum
+from lenssim.model.design import Design, parameter_name
+from lenssim.io.files import read_toml
+from lenssim.optics.image_model import PSD_MODELS
+from lenssim.model.lens import Lens, LensError
+from lenssim.model.numerics import DEFAULT_NUMERICS, Numerics
+from lenssim.model.sensor import Sensor
+from lenssim.model.spectrum import Spectrum
 from lenssim.validate import ResourceLimitError, check_memory, check_real
 
 from .paper import PAPER_CAMERA, PAPER_GRID, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM
@@ -202,7 +202,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
     """Read a sweep config from TOML; unknown keys and bad values raise ``ValueError`` naming them.
 
     Sections (each changes the paper's scenario, :mod:`lenssim_studies.paper`, where it is silent):
-    ``[lens]`` (:class:`lenssim.lens.Lens` fields; ``refractive_index`` for a constant
+    ``[lens]`` (:class:`lenssim.model.lens.Lens` fields; ``refractive_index`` for a constant
     glass; a legacy ``wavelength_um`` sets a one-line spectrum), ``[sensor]``, ``[spectrum]``
     (``wavelengths_um``, ``weights``), ``[channels]`` (a colour camera: ``camera`` = RGB sensitivities of
     colour-science, e.g. "Nikon 5100 (NPL)", ``illuminant`` (default D65), ``per_channel`` wavelengths; the
@@ -230,7 +230,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             sensor_kw["full_well_e"] = tuple((int(k), v) for k, v in dict(sensor_kw["full_well_e"]).items())
         channels = ()
         if sections["channels"]:
-            from lenssim.spectrum import channel_spectra
+            from lenssim.model.spectrum import channel_spectra
 
             ch = dict(sections["channels"])
             bad = set(ch) - {"camera", "illuminant", "per_channel"}

@@ -14,7 +14,7 @@ import torch
 from lenssim import Camera, Design, LensPSF
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from lenssim.files import atomic_write
+from lenssim.io.files import atomic_write
 from lenssim_studies.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
 
 from pipeline.colour_space import linear_to_srgb

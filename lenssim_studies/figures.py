@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from lenssim.design import PARAMETERS
-from lenssim.files import atomic_write, atomic_write_text
+from lenssim.model.design import PARAMETERS
+from lenssim.io.files import atomic_write, atomic_write_text
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import design_dims
 from .tradeoff import find_optimum

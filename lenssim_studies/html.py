@@ -10,7 +10,7 @@ import base64
 import html
 from pathlib import Path
 
-from lenssim.files import atomic_write_text
+from lenssim.io.files import atomic_write_text
 
 __all__ = ["image", "row", "table", "markdown", "page", "write_page"]
 

@@ -13,12 +13,12 @@ import numpy as np
 
 from pipeline.restoration.wiener import WIENER_RHO0
 
-from lenssim.camera import Camera
-from lenssim.design import Design, load_designs
-from lenssim.glass import ConstantGlass
-from lenssim.lens import Lens
-from lenssim.sensor import Sensor
-from lenssim.spectrum import Spectrum
+from lenssim.model.camera import Camera
+from lenssim.model.design import Design, load_designs
+from lenssim.model.glass import ConstantGlass
+from lenssim.model.lens import Lens
+from lenssim.model.sensor import Sensor
+from lenssim.model.spectrum import Spectrum
 
 __all__ = ["PAPER_LENS", "PAPER_SENSOR", "PAPER_SPECTRUM", "PAPER_CAMERA", "PAPER_DESIGNS", "PAPER_RHO0",
            "PAPER_SNR_DB", "REFERENCE_SNR_DB", "PAPER_GRID", "PAPER_COST_LEVELS", "PAPER_FIG8_ANGLES_DEG",

@@ -14,7 +14,7 @@ import numpy as np
 import xarray as xr
 
 from .figures import TABLE1_CRITERIA, all_figures, table1
-from lenssim.files import atomic_write, atomic_write_text
+from lenssim.io.files import atomic_write, atomic_write_text
 from .paper import PAPER_COST_LEVELS, PAPER_DESIGNS, REFERENCE_SNR_DB
 from .sweep import SweepConfig, design_dims, run_sweep
 from .tradeoff import find_optimum, min_cost_for_quality, tradeoff

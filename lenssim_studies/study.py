@@ -1,7 +1,7 @@
 """What white light does to the paper's conclusions (a study over glasses, with the image plane optimised).
 
 For each glass, the paper's lens (f = 25 mm, f/6.25, 15 field angles) is seen through a colour camera
-(RGB sensitivities x illuminant from colour-science, :func:`lenssim.spectrum.channel_spectra`); the
+(RGB sensitivities x illuminant from colour-science, :func:`lenssim.model.spectrum.channel_spectra`); the
 criteria are the means over the three channels. ``paper`` stands for the paper's own model (n = 1.5, one
 wavelength, 0.5 um, for every colour), the baseline. The steps:
 
@@ -16,7 +16,7 @@ wavelength, 0.5 um, for every colour), the baseline. The steps:
    the end-to-end one (Table 1 with the focus optimised).
 4. **A second asphere at equal cost**: at the end-to-end optimum's cost ``C*``, a search over
    ``(s, Q_front, focus)`` with ``Q_back`` solved so that the summed cost of both aspheres stays ``C*``
-   (bisection on the back conic, :func:`lenssim.cost.slope_departure_cost`).
+   (bisection on the back conic, :func:`lenssim.optics.cost.slope_departure_cost`).
 
 Everything is written into one folder: ``report.md``, ``summary.json`` and per glass the sweep, the
 trade-off figures and Table 1.
@@ -32,18 +32,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenssim.camera import Camera
-from lenssim.cost import slope_departure_cost
+from lenssim.model.camera import Camera
+from lenssim.optics.cost import slope_departure_cost
 from lenssim.criteria import CRITERIA
-from lenssim.design import Design
-from lenssim.files import atomic_write_text, json_text
+from lenssim.model.design import Design
+from lenssim.io.files import atomic_write_text, json_text
 from lenssim.focus import best_focus
-from lenssim.lens import Lens
+from lenssim.model.lens import Lens
 from lenssim.metrics import evaluate
-from lenssim.numerics import FAST_NUMERICS, Numerics
+from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from .paper import PAPER_CAMERA, PAPER_COST_LEVELS, PAPER_DESIGNS, PAPER_SNR_DB, REFERENCE_SNR_DB
-from lenssim.psf_bank import spectral_coefficients
-from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
+from lenssim.optics.psf_bank import spectral_coefficients
+from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
 from lenssim.validate import check_int
 from lenssim_studies.paper import PAPER_RHO0
 
@@ -316,7 +316,7 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
                          s_range=(-1.5, 0.25), s_step: float = 0.02, exact_points: int = 7,
                          numerics: Numerics = FAST_NUMERICS, log: Callable[[str], None] = print) -> list[dict]:
     """The end-to-end trade-off (best MSE_R on each iso-cost curve, Q_back < 0 branch) with third-order and
-    exact (ray-traced, :mod:`lenssim.exact_wavefront`) wavefronts, for a one-wavelength camera.
+    exact (ray-traced, :mod:`lenssim.optics.exact_wavefront`) wavefronts, for a one-wavelength camera.
 
     On each level the curve ``C_a(s, Q_back) = level`` is solved exactly (:func:`lenssim.tradeoff.iso_cost_curve`)
     at ``s`` every ``s_step``; third-order MSE_R is evaluated at every point (one batched evaluation) and its
@@ -325,7 +325,7 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
     Returns one dict per level: ``third_order`` and ``exact`` optima (``s``, ``Q_back``, ``mse_r``) and
     ``exact_at_third_order`` (the exact MSE_R of the third-order optimum).
     """
-    from lenssim.exact_wavefront import exact_criteria
+    from lenssim.optics.exact_wavefront import exact_criteria
     from .tradeoff import iso_cost_curve
 
     s_all = np.arange(s_range[0], s_range[1] + 1e-12, s_step)

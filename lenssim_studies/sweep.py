@@ -1,7 +1,7 @@
 """Resumable design sweeps over a grid of design parameters, written as a labelled NetCDF dataset.
 
 A sweep config (TOML, see ``configs/paper_grid.toml``) names the lens (and optionally the sensor
-and the spectrum), the grid of design parameters (any of :data:`lenssim.design.PARAMETERS`, e.g.
+and the spectrum), the grid of design parameters (any of :data:`lenssim.model.design.PARAMETERS`, e.g.
 ``s`` and ``Q_back``; their order is the order of the dataset's dimensions), the SNRs, the image
 model and the numerical settings. The work is split into fixed chunks (one value of the first
 grid parameter each, all values of the others), so every chunk is computed the same way whether
@@ -24,8 +24,8 @@ import xarray as xr
 
 from lenssim import __version__
 from lenssim.criteria import CRITERIA
-from lenssim.design import PARAMETERS
-from lenssim.files import atomic_write
+from lenssim.model.design import PARAMETERS
+from lenssim.io.files import atomic_write
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 

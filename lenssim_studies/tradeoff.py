@@ -24,10 +24,10 @@ import torch
 import xarray as xr
 from scipy.interpolate import RectBivariateSpline
 
-from lenssim.cost import DEFAULT_COST_POINTS, slope_departure_cost
+from lenssim.optics.cost import DEFAULT_COST_POINTS, slope_departure_cost
 from lenssim.criteria import CRITERIA, validate_criterion
-from lenssim.design import Design
-from lenssim.lens import Lens
+from lenssim.model.design import Design
+from lenssim.model.lens import Lens
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import SweepConfig, design_dims
 from lenssim_studies.paper import PAPER_LENS

@@ -10,7 +10,7 @@ patch and core then sit on the next pixel and its tent is centred on the positio
 the windows on pixels ``0, stride, 2 stride, ...`` (the first version's grid). Around each position a
 ``window`` x ``window`` patch of the (reflect-padded) image is convolved, by FFT, with the PSF *at that
 position*
-(from a PSF provider, :mod:`lenssim.psf_provider`: the lens model with exact pupil rotation, or
+(from a PSF provider, :mod:`lenssim.optics.psf_provider`: the lens model with exact pupil rotation, or
 measured PSFs); only the central ``core`` x ``core`` of the
 result is kept, weighted by a separable tent of half-width ``core / 2`` and blended with its
 neighbours. With the paper's scheme (512, 32, 64) the tents form a partition of unity, so every

@@ -16,7 +16,7 @@ import torch
 
 from lenssim import FieldGeometry
 
-from lenssim.files import atomic_write
+from lenssim.io.files import atomic_write
 
 from .quality import encode_srgb, scores_encoded
 

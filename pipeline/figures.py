@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lenssim.files import atomic_write
+from lenssim.io.files import atomic_write
 
 from .colour_space import linear_to_srgb
 from .restoration import RESTORATION_METHODS

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenssim.files import atomic_write
+from lenssim.io.files import atomic_write
 
 __all__ = ["ImageFileError", "ImageInfo", "read_image", "write_image"]
 

@@ -31,7 +31,7 @@ import torch
 
 from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
 
-from lenssim.files import atomic_write_text
+from lenssim.io.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
 from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count

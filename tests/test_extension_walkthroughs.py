@@ -12,8 +12,8 @@ from lenssim import CRITERIA, PARAMETERS, Camera, Design, Lens, LensPSF, Numeric
 
 from lenssim_studies.paper import PAPER_CAMERA
 from lenssim import evaluate, psf_at, seidel_sums, slope_departure_cost
-from lenssim.cost import surface_cost
-from lenssim.paraxial import seidel_surface_sums
+from lenssim.optics.cost import surface_cost
+from lenssim.optics.paraxial import seidel_surface_sums
 from lenssim_studies.sweep import SweepConfig, run_sweep
 from lenssim_studies.tradeoff import find_optimum
 import dataclasses
@@ -107,9 +107,9 @@ def test_walkthrough_a_design_criterion(tmp_path):
     assert find_optimum(ds, "mse_r")["value"] == pytest.approx(float(ds["mse_r"].min()))
 
 def test_walkthrough_a_wavefront_model():
-    """One entry in lenssim.wavefront_models.WAVEFRONT_MODELS: the exact model was added so; the provider and
+    """One entry in lenssim.optics.wavefront_models.WAVEFRONT_MODELS: the exact model was added so; the provider and
     `lenssim evaluate --wavefront` read it by name (generic checks in tests/lenssim/test_wavefront_models.py)."""
-    from lenssim.wavefront_models import WAVEFRONT_MODELS
+    from lenssim.optics.wavefront_models import WAVEFRONT_MODELS
 
     assert {"third_order", "exact"} <= set(WAVEFRONT_MODELS)
     p = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4), wavefront="exact")
@@ -122,8 +122,8 @@ def test_walkthrough_an_optical_system():
     and criterion, is the same as the closed-form lens's."""
     import dataclasses as dc
 
-    from lenssim.aberrations import wavefront_coefficients
-    from lenssim.optical_system import OpticalSystem, surface_seidel_sums
+    from lenssim.optics.aberrations import wavefront_coefficients
+    from lenssim.optics.optical_system import OpticalSystem, surface_seidel_sums
 
     @dc.dataclass(frozen=True, kw_only=True)
     class SurfacePrescription(Lens):

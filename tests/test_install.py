@@ -54,7 +54,7 @@ def test_the_wheel_carries_the_configs_and_the_command(installed):
 
 def test_the_installed_command_runs_outside_the_repository(installed, tmp_path):
     _, site = installed
-    where = subprocess.run([sys.executable, "-c", "import lenssim, lenssim.resources as r; print(lenssim.__file__); "
+    where = subprocess.run([sys.executable, "-c", "import lenssim, lenssim.io.resources as r; print(lenssim.__file__); "
                             "print(r.config_path('paper_grid_fast'))"], cwd=tmp_path, capture_output=True, text=True,
                            env={**os.environ, "PYTHONPATH": str(site)}).stdout.split()
     assert where[0].startswith(str(site)) and where[1].startswith(str(site))  # the installed copy, not the repository

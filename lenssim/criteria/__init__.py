@@ -7,7 +7,7 @@ Two kinds (Sections 2.2-2.3 of the paper):
   an optional reference OTF), then averaged over the field: ``mse_s`` and ``mse_r`` (the paper's),
   ``strehl`` and ``mtf50``;
 * **design criteria**, computed from the design and its wavefront coefficients directly: ``rms_w``
-  and ``cost`` (``C_a``, :mod:`lenssim.cost`).
+  and ``cost`` (``C_a``, :mod:`lenssim.optics.cost`).
 
 Each criterion declares its **sense** (``"min"``: smaller is better, or ``"max"``), whether it depends on
 the SNR (``per_snr``) and its **role** (``"quality"`` or ``"cost"``); evaluate, sweeps, optima, the
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..camera import Camera
+from ..model.camera import Camera
 
 __all__ = ["Criterion", "OTFContext", "CRITERIA", "register", "validate_criterion", "otf_criteria",
            "quality_criteria", "quarter_weights", "wavefront_rms_per_field", "SENSES", "ROLES"]
@@ -92,7 +92,7 @@ class OTFContext:
     def diffraction_limited(self) -> torch.Tensor:
         """The aberration-free OTF ``(1, m/2+1, m/2+1)`` of the same camera on the same grid (computed once)."""
         if "dl" not in self._cache:
-            from ..psf_bank import otf_quarter_spectrum
+            from ..optics.psf_bank import otf_quarter_spectrum
 
             zero = torch.zeros(1, len(self.camera.spectrum), self._terms(), dtype=self.H.real.dtype,
                                device=self.H.device)
@@ -101,7 +101,7 @@ class OTFContext:
         return self._cache["dl"]
 
     def _terms(self) -> int:
-        from ..aberrations import N_TERMS
+        from ..optics.aberrations import N_TERMS
 
         return N_TERMS
 
@@ -180,7 +180,7 @@ def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool =
     Over a spectrum: the weighted mean square over the wavelengths (``W_k lambda_k / lambda_ref`` in
     reference waves).
     """
-    from ..aberrations import rms_wavefront
+    from ..optics.aberrations import rms_wavefront
 
     spec = camera.spectrum
     if len(spec) == 1:

@@ -1,4 +1,4 @@
-"""``cost``: the industrial cost ``C_a``, the RMS slope departure of the aspheres (:mod:`lenssim.cost`).
+"""``cost``: the industrial cost ``C_a``, the RMS slope departure of the aspheres (:mod:`lenssim.optics.cost`).
 
 References
 ----------
@@ -7,7 +7,7 @@ References
 
 from __future__ import annotations
 
-from ..cost import slope_departure_cost
+from ..optics.cost import slope_departure_cost
 from . import Criterion, register
 
 

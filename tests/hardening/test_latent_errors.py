@@ -7,14 +7,14 @@ import dataclasses
 import pytest
 import torch
 
-import lenssim.cost
+import lenssim.optics.cost
 from lenssim import Design, LensError, slope_departure_cost
 from lenssim_studies.paper import PAPER_CAMERA
 
 
 def test_a_non_finite_asphere_cost_is_a_lens_error_not_a_name_error(monkeypatch):
     """``cost.py`` raised ``LensError`` without importing it: the error path was a NameError."""
-    monkeypatch.setattr(lenssim.cost, "surface_cost", lambda c, Q, y, n: torch.full_like(c, float("nan")))
+    monkeypatch.setattr(lenssim.optics.cost, "surface_cost", lambda c, Q, y, n: torch.full_like(c, float("nan")))
     with pytest.raises(LensError, match="not finite"):
         slope_departure_cost(PAPER_CAMERA.lens, Design(s=-0.775, Q_back=-2.4))
 

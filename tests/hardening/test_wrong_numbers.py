@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from lenssim import Camera, Design, LensError, LensPSF, Numerics, evaluate, noise_variance
 
 from lenssim_studies.paper import PAPER_CAMERA
-from lenssim.files import json_text
+from lenssim.io.files import json_text
 from lenssim.validate import ModelValidityWarning, NumericalError
 from pipeline import (add_poisson_noise, blur_windowed, crop_at_field_angle, gentle_denoise, richardson_lucy_windowed,
                       simulate_crops, wiener_windowed)

@@ -7,8 +7,8 @@ import torch
 from lenssim import TERMS, Design, field_rms_wavefront, rms_wavefront, seidel_sums, wavefront, wavefront_coefficients, wavefront_gradient
 
 from lenssim_studies.paper import PAPER_LENS
-from lenssim.paraxial import Surface, seidel_surface_sums
-from lenssim.raytrace import transverse_aberration
+from lenssim.optics.paraxial import Surface, seidel_surface_sums
+from lenssim.optics.raytrace import transverse_aberration
 
 D = torch.float64
 LAMBDA_UM = 0.5

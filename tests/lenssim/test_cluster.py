@@ -9,8 +9,8 @@ distributed = pytest.importorskip("distributed")
 
 import lenssim_studies.cluster  # noqa: E402
 from lenssim_studies.cluster import ClusterError, _chunk_task, compute_chunks, dask_client  # noqa: E402
-from lenssim.camera import Camera  # noqa: E402
-from lenssim.numerics import FAST_NUMERICS  # noqa: E402
+from lenssim.model.camera import Camera  # noqa: E402
+from lenssim.model.numerics import FAST_NUMERICS  # noqa: E402
 from lenssim_studies.sweep import SweepConfig, _checksum, _compute_chunk, run_sweep  # noqa: E402
 from lenssim.torch_utils import select_device  # noqa: E402
 import dataclasses

@@ -10,10 +10,10 @@ import torch
 from lenssim import Camera, Design, LensPSF, Numerics, Spectrum, evaluate
 
 from lenssim_studies.paper import PAPER_CAMERA
-from lenssim.aberrations import wavefront_coefficients, wavefront_gradient
-from lenssim.glass import C_LINE_UM, D_LINE_UM, F_LINE_UM, load_glasses
-from lenssim.raytrace import trace_rays, transverse_aberration
-from lenssim.spectrum import channel_spectra
+from lenssim.optics.aberrations import wavefront_coefficients, wavefront_gradient
+from lenssim.model.glass import C_LINE_UM, D_LINE_UM, F_LINE_UM, load_glasses
+from lenssim.optics.raytrace import trace_rays, transverse_aberration
+from lenssim.model.spectrum import channel_spectra
 from lenssim.validate import ModelValidityWarning
 import dataclasses
 from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
@@ -26,7 +26,7 @@ FINE = dataclasses.replace(PAPER_SENSOR, pixel_pitch_um=1.2)  # Nyquist down to 
 def test_catalogue_glasses_match_their_data_sheets():
     import tomllib
 
-    from lenssim.resources import glasses_file
+    from lenssim.io.resources import glasses_file
 
     raw = tomllib.loads(glasses_file().read_text())
     g = load_glasses()
@@ -123,7 +123,7 @@ def test_the_paper_sensor_undersamples_blue_light_and_says_so():
 def test_the_default_number_of_wavelengths_per_channel_is_converged():
     """Per-channel MSE_R with DEFAULT_WAVELENGTHS_PER_CHANNEL within 0.7% of twice as many (N-BK7 focused at
     the d line: blue and red light defocused by 1-2 waves, where the quadrature converges slowest)."""
-    from lenssim.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL as K
+    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL as K
 
     lens = dataclasses.replace(PAPER_LENS, glass="N-BK7", field_angles_deg=(0.0, 7.0, 14.0))
     num = Numerics(min_size=128, oversample=1)
@@ -192,8 +192,8 @@ def test_the_exact_wavefront_fit_reduces_to_third_order_at_small_aperture_and_di
     from third order's by about 1%, and the RMS_W design stays ~37% worse than the end-to-end one."""
     from lenssim import FAST_NUMERICS
     from lenssim_studies.paper import PAPER_DESIGNS
-    from lenssim.exact_wavefront import EXACT_TERMS, exact_criteria, exact_wavefront_coefficients
-    from lenssim.psf_bank import spectral_coefficients
+    from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_criteria, exact_wavefront_coefficients
+    from lenssim.optics.psf_bank import spectral_coefficients
 
     cam = Camera(dataclasses.replace(PAPER_LENS, pupil_radius_mm=0.05), PAPER_SENSOR, PAPER_SPECTRUM)
     d = Design(s=-0.775, Q_back=-2.4)

@@ -82,7 +82,7 @@ def test_the_cost_counts_every_aspheric_surface():
     d = Design(s=-0.775, Q_back=-2.4)
     aspheres = [s for s in PAPER_LENS.surfaces(d) if s.aspheric]
     assert [s.conic_name for s in aspheres] == ["Q_back"]
-    from lenssim.cost import surface_cost
+    from lenssim.optics.cost import surface_cost
 
     c = torch.as_tensor(aspheres[0].curvature, dtype=D)
     assert float(_cost(PAPER_LENS, d)) == float(surface_cost(c, torch.as_tensor(-2.4, dtype=D), 2.0))

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lenssim import Design, Lens
-from lenssim.optical_system import OpticalSystem, surface_seidel_sums
+from lenssim.optics.optical_system import OpticalSystem, surface_seidel_sums
 from lenssim_studies.paper import PAPER_LENS
 
 

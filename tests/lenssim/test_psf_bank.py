@@ -7,7 +7,7 @@ from scipy.special import j1
 from lenssim import Camera, Design, Numerics, Spectrum, fft_size, otf, otf_quarter, psf, psf_at, pupil_amplitude, spectral_coefficients, wavefront
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_LENS
-from lenssim.psf_bank import nice_fft_size
+from lenssim.optics.psf_bank import nice_fft_size
 import dataclasses
 from lenssim_studies.paper import PAPER_SENSOR, PAPER_SPECTRUM
 
@@ -284,7 +284,7 @@ def test_a_spectrum_otf_summed_before_its_transform_equals_the_weighted_per_wave
     from lenssim import Camera, Design, Spectrum
 
     from lenssim_studies.paper import PAPER_CAMERA
-    from lenssim.psf_bank import otf_quarter, otf_quarter_spectrum, spectral_coefficients
+    from lenssim.optics.psf_bank import otf_quarter, otf_quarter_spectrum, spectral_coefficients
     from lenssim.validate import ModelValidityWarning
 
     spec = Spectrum((0.46, 0.52, 0.61), (0.2, 0.5, 0.3))

@@ -10,7 +10,7 @@ import pytest
 from lenssim import Camera, Design, Numerics, evaluate
 
 from lenssim_studies.paper import PAPER_CAMERA
-from lenssim.cost import slope_departure_cost
+from lenssim.optics.cost import slope_departure_cost
 from lenssim_studies.sweep import SweepConfig, load_config, run_sweep
 from lenssim.validate import ModelValidityWarning
 import dataclasses

@@ -1,4 +1,4 @@
-"""Properties of every registered wavefront model (lenssim.wavefront_models), never a frozen list of names."""
+"""Properties of every registered wavefront model (lenssim.optics.wavefront_models), never a frozen list of names."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from lenssim import CRITERIA, Design, FAST_NUMERICS, LensPSF
-from lenssim.wavefront_models import WAVEFRONT_MODELS, validate_wavefront_model
+from lenssim.optics.wavefront_models import WAVEFRONT_MODELS, validate_wavefront_model
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 
 E2E = Design(s=-0.775, Q_back=-2.4)
@@ -26,7 +26,7 @@ def test_every_model_gives_unit_sum_psfs_and_every_criterion(name):
 
 
 def test_the_exact_model_takes_every_otf_criterion_from_the_exact_wavefront():
-    from lenssim.exact_wavefront import exact_criteria
+    from lenssim.optics.exact_wavefront import exact_criteria
 
     third = WAVEFRONT_MODELS["third_order"].evaluate(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
     exact = WAVEFRONT_MODELS["exact"].evaluate(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
@@ -40,7 +40,7 @@ def test_the_exact_model_takes_every_otf_criterion_from_the_exact_wavefront():
 
 
 def test_unknown_models_and_unserved_cameras_are_refused():
-    from lenssim.spectrum import channel_spectra
+    from lenssim.model.spectrum import channel_spectra
 
     with pytest.raises(ValueError, match="wavefront='fifth' is not allowed: one of third_order, exact"):
         validate_wavefront_model("fifth")

@@ -10,7 +10,7 @@ import torch
 from scipy import optimize
 
 from lenssim_studies.paper import PAPER_CAMERA
-from lenssim.aberrations import COEFFICIENT_NAMES
+from lenssim.optics.aberrations import COEFFICIENT_NAMES
 from lenssim.criteria.mtf50 import first_crossing
 from lenssim.metrics import otf_criteria_bank
 from lenssim_studies.paper import PAPER_RHO0

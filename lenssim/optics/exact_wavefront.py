@@ -1,7 +1,7 @@
 """How good is third order here? The wavefront of the thin conic lens from an exact ray trace.
 
 The transverse ray aberrations of an exact trace through the real surfaces
-(:func:`lenssim.raytrace.transverse_aberration`) relate to the wavefront by
+(:func:`lenssim.optics.raytrace.transverse_aberration`) relate to the wavefront by
 ``eps = -(t / y) grad_rho W`` (``t`` the image distance): the relation the third-order model itself
 uses, exact to first order in the aberration (``(y / t)^2 ~ 0.6%`` at f/6.25). ``W`` is fitted to
 the rays of a polar pupil grid by least squares as a polynomial of degree <= 8 in the pupil: the
@@ -17,10 +17,10 @@ import math
 import torch
 
 from .aberrations import Term, monomial_gradients
-from .camera import Camera
-from .design import Design
-from .metrics import otf_criteria_bank
-from .numerics import DEFAULT_NUMERICS, Numerics
+from ..model.camera import Camera
+from ..model.design import Design
+from ..metrics import otf_criteria_bank
+from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .psf_bank import fft_size
 from .raytrace import transverse_aberration
 

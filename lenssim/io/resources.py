@@ -19,7 +19,7 @@ def _root() -> Path:
     try:
         return Path(str(resources.files(_PACKAGE)))
     except ModuleNotFoundError:  # a source checkout used without installing: configs/ beside the package
-        return Path(__file__).resolve().parent.parent / "configs"
+        return Path(__file__).resolve().parents[2] / "configs"  # lenssim/io/resources.py -> the repository
 
 
 def builtin_configs() -> list[str]:

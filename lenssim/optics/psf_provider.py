@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .camera import Camera
-from .design import Design
-from .geometry import FieldGeometry
-from .numerics import DEFAULT_NUMERICS, Numerics
+from ..model.camera import Camera
+from ..model.design import Design
+from ..model.geometry import FieldGeometry
+from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .psf_bank import max_wavefront_slope, spectral_coefficients
 from .wavefront_models import validate_wavefront_model
 
@@ -64,7 +64,7 @@ class LensPSF(PSFProvider):
     design: Design
     numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
     wavefront: str = "third_order"
-    """A model of :data:`lenssim.wavefront_models.WAVEFRONT_MODELS`: ``third_order`` (the paper's Seidel model) or
+    """A model of :data:`lenssim.optics.wavefront_models.WAVEFRONT_MODELS`: ``third_order`` (the paper's Seidel model) or
     ``exact`` (the wavefront fitted to an exact ray trace at each PSF's field angle; one-wavelength cameras)."""
 
     def __post_init__(self):

@@ -17,7 +17,7 @@ class Numerics:
     """Sampling and size rules.
 
     fill : at most ``fill`` x the Nyquist limit (0.5 wave per pupil sample) of pupil phase, and the
-        geometric PSF within ``fill`` of the FFT grid (see :func:`lenssim.psf_bank.fft_size`).
+        geometric PSF within ``fill`` of the FFT grid (see :func:`lenssim.optics.psf_bank.fft_size`).
     margin_px : pixels of diffraction margin added to the geometric PSF diameter.
     min_size : smallest FFT size (samples).
     oversample : frequency grid of the MSE integrals = ``oversample`` x the FFT size.

@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import torch
 
-from .validate import SNR_DB_RANGE, SNR_DB_VALIDATED, warn_model
+from ..validate import SNR_DB_RANGE, SNR_DB_VALIDATED, warn_model
 
 __all__ = ["PSD_MODELS", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
 

@@ -172,13 +172,13 @@ def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] 
     updated from a TOML file of tables ``[name]`` with parameter values (``s = -0.775``,
     ``Q_back = -2.4``; aliases accepted) and an optional ``description``."""
     if builtins is None:
-        from .resources import designs_file
+        from ..io.resources import designs_file
 
         builtins = load_designs(designs_file(), {})
     designs = dict(builtins)
     if path is None:
         return designs
-    from .files import read_toml
+    from ..io.files import read_toml
 
     path = Path(path)
     raw = read_toml(path, "designs file")

@@ -48,7 +48,7 @@ def json_text(obj, *, indent: int = 2) -> str:
     NaN raises :class:`lenssim.validate.NumericalError` naming where it is (bare NaN is not JSON)."""
     import math
 
-    from .validate import NumericalError
+    from ..validate import NumericalError
 
     def clean(v, where):
         if isinstance(v, float):

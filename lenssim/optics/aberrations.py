@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import torch
 
-from .checks import check_shape
-from .design import Design
-from .lens import Lens
-from .torch_utils import as_tensor
-from .validate import check_finite
+from ..checks import check_shape
+from ..model.design import Design
+from ..model.lens import Lens
+from ..torch_utils import as_tensor
+from ..validate import check_finite
 
 __all__ = [
     "Term",

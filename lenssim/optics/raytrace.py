@@ -13,8 +13,8 @@ import math
 
 import torch
 
-from .design import Design
-from .lens import Lens
+from ..model.design import Design
+from ..model.lens import Lens
 from .paraxial import Surface
 
 __all__ = ["trace_rays", "transverse_aberration"]

@@ -5,7 +5,7 @@ Sampling. The image pixel pitch is the sensor's ``Delta`` (1.5625 um for the pap
 ``R = N Delta / (2 lambda f#)`` samples (``N / 4`` at the Nyquist pitch: the pupil fills half the
 grid and the OTF support, ``|f| < Delta / (lambda f#)`` cycles/pixel, just fits in ``[-1/2, 1/2)``).
 A pitch coarser than ``lambda f# / 2`` would alias the OTF and is refused
-(:meth:`lenssim.camera.Camera.check_sampling`).
+(:meth:`lenssim.model.camera.Camera.check_sampling`).
 
 Spectrum. Coefficient banks carry a wavelength axis ``K`` (the camera's spectrum): ``(*, K, T)``
 in waves at each wavelength. The PSF of a spectrum is the weighted sum of the unit-sum PSFs of
@@ -17,12 +17,12 @@ pupil sample and moves light by ``G lambda f / (y Delta)`` pixels (``4 G`` at th
 :func:`fft_size` picks the smallest FFT-friendly ``N`` for which the largest slope over the pupil
 uses at most ``fill`` of the Nyquist limit (0.5 wave per sample) and the geometric PSF plus
 ``margin_px`` pixels of diffraction fits in the grid, so neither the pupil phase nor the PSF
-aliases (settings: :class:`lenssim.numerics.Numerics`).
+aliases (settings: :class:`lenssim.model.numerics.Numerics`).
 
 Orientation. PSF arrays are indexed ``[..., row, col] = [y, x]`` in image-plane pixel units
 with the paraxial image point at ``[N // 2, N // 2]`` (or ``[0, 0]`` for the unshifted banks).
 The pupil field is ``A exp(-2 pi i W)`` with ``W`` in Welford's sign, so that the light lands at
-the transverse ray aberration ``eps = -(f / y) grad W`` (see :mod:`lenssim.aberrations`).
+the transverse ray aberration ``eps = -(f / y) grad W`` (see :mod:`lenssim.optics.aberrations`).
 """
 
 from __future__ import annotations
@@ -35,12 +35,12 @@ import torch
 
 from .aberrations import (N_TERMS, _check_coeffs, monomial_gradients, pupil_monomials, wavefront_coefficients,
                           wavefront_gradient, wavefront_rotated)
-from .camera import Camera
-from .checks import check_shape
-from .design import Design
-from .numerics import DEFAULT_NUMERICS, Numerics
-from .torch_utils import as_tensor
-from .validate import NumericalError, ResourceLimitError, check_finite, check_int
+from ..model.camera import Camera
+from ..checks import check_shape
+from ..model.design import Design
+from ..model.numerics import DEFAULT_NUMERICS, Numerics
+from ..torch_utils import as_tensor
+from ..validate import NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
     "nice_fft_size",
@@ -82,7 +82,7 @@ def max_wavefront_slope(coeffs: torch.Tensor, terms=None) -> torch.Tensor:
 
     Evaluated on a 33 x 72 polar probe of the disc (the maximum of these polynomials lies on the
     rim or at an interior critical point; the probe's step is 1/32 in radius). ``terms``: the
-    coefficients' monomial table (default :data:`lenssim.aberrations.TERMS`).
+    coefficients' monomial table (default :data:`lenssim.optics.aberrations.TERMS`).
     """
     n_terms = N_TERMS if terms is None else len(terms)
     if terms is None:
@@ -106,7 +106,7 @@ def max_wavefront_slope(coeffs: torch.Tensor, terms=None) -> torch.Tensor:
 
 def spectral_coefficients(camera: Camera, design: Design, alpha_deg=None, *, elementwise: bool = False) -> torch.Tensor:
     """Wavefront coefficients at every wavelength of the camera's spectrum: ``(*, A, K, T)`` in waves
-    (``(*, K, T)`` if elementwise; see :func:`lenssim.aberrations.wavefront_coefficients`)."""
+    (``(*, K, T)`` if elementwise; see :func:`lenssim.optics.aberrations.wavefront_coefficients`)."""
     return torch.stack([wavefront_coefficients(camera.lens, design, alpha_deg, wavelength_um=lam, elementwise=elementwise)
                         for lam in camera.spectrum.wavelengths_um], dim=-2)
 
@@ -127,7 +127,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     ``numerics.fill`` x 0.5 wave of pupil phase per sample and (ii) the geometric PSF diameter
     ``2 G lambda f / (y Delta)`` plus ``numerics.margin_px`` pixels inside the grid (``G`` =
     :func:`max_wavefront_slope`), and ``N >= numerics.min_size``. ``terms``: the coefficients'
-    monomial table (default :data:`lenssim.aberrations.TERMS`).
+    monomial table (default :data:`lenssim.optics.aberrations.TERMS`).
     """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     camera.check_sampling()
@@ -280,7 +280,7 @@ def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, cente
     ``None`` puts the field along +y (rows). With ``centered`` the paraxial image point is at
     ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
     ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak). ``terms``: the
-    coefficients' monomial table (default :data:`lenssim.aberrations.TERMS`).
+    coefficients' monomial table (default :data:`lenssim.optics.aberrations.TERMS`).
     """
     out = None
     for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics, terms):
@@ -348,7 +348,7 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
 
     Rows are the pupil rows ``y = -ry..ry`` in natural order, columns ``x = 0..cx`` with ``cx`` the last
     column the anti-aliased rim reaches (at most ``n/2``; the transforms zero-pad the rest of the half-row).
-    Basis ``(T, rows, cx+1)``: the monomials of :data:`lenssim.aberrations.TERMS` with ``rho_r = y / R``.
+    Basis ``(T, rows, cx+1)``: the monomials of :data:`lenssim.optics.aberrations.TERMS` with ``rho_r = y / R``.
     """
     h = n // 2
     ry = int(math.floor(radius + 0.5))
@@ -391,7 +391,7 @@ def otf_quarter(coeffs: torch.Tensor, n: int, *, pupil_radius_px: float, oversam
     """Fast OTF bank for field-axis PSFs at one wavelength: ``H[fy, fx]`` for ``fy, fx = 0..m/2``, ``m = oversample n``.
 
     Frequencies are ``k / m`` cycles/pixel. ``terms``: the pupil monomials of the coefficients (default
-    :data:`lenssim.aberrations.TERMS`; e.g. a higher-order table for fitted exact wavefronts). Input
+    :data:`lenssim.optics.aberrations.TERMS`; e.g. a higher-order table for fitted exact wavefronts). Input
     ``(B, T)`` coefficients (waves) with the field
     along +y and the pupil radius in samples of the ``n``-point FFT (:meth:`Camera.pupil_radius_px`,
     at most ``n / 4``); output ``(B, m/2+1, m/2+1)`` complex with ``H[0, 0] = 1``. With

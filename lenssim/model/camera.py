@@ -29,7 +29,7 @@ class Camera:
     sensor: Sensor
     spectrum: Spectrum
     channels: tuple[Spectrum, ...] = ()
-    """Colour channels (e.g. :func:`lenssim.spectrum.channel_spectra`): each its own spectrum, PSF and
+    """Colour channels (e.g. :func:`lenssim.model.spectrum.channel_spectra`): each its own spectrum, PSF and
     criteria; empty: one channel, ``spectrum``, shared by every colour (the paper)."""
 
     def __post_init__(self):
@@ -65,7 +65,7 @@ class Camera:
                              f"must be below lambda f# = {2 * nyq:.6g} um at {shortest:g} um (the pupil would not "
                              "fit the FFT grid)")
         if self.pixel_pitch_um > nyq * (1 + 1e-12):
-            from .validate import warn_model
+            from ..validate import warn_model
 
             warn_model(f"the {self.pixel_pitch_um:g} um pixels undersample wavelengths below "
                        f"{2 * self.pixel_pitch_um / self.lens.f_number:.3g} um at f/{self.lens.f_number:g}: their "

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .torch_utils import as_tensor
+from ..torch_utils import as_tensor
 
 __all__ = ["FieldGeometry", "frame_center"]
 

@@ -98,10 +98,10 @@ class SellmeierGlass:
 def load_glasses(path=None) -> dict:
     """The glass catalogue (default: the built-in ``configs/glasses.toml``): name -> glass, with the
     data-sheet ``n_d`` / ``V_d`` of each dispersive glass in ``catalogue_values`` order (see the file)."""
-    from .files import read_toml
+    from ..io.files import read_toml
 
     if path is None:
-        from .resources import glasses_file
+        from ..io.resources import glasses_file
 
         path = glasses_file()
     raw = read_toml(path, "glass catalogue")

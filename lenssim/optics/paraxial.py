@@ -2,7 +2,7 @@
 
 This is a general, independent route to the Seidel sums of any centred system of spherical and
 conic surfaces; the package uses it to check the thin-lens closed forms of
-:mod:`lenssim.aberrations`, and it is the starting point for systems with more surfaces.
+:mod:`lenssim.optics.aberrations`, and it is the starting point for systems with more surfaces.
 
 Welford, *Aberrations of Optical Systems*, ch. 7 (sign conventions as there): paraxial
 refraction ``n'u' - n u = -h c (n' - n)``, transfer ``h_{k+1} = h_k + d_k u'_k``, refraction
@@ -34,7 +34,7 @@ class Surface:
     curvature : 1/mm; conic : conic constant kappa (0 = sphere);
     n_after : refractive index after the surface; thickness_after_mm : distance to the next one;
     aspheric : the conic is a free design parameter (named ``conic_name``): counted by the
-    industrial cost (:mod:`lenssim.cost`); semi_aperture_mm : the clear radius over which the surface is
+    industrial cost (:mod:`lenssim.optics.cost`); semi_aperture_mm : the clear radius over which the surface is
     used (and made: the cost's aperture); None: the system's pupil radius.
     """
 

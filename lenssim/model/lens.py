@@ -3,7 +3,7 @@
 The lens of the paper (Optics Express 31(10) 16897, 2023, Section 2.1 and 3.1): focal length
 ``f``, stop at the lens with pupil radius ``y``, a glass of refractive index ``n``, object at
 infinity (position factor ``p = -1``), field angles 0..14 degrees. The free parameters of a
-design (:class:`lenssim.design.Design`) set the surfaces (:meth:`Lens.surfaces`).
+design (:class:`lenssim.model.design.Design`) set the surfaces (:meth:`Lens.surfaces`).
 
 Conventions (Welford, *Aberrations of Optical Systems*, thin-lens chapter):
 
@@ -22,9 +22,9 @@ import torch
 
 from .design import Design
 from .glass import ConstantGlass, as_glass
-from .paraxial import Surface
-from .torch_utils import as_tensor
-from .validate import warn_model
+from ..optics.paraxial import Surface
+from ..torch_utils import as_tensor
+from ..validate import warn_model
 
 THIRD_ORDER_LIMIT = 0.25
 """Largest ``(1 + conic) c^2 y^2`` of a surface for which the third-order model is taken as valid (the paper's
@@ -53,7 +53,7 @@ class Lens:
     pupil_radius_mm : float
         Entrance-pupil (= lens aperture, stop at the lens) radius ``y`` in mm, 0 < y < f.
     glass : glass object or float
-        The glass (:mod:`lenssim.glass`); a number is a constant refractive index (> 1).
+        The glass (:mod:`lenssim.model.glass`); a number is a constant refractive index (> 1).
     position_factor : float
         ``p = 1 - 2 f / t``; -1 for an object at infinity. Must be < 1 (real image).
     field_angles_deg : tuple of float
@@ -167,8 +167,8 @@ class Lens:
 
     def seidel_sums(self, design: Design, alpha, wavelength_um: float | None = None) -> torch.Tensor:
         """``(S_I, S_II, S_III, S_IV)`` (mm) by the thin lens's closed forms (Welford ch. 8): the fast path of the
-        :class:`lenssim.optical_system.OpticalSystem` protocol, equal to the general surface-by-surface sums
-        (:func:`lenssim.optical_system.surface_seidel_sums`; tested). ``alpha`` (deg) broadcasts with the design."""
+        :class:`lenssim.optics.optical_system.OpticalSystem` protocol, equal to the general surface-by-surface sums
+        (:func:`lenssim.optics.optical_system.surface_seidel_sums`; tested). ``alpha`` (deg) broadcasts with the design."""
         n = self.refractive_index if wavelength_um is None else self.glass.index(wavelength_um)
         y, p = self.pupil_radius_mm, self.position_factor_at(wavelength_um)
         K = self.power(wavelength_um)

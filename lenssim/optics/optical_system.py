@@ -1,7 +1,7 @@
 """The optical-system protocol: what the optics code (Seidel sums, PSFs, cost, exact ray trace) reads of a lens.
 
 An optical system, for a design (:class:`lenssim.Design`), is a centred sequence of refracting surfaces
-(:class:`lenssim.paraxial.Surface`: curvature in 1/mm, conic constant, index after it per wavelength, thickness
+(:class:`lenssim.optics.paraxial.Surface`: curvature in 1/mm, conic constant, index after it per wavelength, thickness
 after it in mm, semi-aperture in mm, whether its conic is a free design parameter), with the aperture stop at
 surface :attr:`OpticalSystem.stop_index`, an object at infinity or at a finite conjugate, a focal length, an
 entrance-pupil radius and an image plane. Today's thin singlet, :class:`lenssim.Lens`, is one implementation;
@@ -66,7 +66,7 @@ class OpticalSystem(Protocol):
 def surface_seidel_sums(system: OpticalSystem, design, alpha, wavelength_um: float | None = None,
                         object_vergence_per_mm: float = 0.0) -> torch.Tensor:
     """``(S_I, S_II, S_III, S_IV)`` (mm) of any centred system by the surface-by-surface route
-    (:func:`lenssim.paraxial.seidel_surface_sums`), with the stop at the first surface: the marginal ray at the
+    (:func:`lenssim.optics.paraxial.seidel_surface_sums`), with the stop at the first surface: the marginal ray at the
     pupil's edge with slope ``-y * object_vergence`` (0: object at infinity), the chief ray through the stop's
     centre at ``tan(alpha)``. ``alpha`` (deg) broadcasts with the design; returns ``(*, 4)``."""
     if system.stop_index != 0:

@@ -1,9 +1,9 @@
 """Wavefront models, as a registry: how a design's wavefront at a field point is obtained.
 
 * ``third_order``: the paper's Seidel (third-order) wavefront of the thin lens, in closed form
-  (:func:`lenssim.aberrations.wavefront_coefficients`; any spectrum);
+  (:func:`lenssim.optics.aberrations.wavefront_coefficients`; any spectrum);
 * ``exact``: the wavefront fitted to an exact ray trace through the real surfaces at each field angle
-  (:mod:`lenssim.exact_wavefront`; one-wavelength cameras).
+  (:mod:`lenssim.optics.exact_wavefront`; one-wavelength cameras).
 
 A model gives the PSFs of a :class:`lenssim.LensPSF` at image points (:attr:`WavefrontModel.psfs`), every
 registered criterion of designs (:attr:`WavefrontModel.evaluate`: the OTF criteria from its wavefront, the
@@ -47,7 +47,7 @@ def _third_order_psfs(provider, x_mm, y_mm, n, centered, dtype):
 
 
 def _third_order_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
-    from .metrics import evaluate
+    from ..metrics import evaluate
 
     return evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
 
@@ -71,9 +71,9 @@ def _exact_psfs(provider, x_mm, y_mm, n, centered, dtype):
 def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
     """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
     at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
-    from .criteria import CRITERIA
+    from ..criteria import CRITERIA
     from .exact_wavefront import exact_criteria
-    from .metrics import evaluate
+    from ..metrics import evaluate
 
     _one_wavelength(camera)
     out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)

@@ -1,7 +1,7 @@
 """Industrial cost of the aspheres: RMS slope departure from the best-fitting sphere (Eq. 3).
 
 The cost of a design is the sum of the costs of its aspheric surfaces (those whose conic constant
-is a free design parameter, :meth:`lenssim.lens.Lens.surfaces`): each asphere is polished and
+is a free design parameter, :meth:`lenssim.model.lens.Lens.surfaces`): each asphere is polished and
 tested on its own, so their costs add. The paper's lens has one, the back surface. The
 posterior conic of curvature ``c = c2`` and conic constant ``Q`` has the exact profile
 ``z(r) = c r^2 / (1 + sqrt(1 - (1 + Q) c^2 r^2))`` and slope ``z'(r) = c r / sqrt(1 - (1 + Q) c^2 r^2)``
@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import torch
 
-from .design import Design
-from .lens import Lens, LensError
-from .numerics import DEFAULT_NUMERICS
-from .torch_utils import as_tensor
+from ..model.design import Design
+from ..model.lens import Lens, LensError
+from ..model.numerics import DEFAULT_NUMERICS
+from ..torch_utils import as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
            "slope_departure_cost", "slope_departure_cost_third_order"]

@@ -1,0 +1,1 @@
+"""Files: atomic writes, staged output folders, TOML reading, the package data (configs)."""
