@@ -38,6 +38,7 @@ from .metrics import evaluate, otf_criteria_bank
 from .model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
 from .optics.psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
                        pupil_amplitude, spectral_coefficients)
+from .optics.bank import OTFBank, PSFBank
 from .optics.psf_provider import FunctionPSF, LensPSF, PSFProvider
 from .model.sensor import Sensor
 from .model.spectrum import Spectrum
@@ -59,6 +60,8 @@ __all__ = [
     "LensError",
     "LensPSF",
     "Numerics",
+    "OTFBank",
+    "PSFBank",
     "PARAMETERS",
     "PSFProvider",
     "Parameter",

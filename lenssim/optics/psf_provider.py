@@ -49,6 +49,19 @@ class PSFProvider:
         """Diameter (px) of the largest PSF support over the positions (0 if unknown)."""
         return 0
 
+    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The wavelengths (um) and weights the PSFs integrate (empty if unknown)."""
+        return (), ()
+
+    def bank(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
+        """The PSFs at pixel positions ``rows``, ``cols`` ``(P,)`` as a :class:`lenssim.optics.bank.PSFBank`: with the
+        pixel pitch and the spectrum, so their grid and their OTFs' frequency axes are known, not inferred."""
+        from .bank import PSFBank
+
+        lams, weights = self.spectrum()
+        return PSFBank(self.psf_at_pixels(rows, cols, optical_center, n, centered=centered, dtype=dtype, device=device),
+                       self.geometry.pixel_pitch_um, lams, weights, centered)
+
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Diameter (px) of the PSF support at each position, ``(P,)`` int64 (0 if unknown): here
         :meth:`extent_px` everywhere; a provider that knows how its PSFs grow over the field says so."""
@@ -98,6 +111,11 @@ class LensPSF(PSFProvider):
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows).to(device), torch.as_tensor(cols).to(device),
                                               optical_center)
         return validate_wavefront_model(self.wavefront).psfs(self, x_mm, y_mm, n, centered, dtype)
+
+    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The camera's wavelengths (um) and weights (one channel; a colour camera's channels each integrate their
+        own, :attr:`lenssim.Camera.channels`)."""
+        return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
 
     def fingerprint(self) -> str:
         """A stable description of these PSFs (camera, design, numerics), e.g. for checkpoints."""
