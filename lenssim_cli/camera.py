@@ -74,6 +74,21 @@ def _load(spec, device):
     return ideal.to(device), source
 
 
+def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]:
+    """``--angles`` as given, or (none given) angles that fit this image: the preferred ones whose crop lies inside
+    the frame, else evenly from the axis to the largest that fits; said on stderr."""
+    from pipeline.simulate import fitting_angles
+
+    if args.angles is not None:
+        return tuple(args.angles)
+    chosen = fitting_angles(ideal.shape, size, geometry, preferred)
+    if chosen != tuple(preferred):
+        H, W = ideal.shape[-2:]
+        print(f"crop angles {', '.join(f'{a:g}' for a in chosen)} deg: those that fit {source!r} ({W} x {H} px, "
+              f"{size} px crops; give --angles to choose)", file=sys.stderr)
+    return chosen
+
+
 def _crop_size(args, ideal, source) -> int:
     """``--crop``, or the image's smaller side when the image is smaller (said on stderr, not done silently)."""
     size = min(args.crop, *ideal.shape[-2:])
@@ -134,7 +149,8 @@ def cmd_simulate(args) -> int:
                          f"{ideal.shape[1]}: use an RGB image, or --spectrum paper")
     H, W = ideal.shape[-2:]
     size = _crop_size(args, ideal, source)
-    boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
+    angles = _angles(args, ideal, size, camera.geometry, DEFAULT_ANGLES_DEG, source)
+    boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
     if args.full_frame:
         if min(H, W) < MAP_TILE_PX:
             raise ValueError(f"--full-frame needs an image of at least {MAP_TILE_PX} x {MAP_TILE_PX} px (one tile of "
@@ -163,7 +179,7 @@ def cmd_simulate(args) -> int:
             results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                      sensor=camera.sensor)
         report["crops"] = []
-        for a, r in zip(args.angles, results):
+        for a, r in zip(angles, results):
             tag = f"crop_{a:g}deg"
             for kind in ("ideal", "sensor") + methods:
                 if kind in r.images:
@@ -291,7 +307,8 @@ def cmd_psnr_table(args) -> int:
     for photo in photos:
         ideal, source = _load(photo, select_device(args.device))
         size = _crop_size(args, ideal, source)
-        boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in args.angles]
+        angles = _angles(args, ideal, size, camera.geometry, TABLE_ANGLES_DEG, source)
+        boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
         for name in args.designs:
             d = named[name]
             per_iso = simulate_crops(ideal, LensPSF(camera, d), wells, boxes, seed=args.seed, methods=(spec,),
@@ -299,6 +316,7 @@ def cmd_psnr_table(args) -> int:
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
+                             "angles_deg": " ".join(f"{a:g}" for a in angles),
                              "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
                              "ssim_restored": mean(method, "ssim")})
                 print(f"{source} | {name} | ISO {iso}: restored {rows[-1]['psnr_restored_db']:.2f} dB", file=sys.stderr)
@@ -309,7 +327,9 @@ def cmd_psnr_table(args) -> int:
                                  "images?): not written")
     keys = list(dict.fromkeys(k for r in rows for k in r))
     csv = "".join(",".join(str(r.get(k, "")) for k in keys) + "\n" for r in rows)
-    md = (f"Mean over crops at {', '.join(f'{a:g}' for a in args.angles)} deg ({args.crop} px), sRGB PSNR/SSIM vs the "
+    where = (f"at {', '.join(f'{a:g}' for a in args.angles)} deg" if args.angles is not None
+             else "at the angles that fit each photo (column angles_deg of the CSV)")
+    md = (f"Mean over crops {where} ({args.crop} px), sRGB PSNR/SSIM vs the "
           f"ideal image; restoration: {spec.method.label}"
           + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
           "| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |\n|---|---|---|---|---|---|\n"
@@ -334,13 +354,14 @@ def cmd_fig8(args) -> int:
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
     size = _crop_size(args, ideal, source)
-    for a in args.angles:  # every crop fits the image, before any work
+    angles = _angles(args, ideal, size, PAPER_CAMERA.geometry, PAPER_FIG8_ANGLES_DEG, source)
+    for a in angles:  # every crop fits the image, before any work
         from pipeline import crop_at_field_angle
 
         crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry)
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
-        png, tiles = figure8(ideal, stage, angles=tuple(args.angles), crop=size, seed=args.seed, method=spec)
+        png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
     return 0
@@ -365,7 +386,9 @@ def register(sub) -> None:
                    help="'fitted' (default): each blur window's transform sized to the local PSF's support plus the "
                         "core, the same result to 1e-4 of the signal at a fraction of the cost; 'full': every blur "
                         "window WINDOW px (the paper's transforms). Restoration always uses WINDOW px")
-    p.add_argument("--angles", type=float, nargs="+", default=list(DEFAULT_ANGLES_DEG), help="crop field angles (deg)")
+    p.add_argument("--angles", type=float, nargs="+", default=None,
+                   help=f"crop field angles (deg); default {' '.join(f'{a:g}' for a in DEFAULT_ANGLES_DEG)}, those of them "
+                        "that fit the photo (else evenly from the axis to the largest that fits)")
     p.add_argument("--crop", type=int, default=256, help="crop size (px)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--denoise", type=float, default=0.0, metavar="STRENGTH",
@@ -388,7 +411,8 @@ def register(sub) -> None:
 
     f = sub.add_parser("fig8", help="Fig. 8-style mosaic: two designs x three ISOs at crops across the field")
     f.add_argument("photo", nargs="?", help="image file or skimage:NAME; default: the generated scene")
-    f.add_argument("--angles", type=float, nargs="+", default=list(PAPER_FIG8_ANGLES_DEG))
+    f.add_argument("--angles", type=float, nargs="+", default=None,
+                   help="crop field angles (deg); default the paper's Fig. 8 angles that fit the photo")
     f.add_argument("--crop", type=int, default=128)
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
@@ -405,7 +429,9 @@ def register(sub) -> None:
     t.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration method and its options ({methods}; default: wiener)")
     t.add_argument("--method", default=None, help="former name of --restore")
-    t.add_argument("--angles", type=float, nargs="+", default=list(TABLE_ANGLES_DEG))
+    t.add_argument("--angles", type=float, nargs="+", default=None,
+                   help=f"crop field angles (deg); default {' '.join(f'{a:g}' for a in TABLE_ANGLES_DEG)}, those that fit "
+                        "each photo")
     t.add_argument("--crop", type=int, default=192)
     t.add_argument("--seed", type=int, default=0)
     add_device_argument(t)

@@ -21,6 +21,7 @@ restoring an as-built lens).
 from __future__ import annotations
 
 import hashlib
+import math
 import json
 import time
 import warnings
@@ -41,7 +42,8 @@ from .quality import psnr_srgb, ssim_srgb
 from .restoration import Restoration, restore
 
 __all__ = ["CropResult", "FrameResult", "crop_at_field_angle", "simulate_crops", "simulate_frame", "crops_from_frame",
-           "DEFAULT_METHODS", "score_frame", "frame_memory_bytes", "FRAME_WORKING_COPIES", "MAP_TILE_PX"]
+           "DEFAULT_METHODS", "score_frame", "frame_memory_bytes", "FRAME_WORKING_COPIES", "MAP_TILE_PX",
+           "largest_crop_angle_deg", "fitting_angles"]
 
 DEFAULT_METHODS = ("wiener",)
 
@@ -79,6 +81,33 @@ def _score(ideal, img) -> dict:
 
 CROP_SHIFT_WARN_DEG = 0.25
 """A crop moved inside the frame by more than this (degrees of field) is reported with a warning."""
+
+
+def largest_crop_angle_deg(shape, size: int, geometry: FieldGeometry) -> float:
+    """The largest field angle (deg) at which a ``size`` px crop centred on the frame's diagonal (as
+    :func:`crop_at_field_angle` places it) lies wholly inside a frame of ``shape`` ``(..., H, W)``; 0 if none but
+    the centre's."""
+    H, W = shape[-2:]
+    hy, hx = H / 2, W / 2
+    t = max(0.0, min((hy - size / 2) / hy, (hx - size / 2) / hx))  # fraction of the half-diagonal
+    r_px = t * math.hypot(hy, hx)
+    return math.degrees(math.atan(r_px * geometry.pitch_mm / geometry.focal_length_mm))
+
+
+def fitting_angles(shape, size: int, geometry: FieldGeometry, preferred, count: int = 4) -> tuple[float, ...]:
+    """Crop field angles (deg) that fit a frame of ``shape``: those of ``preferred`` whose crop lies inside it (or
+    needs moving inside by at most :data:`CROP_SHIFT_WARN_DEG`, as :func:`crop_at_field_angle` does without a
+    warning), or, if fewer than two do, ``count`` angles evenly from the axis to :func:`largest_crop_angle_deg`
+    (rounded down to 0.01 deg; just the axis if nothing else fits)."""
+    edge = largest_crop_angle_deg(shape, size, geometry)
+    limit = min(edge + CROP_SHIFT_WARN_DEG, geometry.max_field_angle_deg(shape))
+    fit = tuple(float(a) for a in preferred if a <= limit)
+    if len(fit) >= 2:
+        return fit
+    if edge < 0.01:
+        return (0.0,)
+    top = math.floor(edge * 100) / 100
+    return tuple(round(top * k / (count - 1), 2) for k in range(count))
 
 
 def crop_at_field_angle(shape, alpha_deg: float, size: int, geometry: FieldGeometry,

@@ -256,3 +256,37 @@ def test_score_frame_equals_the_per_image_metrics():
     assert s["maps"]["restored_db"].shape == (1, 2) and s["maps"]["field_deg"].shape == (1, 2)
     with pytest.raises(ValueError, match="smaller than one 512-px tile"):
         score_frame(ideal, frame, PAPER_CAMERA.geometry, tile=512)
+
+
+@pytest.mark.parametrize("shape,size", [((400, 600), 256), ((512, 512), 128), ((2848, 4272), 256), ((4000, 6000), 256)])
+def test_default_angles_fit_the_frame(shape, size):
+    """The largest fitting angle's crop lies inside the frame where crop_at_field_angle puts it (not moved); the
+    chosen angles are the preferred ones that fit, else evenly from the axis to it."""
+    from pipeline.simulate import fitting_angles, largest_crop_angle_deg
+
+    g = PAPER_CAMERA.geometry
+    edge = largest_crop_angle_deg(shape, size, g)
+    box = crop_at_field_angle((1, 1) + shape, edge, size, g)
+    assert g.box_field_angle((1, 1) + shape, box) == pytest.approx(edge, abs=0.02)
+    chosen = fitting_angles(shape, size, g, (0.0, 4.0, 8.0, 12.0))
+    assert all(a <= edge + 0.25 for a in chosen) and chosen[0] == 0.0 and len(chosen) >= 3
+    for a in chosen:
+        crop_at_field_angle((1, 1) + shape, a, size, g)  # no error
+
+
+def test_every_camera_command_runs_with_its_defaults_on_a_small_photo(tmp_path, capsys):
+    """skimage:coffee (600 x 400 px) holds 1.2 deg of field: the default angles (0, 4, 8, 12 deg; the table's and
+    Fig. 8's) do not fit, so each command chooses angles that do and says which; an explicit angle outside the
+    frame stays an error."""
+    assert main(["simulate", "skimage:coffee", "--design", "end_to_end_paper", "--out", str(tmp_path / "s")]) == 0
+    err = capsys.readouterr().err
+    assert "crop angles 0, " in err and "give --angles to choose" in err
+    m = json.loads((tmp_path / "s" / "metrics.json").read_text())
+    assert len(m["crops"]) == 4 and m["crops"][0]["requested_deg"] == 0
+    assert main(["psnr-table", "skimage:coffee", "--designs", "end_to_end_paper", "--isos", "100", "--crop", "64",
+                 "--out", str(tmp_path / "t")]) == 0
+    assert "angles_deg" in (tmp_path / "t" / "psnr_table.csv").read_text().splitlines()[0]
+    assert main(["fig8", "skimage:coffee", "--crop", "48", "--out", str(tmp_path / "f")]) == 0
+    assert main(["simulate", "skimage:coffee", "--design", "end_to_end_paper", "--angles", "4",
+                 "--out", str(tmp_path / "bad")]) == 2
+    assert "field angle=4.0 is not allowed" in capsys.readouterr().err
