@@ -13,7 +13,6 @@ cluster file is byte-identical to the single-process one.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -60,4 +59,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from pipeline.io import exit_without_teardown
+
+    exit_without_teardown(main())  # no nanobind "leaked" noise at exit

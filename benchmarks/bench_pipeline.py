@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import math
 import resource
-import sys
 import threading
 import time
 from pathlib import Path
@@ -290,4 +289,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from pipeline.io import exit_without_teardown
+
+    exit_without_teardown(main())  # no nanobind "leaked" noise at exit

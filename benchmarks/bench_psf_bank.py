@@ -121,4 +121,6 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from pipeline.io import exit_without_teardown
+
+    exit_without_teardown(main())  # no nanobind "leaked" noise at exit

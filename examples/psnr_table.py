@@ -20,7 +20,7 @@ from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.io.files import atomic_write_text
 from lenssim_studies.paper import ISO_FOR_SNR
 from pipeline import load_photo
-from pipeline.simulate import crop_at_field_angle, simulate_crops
+from pipeline.simulate import crop_at_field_angle, fitting_angles, simulate_crops
 from lenssim_studies.paper import PAPER_SENSOR
 
 DESIGNS = {"RMS_W": PAPER_DESIGNS["rms_w_paper"], "end-to-end": PAPER_DESIGNS["end_to_end_paper"]}
@@ -30,7 +30,8 @@ ISOS = tuple(ISO_FOR_SNR.values())  # 400, 100, 25
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("photos", nargs="*")
-    ap.add_argument("--angles", type=float, nargs="+", default=[1.0, 5.0, 9.0])
+    ap.add_argument("--angles", type=float, nargs="+", default=None,
+                    help="crop field angles (deg); default 1 5 9, those that fit each photo")
     ap.add_argument("--crop", type=int, default=192)
     ap.add_argument("--out", default="psnr_example")
     args = ap.parse_args()
@@ -41,7 +42,8 @@ def main() -> None:
     print("|---|---|" + "---|" * len(ISOS))
     for photo in photos:
         ideal, source = load_photo(photo, PAPER_CAMERA)
-        boxes = [crop_at_field_angle(ideal.shape, a, args.crop, PAPER_CAMERA.geometry) for a in args.angles]
+        angles = args.angles or fitting_angles(ideal.shape, args.crop, PAPER_CAMERA.geometry, (1.0, 5.0, 9.0))
+        boxes = [crop_at_field_angle(ideal.shape, a, args.crop, PAPER_CAMERA.geometry) for a in angles]
         for name, design in DESIGNS.items():
             wells = [PAPER_CAMERA.sensor.full_well_for_iso(i) for i in ISOS]
             per_iso = simulate_crops(ideal, LensPSF(PAPER_CAMERA, design), wells, boxes, sensor=PAPER_SENSOR)
@@ -57,4 +59,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from pipeline.io import exit_without_teardown
+
     main()
+    exit_without_teardown()  # no nanobind "leaked" noise at exit

@@ -18,7 +18,7 @@ from lenssim import LensPSF
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import RESTORATION_METHODS, linear_to_srgb, load_photo, write_image
-from pipeline.simulate import crop_at_field_angle, simulate_crops
+from pipeline.simulate import crop_at_field_angle, fitting_angles, simulate_crops
 from lenssim_studies.paper import PAPER_SENSOR
 
 
@@ -30,7 +30,9 @@ def main() -> None:
     ap.add_argument("--out", default="restoration_demo")
     args = ap.parse_args()
     ideal, source = load_photo(args.photo, PAPER_CAMERA)
-    boxes = [crop_at_field_angle(ideal.shape, a, 160, PAPER_CAMERA.geometry) for a in (2.0, 8.0)]
+    size = min(160, *ideal.shape[-2:])
+    angles = fitting_angles(ideal.shape, size, PAPER_CAMERA.geometry, (2.0, 8.0))  # those that fit the photo
+    boxes = [crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry) for a in angles]
     methods = ("wiener", "richardson_lucy")
     psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["end_to_end_paper"])
     res = simulate_crops(ideal, psf, PAPER_CAMERA.sensor.full_well_for_iso(args.iso), boxes, methods=methods,
@@ -46,4 +48,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from pipeline.io import exit_without_teardown
+
     main()
+    exit_without_teardown()  # no nanobind "leaked" noise at exit

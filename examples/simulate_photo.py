@@ -3,7 +3,7 @@
     python examples/simulate_photo.py [PHOTO] [--iso 100] [--out sim_example]
 
 With no PHOTO it uses ../shared/photos/outdoor_misty_forest_6016x4016.jpg when present, else the
-generated 6000 x 4000 resolution scene. Crops at 1, 5 and 9 degrees; the end-to-end and the
+generated 6000 x 4000 resolution scene. Crops at 1, 5 and 9 degrees (or, on a smaller photo, angles that fit it); the end-to-end and the
 RMS_W designs side by side (ideal | sensor | restored per row) in one PNG.
 """
 
@@ -18,7 +18,7 @@ from lenssim import LensPSF
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import linear_to_srgb, load_photo, write_image
-from pipeline.simulate import crop_at_field_angle, simulate_crops
+from pipeline.simulate import crop_at_field_angle, fitting_angles, simulate_crops
 from lenssim_studies.paper import PAPER_SENSOR
 
 DESIGNS = {"end-to-end": PAPER_DESIGNS["end_to_end_paper"], "RMS_W": PAPER_DESIGNS["rms_w_paper"]}
@@ -33,7 +33,9 @@ def main() -> None:
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "photos" / "outdoor_misty_forest_6016x4016.jpg"
     photo = args.photo or (str(shared) if shared.exists() else None)
     ideal, source = load_photo(photo, PAPER_CAMERA)
-    boxes = [crop_at_field_angle(ideal.shape, a, 192, PAPER_CAMERA.geometry) for a in (1.0, 5.0, 9.0)]
+    size = min(192, *ideal.shape[-2:])
+    angles = fitting_angles(ideal.shape, size, PAPER_CAMERA.geometry, (1.0, 5.0, 9.0))  # those that fit the photo
+    boxes = [crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry) for a in angles]
     rows = []
     for name, design in DESIGNS.items():
         psf = LensPSF(PAPER_CAMERA, design)
@@ -46,4 +48,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from pipeline.io import exit_without_teardown
+
     main()
+    exit_without_teardown()  # no nanobind "leaked" noise at exit

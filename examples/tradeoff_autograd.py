@@ -50,4 +50,7 @@ def main() -> None:
 
 if __name__ == "__main__":
     np.set_printoptions(precision=4)
+    from pipeline.io import exit_without_teardown
+
     main()
+    exit_without_teardown()  # no nanobind "leaked" noise at exit

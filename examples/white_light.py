@@ -92,4 +92,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from pipeline.io import exit_without_teardown
+
     main()
+    exit_without_teardown()  # no nanobind "leaked" noise at exit

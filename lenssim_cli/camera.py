@@ -89,6 +89,13 @@ def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]
     return chosen
 
 
+def _photo_name(source: str) -> str:
+    """A photo as a table names it: its file name (the full path stays in the CSV); other sources as they are."""
+    from pathlib import Path
+
+    return source if source.startswith("skimage:") or source.startswith("generated") else Path(source).name
+
+
 def _crop_size(args, ideal, source) -> int:
     """``--crop``, or the image's smaller side when the image is smaller (said on stderr, not done silently)."""
     size = min(args.crop, *ideal.shape[-2:])
@@ -333,7 +340,7 @@ def cmd_psnr_table(args) -> int:
           f"ideal image; restoration: {spec.method.label}"
           + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
           "| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |\n|---|---|---|---|---|---|\n"
-          + "".join(f"| {r['photo']} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
+          + "".join(f"| {_photo_name(r['photo'])} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
                     f"{r['ssim_restored']:.3f} |\n" for r in rows))
     with staged_output_dir(out) as stage:
         for name, text in (("psnr_table.csv", ",".join(keys) + "\n" + csv), ("psnr_table.md", md)):

@@ -4,7 +4,6 @@ expected failures into one line on stderr (exit status 2) and Ctrl-C into status
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import sys
 import warnings
@@ -89,10 +88,9 @@ def entry() -> None:
     is complete and closed when ``main`` returns (atomic writes), so the script flushes its streams
     and leaves directly. ``main`` itself (tests, Python callers) is unaffected.
     """
-    rc = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(rc)
+    from pipeline.io import exit_without_teardown
+
+    exit_without_teardown(main())
 
 
 if __name__ == "__main__":

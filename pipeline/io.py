@@ -22,7 +22,7 @@ import torch
 
 from lenssim.io.files import atomic_write
 
-__all__ = ["ImageFileError", "ImageInfo", "read_image", "write_image"]
+__all__ = ["exit_without_teardown", "ImageFileError", "ImageInfo", "read_image", "write_image"]
 
 
 class ImageFileError(ValueError):
@@ -114,3 +114,19 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
             raise ImageFileError(f"cannot write {str(p)!r}: {msg}")
 
     return atomic_write(p, writer)
+
+
+def exit_without_teardown(rc: int = 0) -> None:
+    """End a script or console command: flush the standard streams and leave without the interpreter's teardown.
+
+    colour-science imports OpenImageIO, and with torch also loaded the teardown runs in an order where
+    OpenImageIO's nanobind bindings report their module-level objects as "leaked" (a page of messages after
+    every run that touched images, exit status unchanged). Call it only when every output is complete and
+    closed (the project's writes are atomic), as the last statement of a script.
+    """
+    import os
+    import sys
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(int(rc or 0))

@@ -77,3 +77,13 @@ def test_import_layers_hold():
     r = subprocess.run([exe], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "1 kept, 0 broken" in r.stdout
+
+
+def test_example_scripts_end_without_teardown_noise(tmp_path):
+    """The example and benchmark scripts end as the console command does (pipeline.io.exit_without_teardown): no
+    page of OpenImageIO nanobind "leaked" messages after a run that read and wrote images."""
+    script = ROOT / "examples" / "simulate_photo.py"
+    r = subprocess.run([sys.executable, str(script), "skimage:camera", "--out", str(tmp_path / "sim")], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "leaked" not in r.stderr and any((tmp_path / "sim").iterdir())

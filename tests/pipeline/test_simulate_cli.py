@@ -290,3 +290,19 @@ def test_every_camera_command_runs_with_its_defaults_on_a_small_photo(tmp_path, 
     assert main(["simulate", "skimage:coffee", "--design", "end_to_end_paper", "--angles", "4",
                  "--out", str(tmp_path / "bad")]) == 2
     assert "field angle=4.0 is not allowed" in capsys.readouterr().err
+
+
+def test_the_psnr_table_names_photos_by_file_name_and_keeps_the_path_in_the_csv(tmp_path):
+    import numpy as np
+
+    from pipeline.io import write_image
+
+    photo = tmp_path / "deep" / "folder" / "holiday.png"
+    photo.parent.mkdir(parents=True)
+    g = np.random.default_rng(1)
+    write_image(photo, torch.from_numpy(g.random((3, 300, 400)).astype(np.float32)), bits=8)
+    assert main(["psnr-table", str(photo), "--designs", "end_to_end_paper", "--isos", "100", "--crop", "64",
+                 "--out", str(tmp_path / "t")]) == 0
+    md = (tmp_path / "t" / "psnr_table.md").read_text()
+    assert "| holiday.png | end_to_end_paper |" in md and str(photo.parent) not in md
+    assert str(photo) in (tmp_path / "t" / "psnr_table.csv").read_text()
