@@ -24,14 +24,13 @@ References
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
 
 from ..model.camera import Camera
+from ..registry import Registry, import_plugins
 
 __all__ = ["Criterion", "OTFContext", "CRITERIA", "register", "validate_criterion", "otf_criteria",
            "quality_criteria", "quarter_weights", "wavefront_rms_per_field", "SENSES", "ROLES"]
@@ -145,23 +144,14 @@ class Criterion:
         return 1.0 if self.sense == "min" else -1.0
 
 
-CRITERIA: dict[str, Criterion] = {}
+CRITERIA: Registry = Registry("criterion")
 """The registry: name -> :class:`Criterion` (filled by the modules of this package)."""
 
+register = CRITERIA.register
+"""Add a :class:`Criterion` to :data:`CRITERIA` (a name may be registered once)."""
 
-def register(criterion: Criterion) -> Criterion:
-    """Add ``criterion`` to :data:`CRITERIA` (a name may be registered once)."""
-    if criterion.name in CRITERIA:
-        raise ValueError(f"criterion {criterion.name!r} is registered already")
-    CRITERIA[criterion.name] = criterion
-    return criterion
-
-
-def validate_criterion(name: str) -> Criterion:
-    """The registered criterion ``name``; ``ValueError`` listing the valid names otherwise."""
-    if name not in CRITERIA:
-        raise ValueError(f"criterion {name!r} is not known; valid: {', '.join(CRITERIA)}")
-    return CRITERIA[name]
+validate_criterion = CRITERIA.validate
+"""The registered criterion of a name; ``ValueError`` listing the valid names otherwise."""
 
 
 def otf_criteria() -> tuple[str, ...]:
@@ -190,9 +180,5 @@ def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool =
     return torch.sqrt(ms)
 
 
-_PAPER_MODULES = ("wavefront", "mse", "cost")  # the paper's criteria first, in its order: RMS_W, MSE_S, MSE_R, C_a
-for _name in _PAPER_MODULES:
-    importlib.import_module(f"{__name__}.{_name}")
-for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
-    if _info.name not in _PAPER_MODULES and not _info.name.startswith("_"):
-        importlib.import_module(f"{__name__}.{_info.name}")
+# the paper's criteria first, in its order: RMS_W, MSE_S, MSE_R, C_a
+import_plugins(__name__, __path__, first=("wavefront", "mse", "cost"))

@@ -16,14 +16,14 @@ options are written ``NAME[:key=value,...]`` on the command line (:func:`parse_r
 
 from __future__ import annotations
 
-import importlib
 import inspect
 import math
-import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
+
+from lenssim.registry import Registry, import_plugins
 
 __all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
            "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin"]
@@ -68,23 +68,14 @@ class RestorationMethod:
         return tuple(k for k in COMMON_ARGUMENTS if k in params)
 
 
-RESTORATION_METHODS: dict[str, RestorationMethod] = {}
+RESTORATION_METHODS: Registry = Registry("restoration method")
 """The registry: name -> :class:`RestorationMethod` (filled by the modules of this package)."""
 
+register = RESTORATION_METHODS.register
+"""Add a :class:`RestorationMethod` to :data:`RESTORATION_METHODS` (a name may be registered once)."""
 
-def register(method: RestorationMethod) -> RestorationMethod:
-    """Add ``method`` to :data:`RESTORATION_METHODS` (a name may be registered once)."""
-    if method.name in RESTORATION_METHODS:
-        raise ValueError(f"restoration method {method.name!r} is registered already")
-    RESTORATION_METHODS[method.name] = method
-    return method
-
-
-def validate_method(name: str) -> RestorationMethod:
-    """The registered method ``name``; ``ValueError`` listing the valid names otherwise."""
-    if name not in RESTORATION_METHODS:
-        raise ValueError(f"restoration method {name!r} is not known; valid: {', '.join(RESTORATION_METHODS)}")
-    return RESTORATION_METHODS[name]
+validate_method = RESTORATION_METHODS.validate
+"""The registered method of a name; ``ValueError`` listing the valid names otherwise."""
 
 
 @dataclass(frozen=True)
@@ -182,12 +173,7 @@ def restore(method, observed: torch.Tensor, psf, *, electrons_per_unit: float, r
     return m.fn(observed, psf, **{k: v for k, v in given.items() if k in m.accepts()}, **spec.options)
 
 
-_PAPER_MODULES = ("wiener",)  # the paper's method first
-for _name in _PAPER_MODULES:
-    importlib.import_module(f"{__name__}.{_name}")
-for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
-    if _info.name not in _PAPER_MODULES and not _info.name.startswith("_"):
-        importlib.import_module(f"{__name__}.{_info.name}")
+import_plugins(__name__, __path__, first=("wiener",))  # the paper's method first
 
 from .richardson_lucy import RL_ITERATIONS, richardson_lucy_windowed  # noqa: E402 (re-exported)
 from .wiener import wiener_windowed  # noqa: E402
