@@ -25,7 +25,7 @@ import xarray as xr
 from scipy.interpolate import RectBivariateSpline
 
 from lenssim.optics.cost import DEFAULT_COST_POINTS, slope_departure_cost
-from lenssim.criteria import CRITERIA, validate_criterion
+from lenssim.criteria import CRITERIA, quality_criteria, validate_criterion
 from lenssim.model.design import Design
 from lenssim.model.lens import Lens
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
@@ -76,7 +76,7 @@ def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
     """The sweep's quality criteria as design-space landscapes, ``NAME`` or ``NAME@SNR`` (e.g. ``rms_w``,
     ``mse_s@27.6``): ``criteria`` (names, in that order), default every registered criterion whose role is
     quality and that the sweep holds."""
-    names = [k for k, c in CRITERIA.items() if c.role == "quality" and k in ds] if criteria is None else list(criteria)
+    names = [k for k in quality_criteria() if k in ds] if criteria is None else list(criteria)
     out = {}
     for name in names:
         c = validate_criterion(name)
