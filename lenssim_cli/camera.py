@@ -109,7 +109,7 @@ def _memory_limit(args):
     return None if getattr(args, "memory_limit", None) is None else args.memory_limit * 2**30
 
 
-def _methods(args):
+def _methods(args, scheme):
     """The restorations ``simulate`` runs: ``--restore NAME[:key=value,...] ...`` (default: the adaptive Wiener
     filter), plus ``--rl N`` (shorthand, kept from 0.1: Richardson-Lucy with N iterations besides them)."""
     from pipeline.restoration import parse_restoration
@@ -118,7 +118,7 @@ def _methods(args):
     specs = [parse_restoration(m) for m in (args.restore or ["wiener"])]
     if args.rl:
         specs = [r for r in specs if r.name != "richardson_lucy"] + [parse_restoration(f"richardson_lucy:iterations={args.rl}")]
-    return check_methods(specs)
+    return check_methods(specs, scheme=scheme)
 
 
 def cmd_simulate(args) -> int:
@@ -142,7 +142,7 @@ def cmd_simulate(args) -> int:
         raise ValueError(f"--rl {args.rl} is not allowed: a number of iterations >= 0 (0: no Richardson-Lucy)")
     if args.denoise and not 0 < args.denoise <= 2:
         raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength in (0, 2], or 0 for none")
-    specs = _methods(args)
+    specs = _methods(args, scheme)
     methods = tuple(r.name for r in specs)
     if args.full_frame and len(specs) > 1:
         raise ValueError(f"--full-frame restores with one method; {len(specs)} were given ({', '.join(methods)}): "
@@ -304,6 +304,7 @@ def cmd_psnr_table(args) -> int:
     from pipeline.restoration import parse_restoration
 
     spec = parse_restoration(args.method or args.restore)
+    spec.check(PAPER_SCHEME)  # the windows psnr-table restores in
     if args.method is not None:  # after the check: an error stays one line
         print("note: --method is the former name of --restore", file=sys.stderr)
     method = spec.name
@@ -358,6 +359,7 @@ def cmd_fig8(args) -> int:
 
     _check_common(args)
     spec = parse_restoration(args.restore)
+    spec.check(PAPER_SCHEME)  # the windows fig8 restores in
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
     size = _crop_size(args, ideal, source)

@@ -131,9 +131,11 @@ def crop_at_field_angle(shape, alpha_deg: float, size: int, geometry: FieldGeome
     return box
 
 
-def check_methods(methods, method_options: dict | None = None) -> tuple[Restoration, ...]:
+def check_methods(methods, method_options: dict | None = None, scheme: WindowScheme | None = None
+                  ) -> tuple[Restoration, ...]:
     """Restorations from names, ``"NAME:key=value,..."`` specs or :class:`Restoration` objects, with
-    ``method_options`` ``{name: {option: value}}`` merged in; checked, one per name."""
+    ``method_options`` ``{name: {option: value}}`` merged in; checked, one per name, and with the window
+    ``scheme`` when given."""
     if isinstance(methods, (str, Restoration)):
         methods = (methods,)
     specs = [Restoration.of(m) for m in methods]
@@ -147,7 +149,10 @@ def check_methods(methods, method_options: dict | None = None) -> tuple[Restorat
     for m in opts:
         if m not in names:
             raise ValueError(f"options given for restoration method {m!r}, which is not run; run: {names}")
-    return tuple(Restoration(r.name, {**r.options, **opts.get(r.name, {})}) for r in specs)
+    out = tuple(Restoration(r.name, {**r.options, **opts.get(r.name, {})}) for r in specs)
+    for r in out:
+        r.check(scheme)
+    return out
 
 
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
@@ -172,6 +177,8 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     several = not isinstance(full_well, (int, float))
     wells = [check_full_well(f) for f in (full_well if several else [full_well])]
     boxes = check_boxes(boxes, ideal.shape)
+    for r in specs:  # the options against the windows, after the other arguments, before any work
+        r.check(scheme)
     H, W = ideal.shape[-2:]
     centre = frame_center(ideal.shape)
     # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
@@ -260,6 +267,7 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
     (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
+    method.check(scheme)
     seconds = {}
     pkey = _provider_key(psf)
     params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),

@@ -4,7 +4,9 @@ Per PSF, the MTF ``|H|`` is read along the two axes of the frequency plane, whic
 tangential and sagittal directions (the PSFs of the bank lie on one axis of the field); on each, the
 first crossing of 0.5 is interpolated linearly between frequency samples, and the two are averaged.
 An MTF that stays above 0.5 up to the sensor's Nyquist frequency (1/2 cycle per pixel) counts as the
-Nyquist frequency: the sensor samples nothing finer (the value is then a lower bound).
+Nyquist frequency: the sensor samples nothing finer (the value is then a lower bound, and a
+:class:`lenssim.validate.ModelValidityWarning` says so; a camera sampled at the optics' Nyquist pitch or finer,
+which :meth:`lenssim.Camera.check_sampling` requires, never reaches it: the MTF is 0 beyond the cut-off).
 
 References
 ----------
@@ -39,6 +41,12 @@ def mtf50(ctx: OTFContext) -> torch.Tensor:
     """MTF50 ``(B,)`` in cycles/mm: the mean of the tangential and sagittal first crossings of 0.5."""
     mtf = ctx.H2.sqrt()
     f = ctx.freq_cycles_per_mm
+    capped = (mtf[:, 0, :] >= LEVEL).all(dim=-1) | (mtf[:, :, 0] >= LEVEL).all(dim=-1)
+    if bool(capped.any()):
+        from ..validate import warn_model
+
+        warn_model(f"MTF50: the MTF of {int(capped.sum())} PSF(s) stays above {LEVEL} up to the sensor's Nyquist "
+                   f"frequency ({float(f[-1]):.4g} cycles/mm); their MTF50 is counted there (a lower bound)")
     return 0.5 * (first_crossing(mtf[:, 0, :], f) + first_crossing(mtf[:, :, 0], f))
 
 

@@ -40,8 +40,9 @@ def windowed_margin(scheme) -> int:
 @dataclass(frozen=True)
 class RestorationMethod:
     """A restoration method (see the module docstring): ``fn``, a label for figures and tables, its options
-    ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options)``, which raises ``ValueError`` for
-    option values the method refuses (called when a :class:`Restoration` is made: before any work)."""
+    ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options, scheme)``, which raises ``ValueError`` for
+    option values the method refuses (``scheme`` None: those it refuses in any window; called when a
+    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work)."""
 
     name: str
     label: str
@@ -94,12 +95,16 @@ class Restoration:
             raise ValueError(f"restoration method {self.name!r} takes no option(s) {bad}; it takes "
                              f"{', '.join(f'{k} (default {v!r})' for k, v in known.items()) or 'none'}")
         object.__setattr__(self, "options", {k: _typed(self.name, k, v, known[k]) for k, v in self.options.items()})
-        if m.check is not None:
-            m.check({**known, **self.options})
+        self.check(None)
 
     @property
     def method(self) -> RestorationMethod:
         return RESTORATION_METHODS[self.name]
+
+    def check(self, scheme) -> None:
+        """``ValueError`` for options the method refuses with the window scheme ``scheme`` (None: with any)."""
+        if self.method.check is not None:
+            self.method.check({**dict(self.method.options), **self.options}, scheme)
 
     def margin(self, scheme) -> int:
         return int(self.method.margin(scheme))

@@ -55,7 +55,7 @@ def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterat
                           chunk=chunk, progress=progress)
 
 
-def _check(options):
+def _check(options, scheme):
     it = options["iterations"]
     if isinstance(it, bool) or not (isinstance(it, int) and it >= 1):
         raise ValueError(f"richardson_lucy option iterations={it!r} is not allowed: an integer >= 1")

@@ -82,4 +82,4 @@ def _tikhonov(observed, psf, *, scheme, optical_center=None, region=None, progre
 
 register(RestorationMethod("tikhonov", "Tikhonov", "Tikhonov-regularised inverse filter in the blur's windows "
                            "(linear, no image or noise model)", _tikhonov, (("weight", TIKHONOV_WEIGHT),),
-                           check=lambda o: check_real("tikhonov option weight", o["weight"], 0.0)))
+                           check=lambda o, scheme: check_real("tikhonov option weight", o["weight"], 0.0)))

@@ -101,10 +101,11 @@ def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, op
                            stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region, progress=progress)
 
 
-def _check(options):
-    stats = options["stats"]
-    if isinstance(stats, bool) or not (isinstance(stats, int) and stats >= 2):
-        raise ValueError(f"wiener option stats={stats!r} is not allowed: an integer >= 2 (px, at most the window)")
+def _check(options, scheme):
+    stats, top = options["stats"], (scheme.window if scheme is not None else None)
+    if isinstance(stats, bool) or not (isinstance(stats, int) and 2 <= stats <= (top or stats)):
+        raise ValueError(f"wiener option stats={stats!r} is not allowed: an integer >= 2 (px) and at most the window"
+                         + (f" ({top} px)" if top else ""))
     if not 0 < options["rho0"] < 1:
         raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
 

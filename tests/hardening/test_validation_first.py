@@ -50,6 +50,7 @@ def _args(tmp_path, *extra, photo=None):
     (["--restore", "tv"], "restoration method 'tv' is not known"),
     (["--full-frame", "--rl", "2"], "--full-frame restores with one method; 2 were given"),
     (["--restore", "tikhonov:weight=-1"], "weight=-1"),
+    (["--restore", "wiener:stats=600"], "wiener option stats=600 is not allowed"),
     (["--restore", "wiener", "wiener"], "more than once"),
     (["--device", "tpu"], "device='tpu' is not allowed"),
     (["--Q", "60"], "Q_back must be < "),

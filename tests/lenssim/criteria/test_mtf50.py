@@ -44,3 +44,16 @@ def test_first_crossing_interpolates_and_caps():
     got = first_crossing(lines, f).numpy()
     # 1 - f crosses at 0.5; a flat MTF never does (capped at the last frequency); a step between 0.3 and 0.4
     np.testing.assert_allclose(got, [0.5, 1.0, 0.3 + 0.1 * (1 - 0.5) / (1 - 0.2)], rtol=1e-12)
+
+
+def test_an_mtf50_beyond_nyquist_is_counted_there_and_said():
+    """Not silently clamped: an MTF above 0.5 up to Nyquist gives the Nyquist frequency with a warning."""
+    from lenssim.criteria import OTFContext
+    from lenssim.criteria.mtf50 import mtf50
+    from lenssim.validate import ModelValidityWarning
+
+    H = torch.ones(1, 9, 9, dtype=torch.complex64)
+    ctx = OTFContext(H, H.real.square(), H.real, H.real, H.real, torch.ones(1), 16, PAPER_CAMERA)
+    with pytest.warns(ModelValidityWarning, match="stays above 0.5 up to the sensor's Nyquist"):
+        v = mtf50(ctx)
+    assert float(v[0]) == pytest.approx(1 / (2 * PAPER_CAMERA.sensor.pixel_pitch_um * 1e-3))
