@@ -21,8 +21,8 @@ restoring an as-built lens).
 from __future__ import annotations
 
 import hashlib
-import math
 import json
+import math
 import time
 import warnings
 from dataclasses import dataclass, field
