@@ -68,7 +68,7 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wavelengths-per-channel", type=int, default=DEFAULT_WAVELENGTHS_PER_CHANNEL, metavar="N",
                    help=f"wavelengths sampled per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
     p.add_argument("--wavefront", choices=("third_order", "exact"), default="third_order",
-                   help="the paper's third-order (Seidel) wavefront, or the exact one fitted to a ray trace "
+                   help="the paper's third-order (Seidel) wavefront, or the exact one (the OPD of a ray trace) "
                         "(one-wavelength spectrum only)")
 
 

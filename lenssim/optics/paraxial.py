@@ -35,7 +35,9 @@ class Surface:
     n_after : refractive index after the surface; thickness_after_mm : distance to the next one;
     aspheric : the conic is a free design parameter (named ``conic_name``): counted by the
     industrial cost (:mod:`lenssim.optics.cost`); semi_aperture_mm : the clear radius over which the surface is
-    used (and made: the cost's aperture); None: the system's pupil radius.
+    used (and made: the cost's aperture); None: the system's pupil radius; decentre_mm : ``(dx, dy)`` mm of the
+    vertex off the axis and tilt_deg : ``(tx, ty)`` degrees about the vertex (x axis, then y axis): a displaced
+    surface, which only the exact ray trace (:mod:`lenssim.optics.raytrace`) reads.
     """
 
     curvature: float | torch.Tensor
@@ -45,6 +47,8 @@ class Surface:
     aspheric: bool = False
     conic_name: str | None = None
     semi_aperture_mm: float | None = None
+    decentre_mm: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
 
 
 def seidel_surface_sums(surfaces, h, u, hbar, ubar, n_object: float = 1.0) -> torch.Tensor:

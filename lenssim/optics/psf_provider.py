@@ -78,7 +78,7 @@ class LensPSF(PSFProvider):
     numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
     wavefront: str = "third_order"
     """A model of :data:`lenssim.optics.wavefront_models.WAVEFRONT_MODELS`: ``third_order`` (the paper's Seidel model) or
-    ``exact`` (the wavefront fitted to an exact ray trace at each PSF's field angle; one-wavelength cameras)."""
+    ``exact`` (the OPD of an exact ray trace at each PSF's field angle; one-wavelength cameras)."""
 
     def __post_init__(self):
         model = validate_wavefront_model(self.wavefront)

@@ -2,7 +2,7 @@
 
 * ``third_order``: the paper's Seidel (third-order) wavefront of the thin lens, in closed form
   (:func:`lenssim.optics.aberrations.wavefront_coefficients`; any spectrum);
-* ``exact``: the wavefront fitted to an exact ray trace through the real surfaces at each field angle
+* ``exact``: the optical path difference of an exact ray trace through the real surfaces at each field angle
   (:mod:`lenssim.optics.exact_wavefront`; one-wavelength cameras).
 
 A model gives the PSFs of a :class:`lenssim.LensPSF` at image points (:attr:`WavefrontModel.psfs`), every
@@ -87,7 +87,7 @@ def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
 
 WAVEFRONT_MODELS: dict[str, WavefrontModel] = {m.name: m for m in (
     WavefrontModel("third_order", "third order (Seidel, closed form)", _third_order_psfs, _third_order_evaluate),
-    WavefrontModel("exact", "exact (fitted to a real ray trace; RMS_W stays third order)", _exact_psfs, _exact_evaluate,
+    WavefrontModel("exact", "exact (the OPD of a real ray trace; RMS_W stays third order)", _exact_psfs, _exact_evaluate,
                    check=_one_wavelength, support_factor=1.25),  # fifth and higher orders: 25% more support
 )}
 """The registry: name -> :class:`WavefrontModel`."""
