@@ -16,7 +16,7 @@ import torch
 from .optics.aberrations import N_TERMS
 from .model.camera import Camera
 from .checks import check_shape
-from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
+from .criteria import CRITERIA, OTFContext, lens_criteria, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
 from .model.design import Design
 from .optics.image_model import image_psd_quarter, noise_variance
 from .model.numerics import DEFAULT_NUMERICS, Numerics
@@ -144,7 +144,7 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
     per_field = otf_criteria_bank(camera, flat.to(dtype), sizes, snr, rho0=rho0, psd_model=psd_model,
                                   numerics=numerics, progress=progress)
     out = {}
-    for name, crit in CRITERIA.items():
+    for name, crit in lens_criteria().items():
         if crit.from_otf is not None:
             v = per_field[name].reshape(shape + ((A, S) if crit.per_snr else (A,)))
             out[name], out[f"{name}_alpha"] = v.mean(dim=-2 if crit.per_snr else -1), v
@@ -155,7 +155,7 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
     out["fft_size"] = sizes.reshape(shape + (A,))
     out["snr_db"] = snr
     out["alpha_deg"] = camera.lens.field_angles(dtype=torch.float64)
-    for name in CRITERIA:
+    for name in lens_criteria():
         if not bool(torch.isfinite(out[name]).all()):
             i = int(torch.nonzero(~torch.isfinite(out[name].reshape(shape + (-1,)).amax(-1).reshape(-1)) |
                                   ~torch.isfinite(out[name].reshape(shape + (-1,)).amin(-1).reshape(-1)))[0])

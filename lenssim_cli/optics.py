@@ -7,7 +7,8 @@ import sys
 import time
 from pathlib import Path
 
-from lenssim import CRITERIA, DEFAULT_NUMERICS, PARAMETERS, Design, select_device
+from lenssim import DEFAULT_NUMERICS, PARAMETERS, Design, select_device
+from lenssim.criteria import lens_criteria
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SNR_DB
 from lenssim.io.files import json_text
@@ -36,12 +37,12 @@ def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_
     res = model.evaluate(camera, design, snr, rho0=PAPER_RHO0, numerics=numerics, device=select_device(device))
     params = design.complete().floats()
     out = {"parameters": params, **params}
-    for name, c in CRITERIA.items():
+    for name, c in lens_criteria().items():
         v = res[name]
         out[name] = [float(x) for x in v] if c.per_snr else float(v)
         if f"{name}_per_channel" in res:
             out[f"{name}_per_channel"] = res[f"{name}_per_channel"].tolist()
-    out["units"] = {name: c.units for name, c in CRITERIA.items()}
+    out["units"] = {name: c.units for name, c in lens_criteria().items()}
     out["camera"] = {"glass": camera.lens.glass.name, "spectrum": camera.spectrum.name if not camera.channels
                      else [c.name for c in camera.channels]}
     out["rms_w_piston_removed_waves"] = float(res["rms_w_piston_removed"])
@@ -56,12 +57,12 @@ def design_table(results: list[tuple[str, dict]]) -> str:
     snrs = results[0][1]["snr_db"]
     names = list(results[0][1]["parameters"])
     header = ["design"] + names
-    for name, c in CRITERIA.items():
+    for name, c in lens_criteria().items():
         header += [f"{c.label}@{v:g}dB" for v in snrs] if c.per_snr else [f"{c.label} [{c.units.split()[0]}]"]
     rows = []
     for label, r in results:
         row = [label] + [f"{r['parameters'][n]:g}" for n in names]
-        for name, c in CRITERIA.items():
+        for name, c in lens_criteria().items():
             row += [f"{v:.5f}" for v in r[name]] if c.per_snr else [f"{r[name]:.4g}"]
         rows.append(row)
     return table(rows, header)
@@ -139,7 +140,7 @@ def cmd_optimum(args) -> int:
         where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
         print(f"best {r['criterion']}{snr_txt}: {where}  (value {r['value']:.6g})"
               + ("  [on the grid boundary]" if r["on_grid_boundary"] else ""))
-        for k, c in CRITERIA.items():  # every criterion the sweep holds, at that design
+        for k, c in lens_criteria().items():  # every criterion the sweep holds, at that design
             if k in r and k != r["criterion"] or isinstance(r.get(k), dict):
                 v = r[k]
                 print(f"  {c.label}: " + (", ".join(f"{x:.5g} @ {snr} dB" for snr, x in v.items()) if isinstance(v, dict)
@@ -166,7 +167,7 @@ def cmd_demo(args) -> int:
     ds = run_sweep(cfg, out, device=args.device, show_progress=not args.quiet)
     ref = f"{PAPER_SNR_DB[1]:g}"
     rows = []
-    for crit, c in CRITERIA.items():
+    for crit, c in lens_criteria().items():
         for snr in (ds["snr"].values if c.per_snr else [None]):
             r = find_optimum(ds, crit, snr)
             rows.append([crit + (f"@{snr:g}dB" if snr is not None else "")]
@@ -285,7 +286,7 @@ def register(sub) -> None:
 
     o = sub.add_parser("optimum", help="best grid design of a sweep")
     o.add_argument("file", help="sweep NetCDF file")
-    o.add_argument("--criterion", required=True, help=", ".join(CRITERIA))
+    o.add_argument("--criterion", required=True, help=", ".join(lens_criteria()))
     o.add_argument("--snr", type=float, help=f"SNR in dB for SNR-dependent criteria (default {REFERENCE_SNR_DB:g})")
     o.add_argument("--json", action="store_true")
     o.set_defaults(func=cmd_optimum)

@@ -10,7 +10,7 @@ import hashlib
 import numpy as np
 import torch
 
-from lenssim.criteria import CRITERIA
+from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
@@ -19,7 +19,7 @@ __all__ = ["_chunk_keys", "_compute_chunk", "_checksum"]
 
 def _chunk_keys(cfg=None) -> tuple[str, ...]:
     keys = []
-    for name, c in CRITERIA.items():
+    for name, c in lens_criteria().items():
         keys += [name, f"{name}_alpha"] if c.from_otf is not None else [name]
     extra = ("focus_shift_um",) if cfg is not None and cfg.focus is not None else ()
     return tuple(keys) + ("rms_w_alpha", "rms_w_piston_removed", "fft_size") + extra

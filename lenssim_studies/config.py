@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from lenssim.model.camera import Camera
-from lenssim.criteria import CRITERIA
+from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design, parameter_name
 from lenssim.io.files import read_toml
 from lenssim.optics.image_model import PSD_MODELS
@@ -103,8 +103,8 @@ class SweepConfig:
             if "focus_shift_um" in grid or "focus_shift_um" in self.fixed:
                 raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
             crit = f.get("criterion", "mse_r")
-            if crit not in CRITERIA:
-                raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(CRITERIA)}")
+            if crit not in lens_criteria():
+                raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(lens_criteria())}")
             object.__setattr__(self, "focus", {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
                           "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
                           "tol_um": float(f.get("tol_um", 1.0))})

@@ -34,7 +34,7 @@ import torch
 
 from lenssim.model.camera import Camera
 from lenssim.optics.cost import slope_departure_cost
-from lenssim.criteria import CRITERIA
+from lenssim.criteria import CRITERIA, lens_criteria
 from lenssim.model.design import Design
 from lenssim.io.files import atomic_write_text, json_text
 from lenssim.focus import best_focus
@@ -105,14 +105,14 @@ def criterion_value(camera: Camera, design: Design, criterion: str, snr_db: floa
     if CRITERIA[criterion].from_otf is None:
         d64 = design.to(torch.float64).broadcast()
         vals = {}
-        for name, c in CRITERIA.items():
+        for name, c in lens_criteria().items():
             if c.from_otf is None:
                 per = [c.from_design(cam, d64, spectral_coefficients(cam, d64), numerics)
                        for cam in camera.channel_cameras()]
                 vals[name] = float(torch.stack([torch.as_tensor(v, dtype=torch.float64) for v in per]).mean())
         return vals
     r = evaluate(camera, design, [snr_db], numerics=numerics, rho0=PAPER_RHO0)
-    return {name: float(r[name].reshape(-1)[0]) for name in CRITERIA}
+    return {name: float(r[name].reshape(-1)[0]) for name in lens_criteria()}
 
 
 def _nelder_mead(f: Callable[[np.ndarray], float], x0, steps, max_evaluations: int, bounds):

@@ -23,7 +23,7 @@ import numpy as np
 import xarray as xr
 
 from lenssim import __version__
-from lenssim.criteria import CRITERIA
+from lenssim.criteria import lens_criteria
 from lenssim.model.design import PARAMETERS
 from lenssim.io.files import atomic_write
 from lenssim.torch_utils import select_device
@@ -42,7 +42,7 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     coords = {d: cfg.values(d) for d in dims}
     coords.update({"alpha": np.asarray(cfg.lens.field_angles_deg), "snr": np.asarray(cfg.snr_db, dtype=np.float64)})
     data = {}
-    for name, c in CRITERIA.items():
+    for name, c in lens_criteria().items():
         attrs = {"units": c.units, "long_name": f"{c.label}: {c.description}", "sense": c.sense, "role": c.role}
         snr = ("snr",) if c.per_snr else ()
         data[name] = (dims + snr, st[name], attrs)

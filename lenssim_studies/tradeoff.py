@@ -25,7 +25,7 @@ import xarray as xr
 from scipy.interpolate import RectBivariateSpline
 
 from lenssim.optics.cost import DEFAULT_COST_POINTS, slope_departure_cost
-from lenssim.criteria import CRITERIA, quality_criteria, validate_criterion
+from lenssim.criteria import CRITERIA, lens_criteria, quality_criteria, validate_criterion
 from lenssim.model.design import Design
 from lenssim.model.lens import Lens
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
@@ -225,7 +225,7 @@ def find_optimum(ds: xr.Dataset, criterion: str, snr: float | None = None) -> di
     at = dict(zip(dims, idx))
     design = {d: float(ds[d].values[i]) for d, i in at.items()}
     out = {"criterion": criterion, "snr_db": snr, "design": design, "value": float(da.values[idx])}
-    for k, c in CRITERIA.items():
+    for k, c in lens_criteria().items():
         if k in ds:
             v = ds[k][at]
             out[k] = {f"{s:g}": float(v.sel(snr=s)) for s in ds["snr"].values} if "snr" in v.dims else float(v)

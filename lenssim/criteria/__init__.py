@@ -33,7 +33,7 @@ from ..model.camera import Camera
 from ..registry import Registry, import_plugins
 
 __all__ = ["Criterion", "OTFContext", "CRITERIA", "register", "validate_criterion", "otf_criteria",
-           "quality_criteria", "quarter_weights", "wavefront_rms_per_field", "SENSES", "ROLES"]
+           "quality_criteria", "lens_criteria", "quarter_weights", "wavefront_rms_per_field", "SENSES", "ROLES"]
 
 SENSES = ("min", "max")
 ROLES = ("quality", "cost")
@@ -117,7 +117,10 @@ class Criterion:
     ``from_otf(ctx: OTFContext) -> (B, S)`` if ``per_snr`` else ``(B,)`` (float64), per PSF, for OTF criteria
     (averaged over the field by :func:`lenssim.metrics.evaluate`); ``from_design(camera, design, coeffs,
     numerics) -> (*)`` for design criteria (``coeffs`` ``(*, A, K, T)`` in waves, design in float64).
-    ``sense``: ``"min"`` (smaller is better) or ``"max"``; ``role``: ``"quality"`` or ``"cost"``.
+    ``sense``: ``"min"`` (smaller is better) or ``"max"``; ``role``: ``"quality"`` or ``"cost"``;
+    ``needs_reference``: the criterion compares the lens with a reference lens (``OTFContext.reference``, e.g. a
+    restoration built for the nominal lens applied to an as-built one): it is computed where a reference is given
+    (:mod:`lenssim.tolerancing`), not by :func:`lenssim.metrics.evaluate` and the sweeps of one lens.
     """
 
     name: str
@@ -129,6 +132,7 @@ class Criterion:
     from_design: Callable | None = None
     sense: str = "min"
     role: str = "quality"
+    needs_reference: bool = False
 
     def __post_init__(self):
         if (self.from_otf is None) == (self.from_design is None):
@@ -154,14 +158,21 @@ validate_criterion = CRITERIA.validate
 """The registered criterion of a name; ``ValueError`` listing the valid names otherwise."""
 
 
-def otf_criteria() -> tuple[str, ...]:
-    """Names of the registered OTF criteria."""
-    return tuple(k for k, c in CRITERIA.items() if c.from_otf is not None)
+def lens_criteria() -> dict:
+    """The registered criteria of one lens, by name (those that need no reference lens): what
+    :func:`lenssim.metrics.evaluate`, the sweeps and the trade-off compute."""
+    return {k: c for k, c in CRITERIA.items() if not c.needs_reference}
+
+
+def otf_criteria(*, reference: bool = False) -> tuple[str, ...]:
+    """Names of the registered OTF criteria of one lens; with ``reference``, also those that compare the lens with
+    a reference lens."""
+    return tuple(k for k, c in CRITERIA.items() if c.from_otf is not None and (reference or not c.needs_reference))
 
 
 def quality_criteria() -> tuple[str, ...]:
-    """Names of the registered criteria whose role is image quality (everything but costs)."""
-    return tuple(k for k, c in CRITERIA.items() if c.role == "quality")
+    """Names of the registered criteria of one lens whose role is image quality (everything but costs)."""
+    return tuple(k for k, c in lens_criteria().items() if c.role == "quality")
 
 
 def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:

@@ -4,6 +4,8 @@ Per field angle, with ``sigma_w^2 = 10^(-SNR/10)``::
 
     mse_s:  P_es(f) = sigma_w^2 + |1 - H(f)|^2 P_x(f)             sensor-image error
     mse_r:  P_er(f) = (|H(f)|^2 / sigma_w^2 + 1 / P_x(f))^-1      Wiener-restored error
+    mse_r_nominal: |1 - G0 H|^2 P_x + |G0|^2 sigma_w^2,  G0 = conj(H0) P_x / (|H0|^2 P_x + sigma_w^2)
+                   the Wiener filter built for a reference (nominal) OTF H0 applied to the lens's OTF H
     MSE = integral over f in [-1/2, 1/2)^2 (mean over the DFT grid)
 
 (``P_es`` is the derivation's ``|1 - H|^2 P_x``; the paper prints ``P_x^-1``, a typo.)
@@ -37,7 +39,28 @@ def mse_r(ctx: OTFContext) -> torch.Tensor:
                         * float(s2) for s2 in sigma2.to(ctx.psd.dtype)], dim=-1)
 
 
+def mse_r_nominal(ctx: OTFContext) -> torch.Tensor:
+    """Expected MSE ``(B, S)`` of the Wiener filter designed for the reference OTF ``H0`` (``ctx.reference``, e.g.
+    the nominal lens's) applied to an image blurred by ``H`` (an as-built lens) with the same noise: the mean of
+    ``|1 - G0 H|^2 P_x + |G0|^2 sigma^2`` with ``G0 = conj(H0) P_x / (|H0|^2 P_x + sigma^2)`` (issue 19). With
+    ``H = H0`` (or no reference) it is :func:`mse_r`, the matched filter's error, and it is never below it (the
+    matched filter is the minimum-MSE linear filter)."""
+    if ctx.reference is None:
+        return mse_r(ctx)
+    H, H0, P = ctx.H, ctx.reference, ctx.psd
+    cross = (H0.real * H.real + H0.imag * H.imag) * P  # Re(conj(H0) H) P_x
+    H02P = (H0.real.square() + H0.imag.square()) * P
+    out = []
+    for s2 in ctx.sigma2.to(P.dtype):
+        D = H02P + s2
+        dens = P - 2 * cross * P / D + H02P * P * (ctx.H2 * P + s2) / D.square()
+        out.append(ctx.integrate(dens))
+    return torch.stack(out, dim=-1)
+
+
 register(Criterion("mse_s", "MSE_S", "sensor-image MSE, field average", "1 (unit signal variance)", True,
                    from_otf=mse_s))
 register(Criterion("mse_r", "MSE_R", "MSE after Wiener restoration, field average", "1 (unit signal variance)", True,
                    from_otf=mse_r))
+register(Criterion("mse_r_nominal", "MSE_R nominal", "MSE after the Wiener restoration built for the nominal lens, field "
+                   "average", "1 (unit signal variance)", True, from_otf=mse_r_nominal, needs_reference=True))

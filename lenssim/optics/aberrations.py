@@ -59,23 +59,37 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Term:
-    """Pupil monomial ``(rho_r^2 + rho_t^2)^a rho_r^b`` (= ``rho^(2a+b) cos^b(theta)``) named ``name``."""
+    """Pupil monomial ``(rho_r^2 + rho_t^2)^a rho_r^b rho_t^c`` (= ``rho^(2a+b+c) cos^b(theta) sin^c(theta)``) named
+    ``name``. ``c = 0`` (even in ``rho_t``) for every wavefront of a centred lens; odd ``c`` for the non-symmetric
+    wavefronts of decentred or tilted lenses (:mod:`lenssim.optics.as_built`)."""
 
     name: str
     a: int
     b: int
+    c: int = 0
 
-    def __call__(self, r2: torch.Tensor, rho_r: torch.Tensor) -> torch.Tensor:
+    @property
+    def symmetric(self) -> bool:
+        """Even in ``rho_t`` (mirror-symmetric about the meridional plane)."""
+        return self.c % 2 == 0
+
+    def __call__(self, r2: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor | None = None) -> torch.Tensor:
+        out = self._even(r2, rho_r)
+        return out if not self.c else out * rho_t**self.c
+
+    def _even(self, r2, rho_r):
         if self.b == 0:
             return r2**self.a
         if self.a == 0:
             return rho_r**self.b
         return r2**self.a * rho_r**self.b
 
-    def weighted(self, coeff: torch.Tensor, r2: torch.Tensor, rho_r: torch.Tensor) -> torch.Tensor:
-        """``coeff r2^a rho_r^b``, multiplied left to right (the rounding of the original four-term formula)."""
+    def weighted(self, coeff: torch.Tensor, r2: torch.Tensor, rho_r: torch.Tensor,
+                 rho_t: torch.Tensor | None = None) -> torch.Tensor:
+        """``coeff r2^a rho_r^b rho_t^c``, multiplied left to right (the rounding of the original four-term formula)."""
         out = coeff * r2**self.a if self.a else coeff
-        return out * rho_r**self.b if self.b else out * torch.ones_like(r2)
+        out = out * rho_r**self.b if self.b else out * torch.ones_like(r2)
+        return out * rho_t**self.c if self.c else out
 
 
 TERMS = (Term("W040", 2, 0), Term("W131", 1, 1), Term("W222", 0, 2), Term("W220", 1, 0))
@@ -165,7 +179,7 @@ def wavefront_coefficients(lens: Lens, design: Design, alpha_deg=None, *, wavele
 def pupil_monomials(rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS) -> torch.Tensor:
     """The monomials of ``terms`` (default :data:`TERMS`) at pupil points, stacked: ``(T, *P)``."""
     r2 = rho_r**2 + rho_t**2
-    return torch.stack(torch.broadcast_tensors(*(t(r2, rho_r) for t in terms)))
+    return torch.stack(torch.broadcast_tensors(*(t(r2, rho_r, rho_t) for t in terms)))
 
 
 def monomial_gradients(rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS):
@@ -175,12 +189,15 @@ def monomial_gradients(rho_r: torch.Tensor, rho_t: torch.Tensor, terms=TERMS):
     for t in terms:
         g_r = torch.zeros_like(r2)
         g_t = torch.zeros_like(r2)
+        tc = rho_t**t.c if t.c else 1.0
         if t.a:
-            common = 2 * t.a * r2 ** (t.a - 1) * rho_r**t.b
+            common = 2 * t.a * r2 ** (t.a - 1) * rho_r**t.b * tc
             g_r = g_r + common * rho_r
             g_t = g_t + common * rho_t
         if t.b:
-            g_r = g_r + t.b * r2**t.a * rho_r ** (t.b - 1)
+            g_r = g_r + t.b * r2**t.a * rho_r ** (t.b - 1) * tc
+        if t.c:
+            g_t = g_t + t.c * r2**t.a * rho_r**t.b * rho_t ** (t.c - 1)
         gr.append(g_r)
         gt.append(g_t)
     return torch.stack(gr), torch.stack(gt)
@@ -203,7 +220,7 @@ def wavefront_rotated(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Te
     """``W`` (waves) for coefficients ``(B, T)`` of ``terms`` and per-row pupil points ``(B or 1, *P)``: ``(B, *P)``."""
     r2 = rho_r**2 + rho_t**2
     extra = (None,) * (rho_r.ndim - 1)
-    return sum(t.weighted(coeffs[(slice(None), k) + extra], r2, rho_r) for k, t in enumerate(terms))
+    return sum(t.weighted(coeffs[(slice(None), k) + extra], r2, rho_r, rho_t) for k, t in enumerate(terms))
 
 
 def wavefront_gradient(coeffs: torch.Tensor, rho_r: torch.Tensor, rho_t: torch.Tensor):

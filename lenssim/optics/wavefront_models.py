@@ -71,14 +71,14 @@ def _exact_psfs(provider, x_mm, y_mm, n, centered, dtype):
 def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
     """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
     at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
-    from ..criteria import CRITERIA
+    from ..criteria import lens_criteria
     from .exact_wavefront import exact_criteria
     from ..metrics import evaluate
 
     _one_wavelength(camera)
     out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
     ex = exact_criteria(camera, design, snr_db, rho0=rho0, numerics=numerics)
-    for name, c in CRITERIA.items():
+    for name, c in lens_criteria().items():
         if c.from_otf is not None:
             out[name], out[f"{name}_alpha"] = ex[name], ex[f"{name}_alpha"]
     out["fft_size"] = ex["fft_size"]
