@@ -12,9 +12,9 @@ from lenssim import LensError, __version__
 from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
-from . import camera, optics
+from . import camera, optics, tolerance
 
-COMMAND_MODULES = (optics, camera)
+COMMAND_MODULES = (optics, tolerance, camera)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
@@ -28,7 +28,7 @@ NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$|^-nan$
 
 DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the restored image.
 
-optics:  evaluate, sweep, optimum, reproduce, study, designs, demo
+optics:  evaluate, sweep, optimum, reproduce, study, designs, demo, tolerance
 camera:  simulate, psnr-table, fig8        (lenssim COMMAND --help for each)"""
 
 

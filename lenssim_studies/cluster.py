@@ -115,16 +115,21 @@ def dask_client(scheduler: str | None = None, workers: int | None = None):
         yield client
 
 
-def compute_chunks(client, cfg, indices, *, device: str = "auto", threads: int | None = None) -> Iterator[tuple[int, dict]]:
+def compute_chunks(client, cfg, indices, *, device: str = "auto", threads: int | None = None, task=None,
+                   kind: str = "sweep") -> Iterator[tuple[int, dict]]:
     """Chunks ``indices`` of the sweep ``cfg`` as dask tasks on ``client``'s cluster; yields ``(index, arrays)``
-    in the order they finish, each checked against the checksum computed where it was made."""
+    in the order they finish, each checked against the checksum computed where it was made. ``task(config, digest,
+    index, device, threads) -> (index, arrays, sha256)`` (default: a sweep's chunk, with ``cfg.to_dict()`` as the
+    config; another run passes its own task and ``cfg`` itself, e.g. the tolerance Monte Carlo); ``kind`` names the
+    tasks."""
     from distributed import as_completed
 
     from .chunks import _checksum
 
     threads = int(threads or torch.get_num_threads())
-    config, digest = cfg.to_dict(), cfg.digest()
-    futures = [client.submit(_chunk_task, config, digest, i, device, threads, key=f"lenssim-sweep-{digest}-{i:05d}",
+    config, digest = (cfg.to_dict() if task is None else cfg), cfg.digest()
+    task = _chunk_task if task is None else task
+    futures = [client.submit(task, config, digest, i, device, threads, key=f"lenssim-{kind}-{digest}-{i:05d}",
                              pure=False, retries=TASK_RETRIES) for i in indices]
     try:
         for fut in as_completed(futures):

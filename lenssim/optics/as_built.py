@@ -140,10 +140,25 @@ def as_built_surfaces(camera: Camera, design: Design, pert: Perturbations, i: in
     return [front, back]
 
 
-def as_built_design(design: Design, pert: Perturbations, i: int = 0) -> Design:
-    """``design`` with the despace of lens ``i`` added to its ``focus_shift_um`` (for the ray trace)."""
+def image_plane_mm(camera: Camera, design: Design, pert: Perturbations) -> torch.Tensor:
+    """The image plane's distance (mm) from each as-built lens, ``(N,)``: the nominal image distance, or with
+    ``focus_compensated`` the lens's own paraxial focus at the spectrum's reference wavelength, plus the design's
+    focus shift and the despace."""
+    lens = camera.lens
     d = design.to(torch.float64)
-    return d.replace(focus_shift_um=float(d["focus_shift_um"]) + float(pert.despace_mm[i]) * 1e3)
+    base = torch.full_like(pert.despace_mm, lens.image_distance_mm)
+    if pert.tolerances.focus_compensated:
+        c1, c2, n, _, _ = _perturbed(camera, d, pert, camera.spectrum.reference_um)
+        base = 1 / ((n - 1) * (c1 - c2))
+    return base + float(d["focus_shift_um"]) * 1e-3 + pert.despace_mm
+
+
+def as_built_design(camera: Camera, design: Design, pert: Perturbations, i: int = 0) -> Design:
+    """``design`` with the ``focus_shift_um`` that puts the ray trace's image plane where lens ``i``'s is
+    (:func:`image_plane_mm`)."""
+    d = design.to(torch.float64)
+    t = float(image_plane_mm(camera, d, pert[i])[0])
+    return d.replace(focus_shift_um=(t - camera.lens.image_distance_mm) * 1e3)
 
 
 IMAGE_TILT_SIGN = 1.0
@@ -170,7 +185,7 @@ def as_built_coefficients(camera: Camera, design: Design, pert: Perturbations, a
     dec = _rot(pert.asphere_decentre_mm, phi)
     # the image plane: nominal distance + design focus shift + despace, tilted with the lens
     r_img = lens.image_distance_mm * torch.tan(torch.deg2rad(alpha))  # (F,) mm, along the point's r axis
-    t_img0 = lens.image_distance_mm + float(d["focus_shift_um"]) * 1e-3 + pert.despace_mm[:, None]  # (N, 1)
+    t_img0 = image_plane_mm(camera, d, pert)[:, None]  # (N, 1)
     fig = figure_heights_mm(camera, d, pert)  # (N, 6): power, astig_0, astig_45, coma_x, coma_y, spherical
     out = []
     for lam in lams:

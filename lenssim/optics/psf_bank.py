@@ -53,6 +53,7 @@ __all__ = [
     "otf",
     "otf_quarter",
     "otf_quarter_spectrum",
+    "otf_quarter_pair",
 ]
 
 
@@ -491,6 +492,55 @@ def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversa
     H = _otf_from_psf_half(acc, n, oversample, 1.0)
     H[..., 0, 0] = 1
     return H
+
+
+def _pad_periodic(p: torch.Tensor, m: int, dim: int) -> torch.Tensor:
+    """Zero-pad a periodic sequence (DFT order) of even length ``n`` to ``m`` along ``dim``, the Nyquist sample split
+    between ``+n/2`` and ``-n/2`` (as :func:`_otf_from_psf_half` does)."""
+    n = p.shape[dim]
+    if m == n:
+        return p
+    h = n // 2
+    shape = list(p.shape)
+    shape[dim] = m
+    out = p.new_zeros(shape)
+    out.narrow(dim, 0, h).copy_(p.narrow(dim, 0, h))
+    out.narrow(dim, m - h + 1, h - 1).copy_(p.narrow(dim, h + 1, h - 1))
+    half = 0.5 * p.narrow(dim, h, 1)
+    out.narrow(dim, h, 1).copy_(half)
+    out.narrow(dim, m - h, 1).copy_(half)
+    return out
+
+
+def otf_quarter_pair(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
+                     numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
+    """OTFs of PSFs with no mirror symmetry (e.g. an as-built lens's), as two quarter planes: ``(B, 2, m/2+1, m/2+1)``
+    complex, ``m = oversample n``, ``H[:, 0] = H(fy, fx)`` and ``H[:, 1] = H(fy, -fx)`` for ``fy, fx = 0..m/2``, each
+    ``H(0) = 1``; coefficients ``(B, K, T)`` of ``terms`` with the field along +y, weighted over the spectrum.
+
+    ``H(-f) = conj H(f)``, so the two quarters hold the whole plane: the mean over the full grid of any function of
+    ``H`` and a reference OTF at the same frequency, even under ``f -> -f``, is the mean of its quarter-plane means
+    over the two (what :func:`lenssim.tolerancing.as_built_criteria` uses). For a mirror-symmetric wavefront both
+    quarters equal :func:`otf_quarter_spectrum` (tested). The general path: full 2-D transforms of the pupil's
+    bounding box and of the zero-padded PSF.
+    """
+    _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
+    m = n * int(oversample)
+    hm = m // 2
+    acc = None
+    flat = coeffs
+    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        R = _radius(camera, int(n), lam)
+        field = _field(flat[:, k], R, None, numerics.supersample, flat.dtype, flat.device, terms)
+        amp, _ = _pupil_box_cached(float(R), int(numerics.supersample))
+        p = _intensity(field, int(n)) * (w / (float(amp.sum()) * n * n))
+        acc = p if acc is None else acc.add_(p)
+    acc = _pad_periodic(_pad_periodic(acc, m, -2), m, -1)
+    H = torch.fft.fft2(acc)
+    idx = torch.arange(hm + 1, device=H.device)
+    out = torch.stack([H[:, : hm + 1, : hm + 1], H[:, : hm + 1][..., (-idx) % m]], dim=1)
+    out[:, :, 0, 0] = 1
+    return out
 
 
 def _area_normalise(H: torch.Tensor, amp: torch.Tensor) -> torch.Tensor:

@@ -28,8 +28,8 @@ D = torch.float64
 DESIGN = PAPER_DESIGNS["end_to_end_paper"]
 
 
-def one(**kw) -> Perturbations:
-    p = Tolerances().sample(1, seed=0)
+def one(compensated: bool = True, **kw) -> Perturbations:
+    p = Tolerances(focus_compensated=compensated).sample(1, seed=0)
     vals = {f.name: getattr(p, f.name) for f in dataclasses.fields(p)}
     for k, v in kw.items():
         vals[k] = torch.tensor(v, dtype=D).reshape(vals[k].shape)
@@ -55,8 +55,10 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("pupil_radius_mm, rel", [(0.5, 0.015), (2.0, 0.04)])
-def test_each_error_changes_the_wavefront_as_the_exact_trace_does(pupil_radius_mm, rel):
+@pytest.mark.parametrize("compensated", [True, False])
+@pytest.mark.parametrize("pupil_radius_mm, rel, atol", [(0.5, 0.015, 2e-5), (2.0, 0.04, 5e-4)])
+def test_each_error_changes_the_wavefront_as_the_exact_trace_does(pupil_radius_mm, rel, atol, compensated):
+    """With the focus compensated (the image plane at the as-built lens's focus) and without (at the nominal one)."""
     cam = Camera(dataclasses.replace(PAPER_LENS, pupil_radius_mm=pupil_radius_mm), PAPER_SENSOR, PAPER_CAMERA.spectrum)
     d = DESIGN.to(D)
     rr, rt, w = pupil_quadrature()
@@ -68,7 +70,7 @@ def test_each_error_changes_the_wavefront_as_the_exact_trace_does(pupil_radius_m
         return W - (basis @ sol)[:, 0]
 
     def traced(p):
-        W, _ = opd(cam.lens, as_built_design(d, p), alpha, rr, rt, wavelength_um=0.5,
+        W, _ = opd(cam.lens, as_built_design(cam, d, p), alpha, rr, rt, wavelength_um=0.5,
                    surfaces=as_built_surfaces(cam, d, p, 0, 0.5))
         return untilted(W / 0.5e-3)
 
@@ -79,13 +81,13 @@ def test_each_error_changes_the_wavefront_as_the_exact_trace_does(pupil_radius_m
     def rms(x):
         return float(((x**2) * w).sum().sqrt())
 
-    nominal = one()
+    nominal = one(compensated)
     t0, m0 = traced(nominal), model(nominal)
     for name, kw in CASES.items():
-        p = one(**kw)
+        p = one(compensated, **kw)
         dt, dm = traced(p) - t0, model(p) - m0
         assert rms(dt) > 2e-5, name  # waves: the perturbation is seen (far above the trace's 1e-12)
-        assert rms(dt - dm) < rel * rms(dt), name
+        assert rms(dt - dm) < rel * rms(dt) + atol, name  # atol (waves): a focus-compensated residual's 5th order
 
 
 def test_a_perturbation_turns_with_the_field_point():

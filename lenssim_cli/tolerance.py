@@ -1,0 +1,125 @@
+"""``lenssim tolerance``: a Monte Carlo of manufactured lenses of one design (lenssim_studies.tolerance)."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+from .common import add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args, design_from_args
+
+__all__ = ["register", "cmd_tolerance"]
+
+
+def _tolerances(args):
+    from lenssim.io.files import read_toml
+    from lenssim.model.tolerances import Tolerances, grade
+
+    t = grade(args.grade)
+    if args.tolerances:
+        table = read_toml(args.tolerances, "tolerances file")
+        unknown = sorted(set(table) - {"tolerances"})
+        if unknown or "tolerances" not in table:
+            raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
+                             + (f"; unknown table(s) {unknown}" if unknown else ""))
+        t = Tolerances.from_dict({"grade": args.grade, **table["tolerances"]})
+    for term in args.off or ():
+        if term == "figure":
+            t = dataclasses.replace(t, figure_floor=0.0, figure_per_cost=0.0)
+        elif term in {f.name for f in dataclasses.fields(t)} - {"figure_exponent", "focus_compensated"}:
+            t = dataclasses.replace(t, **{term: 0.0})
+        else:
+            names = [n for n in Tolerances().to_dict() if not n.startswith(("figure", "focus"))]
+            raise ValueError(f"--off {term!r} is not allowed: one of {', '.join(names)}, figure")
+    if args.no_focus_compensation:
+        t = dataclasses.replace(t, focus_compensated=False)
+    return t
+
+
+def cmd_tolerance(args) -> int:
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text
+    from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
+    from lenssim.torch_utils import select_device
+    from lenssim_studies.paper import PAPER_RHO0
+    from lenssim_studies.tolerance import (ToleranceRun, nominal_values, parse_yield, run_tolerance, sensitivity,
+                                           summarise, tolerance_figures, tolerance_report)
+
+    design = design_from_args(args)
+    camera = camera_from_args(args)
+    if args.wavefront != "third_order":
+        raise ValueError("--wavefront exact is not allowed here: the as-built model is third order")
+    tol = _tolerances(args)
+    yields = [parse_yield(s) for s in args.yield_ or ()]
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
+    if args.sensitivity_lenses < 0:
+        raise ValueError(f"--sensitivity-lenses {args.sensitivity_lenses} is not allowed: >= 0 (0: no sensitivity table)")
+    snr = list(args.snr)
+    ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
+    if ref_snr not in snr:
+        raise ValueError(f"--reference-snr {ref_snr:g} is not allowed: one of the --snr values {snr}")
+    run = ToleranceRun(camera, design, tol, tuple(snr), PAPER_RHO0, n_lenses=args.lenses, seed=args.seed,
+                       numerics=DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS,
+                       field_angles_deg=tuple(args.angles) if args.angles else ToleranceRun.__dataclass_fields__[
+                           "field_angles_deg"].default)
+    out = check_output_dir(args.out)
+    select_device(args.device)
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    ds = run_tolerance(run, out / "tolerance.nc", device=args.device, show_progress=not args.quiet,
+                       scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
+    summary = summarise(ds, nominal_values(run, ref_snr), ref_snr, yields, seed=run.seed)
+    sens = None
+    if args.sensitivity_lenses:
+        print(f"sensitivity: each tolerance alone, {args.sensitivity_lenses} lenses", file=sys.stderr)
+        sens = sensitivity(run, ref_snr, args.sensitivity_lenses, log=lambda m: print(m, file=sys.stderr))
+    text = tolerance_report(run, summary, sens, ref_snr)
+    tolerance_figures(ds, summary, out, ref_snr, run.design.name or "custom design")
+    atomic_write_text(out / "summary.json", json_text({"run": run.to_dict(), "summary": summary, "sensitivity": sens}))
+    atomic_write_text(out / "report.md", text)
+    print(text)
+    print(f"wrote {args.out}/ (tolerance.nc, report.md, summary.json, histogram and cdf .png/.svg) in "
+          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    from lenssim.model.tolerances import GRADES
+    from lenssim_studies.paper import PAPER_SNR_DB
+    from lenssim_studies.tolerance import DEFAULT_LENSES, TOLERANCE_FIELD_ANGLES
+
+    t = sub.add_parser("tolerance", help="Monte Carlo of manufactured lenses of one design: as-built criteria, "
+                                         "restored with their own and with the nominal PSFs")
+    add_design_arguments(t)
+    add_camera_arguments(t)
+    t.add_argument("--grade", default="commercial", choices=tuple(GRADES),
+                   help="tolerance grade (docs/as-built.md gives the values and sources; default commercial)")
+    t.add_argument("--tolerances", metavar="FILE", help="TOML file with a [tolerances] table (grade = ..., and any "
+                   "term's limit; see docs/as-built.md)")
+    t.add_argument("--off", action="append", metavar="TERM", help="switch a tolerance term off (repeatable)")
+    t.add_argument("--no-focus-compensation", action="store_true",
+                   help="leave the image plane at the nominal distance (default: focused at assembly)")
+    t.add_argument("-n", "--lenses", type=int, default=DEFAULT_LENSES,
+                   help=f"Monte Carlo lenses (default {DEFAULT_LENSES})")
+    t.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    t.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
+                   help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)})")
+    t.add_argument("--reference-snr", type=float, help="SNR (dB) of the summary, yields and figures (default: the "
+                                                        "middle --snr)")
+    t.add_argument("--angles", type=float, nargs="+", metavar="DEG",
+                   help=f"field angles (each at 4 azimuths; default {' '.join(f'{a:g}' for a in TOLERANCE_FIELD_ANGLES)})")
+    t.add_argument("--yield", dest="yield_", action="append", metavar="CRITERION<=VALUE",
+                   help="report the fraction of lenses meeting a threshold, e.g. 'mse_r_nominal<=0.05' (repeatable)")
+    t.add_argument("--sensitivity-lenses", type=int, default=200, metavar="N",
+                   help="lenses per tolerance term for the sensitivity table (default 200; 0: none)")
+    t.add_argument("--accurate", action="store_true", help="the default numerics (2x oversampled OTFs) instead of "
+                                                           "the fast ones")
+    t.add_argument("--out", required=True, help="output folder (a second run resumes the Monte Carlo)")
+    add_device_argument(t)
+    where = t.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS", help="run the chunks on the dask scheduler at ADDRESS")
+    where.add_argument("--workers", type=int, metavar="N", help="run the chunks on a local dask cluster of N processes")
+    t.add_argument("--worker-threads", type=int, metavar="K", help="torch threads per dask task (default: this "
+                   "process's count: the file is then byte-identical to a run in one process)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.set_defaults(func=cmd_tolerance)
