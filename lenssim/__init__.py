@@ -39,13 +39,16 @@ from .model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS, Numerics
 from .optics.psf_bank import (fft_size, max_wavefront_slope, otf, otf_quarter, otf_quarter_spectrum, psf, psf_at,
                        pupil_amplitude, spectral_coefficients)
 from .optics.bank import OTFBank, PSFBank
-from .optics.psf_provider import FunctionPSF, LensPSF, PSFProvider
+from .optics.psf_provider import AsBuiltPSF, FunctionPSF, LensPSF, PSFProvider
+from .model.tolerances import GRADES, Perturbations, Tolerances
+from .tolerancing import as_built_criteria
 from .model.sensor import Sensor
 from .model.spectrum import Spectrum
 from .torch_utils import select_device
 
 __all__ = [
     "__version__",
+    "AsBuiltPSF",
     "CRITERIA",
     "COEFFICIENT_NAMES",
     "Camera",
@@ -56,6 +59,7 @@ __all__ = [
     "FAST_NUMERICS",
     "FieldGeometry",
     "FunctionPSF",
+    "GRADES",
     "Lens",
     "LensError",
     "LensPSF",
@@ -65,9 +69,12 @@ __all__ = [
     "PARAMETERS",
     "PSFProvider",
     "Parameter",
+    "Perturbations",
     "Sensor",
     "Spectrum",
     "TERMS",
+    "Tolerances",
+    "as_built_criteria",
     "best_fit_sphere_curvature",
     "check_shape",
     "evaluate",

@@ -28,8 +28,8 @@ from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.figures import mosaic_figure
 from pipeline.simulate import MAP_TILE_PX
 
-from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
-                     design_from_args, designs)
+from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
+                     camera_from_args, design_from_args, designs, tolerances_from_args)
 
 DEFAULT_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 TABLE_ANGLES_DEG = (1.0, 5.0, 9.0)
@@ -133,6 +133,18 @@ def cmd_simulate(args) -> int:
     design = design_from_args(args)
     camera = camera_from_args(args)
     psf = LensPSF(camera, design, wavefront=args.wavefront)
+    built = None
+    if args.as_built is not None:
+        from lenssim import AsBuiltPSF
+
+        if args.as_built < 0:
+            raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
+        if args.wavefront != "third_order":
+            raise ValueError("--as-built takes the third-order wavefront (the as-built model's), not --wavefront exact")
+        if args.full_frame:
+            raise ValueError("--as-built simulates crops; --full-frame is not available with it")
+        tol = tolerances_from_args(args)
+        built = AsBuiltPSF(camera, design, tol.sample(1, seed=args.as_built))
     if args.full_well is not None:
         fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
     else:
@@ -182,6 +194,9 @@ def cmd_simulate(args) -> int:
     with staged_output_dir(out) as stage:
         if args.full_frame:
             results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0])
+        elif built is not None:
+            results = _as_built_crops(ideal, psf, built, fwc, boxes, args, specs, scheme, camera, report)
+            methods = tuple(f"{m}@{tag}" for m in methods for tag in ("nominal", "calibrated"))
         else:
             results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                      sensor=camera.sensor)
@@ -194,14 +209,16 @@ def cmd_simulate(args) -> int:
             report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3),
                                     "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
                                     "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
-                                    "psnr_restored_db": r.scores[methods[0]]["psnr_db"]})
+                                    "psnr_restored_db": r.scores[methods[0]]["psnr_db"],
+                                    **({"psnr_restored_calibrated_db": r.scores[methods[1]]["psnr_db"]}
+                                       if built is not None else {})})
         title = f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
         shown = [m for m in methods if m in results[0].images]
         mosaic_figure(results, shown, stage / "mosaic.png", title=title)
         atomic_write_text(stage / "metrics.json", json_text(report))
         _index_page(stage, title, report, results, shown)
     print(f"{source}, {design.label()}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
-    print("  field [deg]   PSNR [dB] / SSIM: sensor -> " + ", ".join(RESTORATION_METHODS[m].label for m in methods))
+    print("  field [deg]   PSNR [dB] / SSIM: sensor -> " + ", ".join(_kind_label(m) for m in methods))
     for c in report["crops"]:
         sc = c["scores"]
         restored = ", ".join(f"{sc[m]['psnr_db']:.2f} / {sc[m]['ssim']:.3f}" for m in methods if m in sc)
@@ -216,7 +233,7 @@ def _index_page(stage, title, report, results, methods) -> None:
     from lenssim_studies import html
 
     header = ["field [deg]", "box (r0, r1, c0, c1)", "sensor PSNR [dB] / SSIM"] + \
-        [f"{RESTORATION_METHODS[m].label} PSNR [dB] / SSIM" for m in methods]
+        [f"{_kind_label(m)} PSNR [dB] / SSIM" for m in methods]
     fmt = lambda sc: "identical" if sc is None else f"{sc['psnr_db']:.2f} / {sc['ssim']:.3f}"  # noqa: E731
     rows = [[f"{r.field_deg:.2f}", str(r.box), fmt(r.scores["sensor"])] + [fmt(r.scores.get(m)) for m in methods]
             for r in results]
@@ -227,7 +244,7 @@ def _index_page(stage, title, report, results, methods) -> None:
         tag = f"crop_{c['requested_deg']:g}deg"
         body.append(f"<h2>Crop at {r.field_deg:.2f} deg</h2>")
         label = lambda k: "ideal (the reference)" if k == "ideal" else (  # noqa: E731
-            f"{RESTORATION_METHODS[k].label if k in RESTORATION_METHODS else k}: {fmt(r.scores.get(k))}")
+            f"{_kind_label(k)}: {fmt(r.scores.get(k))}")
         body.append(html.row([html.image(stage / f"{tag}_{_file_kind(k)}.png", label(k))
                               for k in ("ideal", "sensor", *methods) if (stage / f"{tag}_{_file_kind(k)}.png").exists()]))
     if "full_frame" in report:
@@ -241,8 +258,39 @@ def _index_page(stage, title, report, results, methods) -> None:
     html.write_page(stage / "index.html", title, body, note="lenssim simulate; numbers also in metrics.json")
 
 
+def _kind_label(kind: str) -> str:
+    """A restoration's label; ``METHOD@nominal`` / ``METHOD@calibrated`` (``--as-built``) say whose PSFs it used."""
+    base, _, tag = kind.partition("@")
+    label = RESTORATION_METHODS[base].label if base in RESTORATION_METHODS else base
+    return {"nominal": f"{label} (nominal PSFs)", "calibrated": f"{label} (the lens's own PSFs)"}.get(tag, label)
+
+
+def _as_built_crops(ideal, nominal, built, fwc, boxes, args, specs, scheme, camera, report):
+    """``simulate --as-built``: the crops blurred by the as-built lens (the same noise for both), restored with the
+    nominal lens's PSFs (``METHOD@nominal``) and with the lens's own (``METHOD@calibrated``)."""
+    from pipeline import simulate_crops
+
+    runs = {tag: simulate_crops(ideal, built, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
+                                sensor=camera.sensor, restoration_psf=prov)
+            for tag, prov in (("nominal", nominal), ("calibrated", built))}
+    results = runs["nominal"]
+    for r, c in zip(results, runs["calibrated"]):
+        for m in [s.name for s in specs]:
+            r.images[f"{m}@nominal"], r.scores[f"{m}@nominal"] = r.images.pop(m), r.scores.pop(m)
+            r.images[f"{m}@calibrated"], r.scores[f"{m}@calibrated"] = c.images[m], c.scores[m]
+    lens = built.lens
+    report["as_built"] = {"seed": args.as_built, "tolerances": lens.tolerances.to_dict(),
+                          "errors": {k: round(float(v[0]), 6) for k, (v, _) in lens.variables().items()},
+                          "units": {k: u for k, (_, u) in lens.variables().items()}}
+    return results
+
+
 def _file_kind(kind: str) -> str:
-    """File-name part of an image kind: ideal, sensor, restored (Wiener), restored_rl, restored_METHOD."""
+    """File-name part of an image kind: ideal, sensor, restored (Wiener), restored_rl, restored_METHOD
+    (``_nominal`` / ``_calibrated`` after it for ``--as-built``)."""
+    base, _, tag = kind.partition("@")
+    if tag:
+        return f"{_file_kind(base)}_{tag}"
     return {"wiener": "restored", "richardson_lucy": "restored_rl"}.get(kind, kind if kind in ("ideal", "sensor")
                                                                         else f"restored_{kind}")
 
@@ -410,6 +458,10 @@ def register(sub) -> None:
     p.add_argument("--full-frame", action="store_true",
                    help="simulate the whole frame (sensor.png, restored.png, whole-frame PSNR/SSIM; ~5 min at 24 MP on "
                         "2 CPU cores; resumes after an interruption) instead of crops only")
+    p.add_argument("--as-built", type=int, metavar="SEED",
+                   help="render through one manufactured lens (drawn from --grade/--tolerances with SEED) and restore "
+                        "with the nominal lens's PSFs and with the lens's own (calibrated); crops")
+    add_tolerance_arguments(p)
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="--full-frame PNG bit depth (sRGB)")
     p.add_argument("--exr", action="store_true", help="--full-frame: also write linear float EXRs")
     p.add_argument("--memory-limit", type=float, metavar="GIB",

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from lenssim import PARAMETERS, Design
 from lenssim.torch_utils import DEVICE_CHOICES
 
 __all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
-           "add_camera_arguments", "camera_from_args"]
+           "add_camera_arguments", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args"]
 
 
 def add_design_arguments(p: argparse.ArgumentParser, *, named: bool = True) -> None:
@@ -86,3 +87,44 @@ def camera_from_args(args):
         return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum)
     return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum,
                   channels=channel_spectra(spec, args.illuminant, args.wavelengths_per_channel))
+
+
+def add_tolerance_arguments(p: argparse.ArgumentParser, *, switches: bool = True) -> None:
+    """``--grade``, ``--tolerances FILE`` and (``switches``) ``--off TERM``, ``--no-focus-compensation``."""
+    from lenssim.model.tolerances import GRADES
+
+    p.add_argument("--grade", default="commercial", choices=tuple(GRADES),
+                   help="tolerance grade (docs/as-built.md gives the values and sources; default commercial)")
+    p.add_argument("--tolerances", metavar="FILE", help="TOML file with a [tolerances] table (grade = ..., and any "
+                   "term's limit; see docs/as-built.md)")
+    if switches:
+        p.add_argument("--off", action="append", metavar="TERM", help="switch a tolerance term off (repeatable)")
+        p.add_argument("--no-focus-compensation", action="store_true",
+                       help="leave the image plane at the nominal distance (default: focused at assembly)")
+
+
+def tolerances_from_args(args):
+    """The :class:`lenssim.Tolerances` of ``--grade``, ``--tolerances FILE``, ``--off TERM`` and
+    ``--no-focus-compensation``."""
+    from lenssim.io.files import read_toml
+    from lenssim.model.tolerances import Tolerances, grade
+
+    t = grade(args.grade)
+    if args.tolerances:
+        table = read_toml(args.tolerances, "tolerances file")
+        unknown = sorted(set(table) - {"tolerances"})
+        if unknown or "tolerances" not in table:
+            raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
+                             + (f"; unknown table(s) {unknown}" if unknown else ""))
+        t = Tolerances.from_dict({"grade": args.grade, **table["tolerances"]})
+    for term in getattr(args, "off", None) or ():
+        if term == "figure":
+            t = dataclasses.replace(t, figure_floor=0.0, figure_per_cost=0.0)
+        elif term in {f.name for f in dataclasses.fields(t)} - {"figure_exponent", "focus_compensated"}:
+            t = dataclasses.replace(t, **{term: 0.0})
+        else:
+            names = [n for n in Tolerances().to_dict() if not n.startswith(("figure", "focus"))]
+            raise ValueError(f"--off {term!r} is not allowed: one of {', '.join(names)}, figure")
+    if getattr(args, "no_focus_compensation", False):
+        t = dataclasses.replace(t, focus_compensated=False)
+    return t

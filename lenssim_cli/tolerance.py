@@ -2,38 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
 
-from .common import add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args, design_from_args
+from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
+                     camera_from_args, design_from_args, tolerances_from_args)
 
 __all__ = ["register", "cmd_tolerance"]
-
-
-def _tolerances(args):
-    from lenssim.io.files import read_toml
-    from lenssim.model.tolerances import Tolerances, grade
-
-    t = grade(args.grade)
-    if args.tolerances:
-        table = read_toml(args.tolerances, "tolerances file")
-        unknown = sorted(set(table) - {"tolerances"})
-        if unknown or "tolerances" not in table:
-            raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
-                             + (f"; unknown table(s) {unknown}" if unknown else ""))
-        t = Tolerances.from_dict({"grade": args.grade, **table["tolerances"]})
-    for term in args.off or ():
-        if term == "figure":
-            t = dataclasses.replace(t, figure_floor=0.0, figure_per_cost=0.0)
-        elif term in {f.name for f in dataclasses.fields(t)} - {"figure_exponent", "focus_compensated"}:
-            t = dataclasses.replace(t, **{term: 0.0})
-        else:
-            names = [n for n in Tolerances().to_dict() if not n.startswith(("figure", "focus"))]
-            raise ValueError(f"--off {term!r} is not allowed: one of {', '.join(names)}, figure")
-    if args.no_focus_compensation:
-        t = dataclasses.replace(t, focus_compensated=False)
-    return t
 
 
 def cmd_tolerance(args) -> int:
@@ -48,7 +23,7 @@ def cmd_tolerance(args) -> int:
     camera = camera_from_args(args)
     if args.wavefront != "third_order":
         raise ValueError("--wavefront exact is not allowed here: the as-built model is third order")
-    tol = _tolerances(args)
+    tol = tolerances_from_args(args)
     yields = [parse_yield(s) for s in args.yield_ or ()]
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
@@ -84,7 +59,6 @@ def cmd_tolerance(args) -> int:
 
 
 def register(sub) -> None:
-    from lenssim.model.tolerances import GRADES
     from lenssim_studies.paper import PAPER_SNR_DB
     from lenssim_studies.tolerance import DEFAULT_LENSES, TOLERANCE_FIELD_ANGLES
 
@@ -92,13 +66,7 @@ def register(sub) -> None:
                                          "restored with their own and with the nominal PSFs")
     add_design_arguments(t)
     add_camera_arguments(t)
-    t.add_argument("--grade", default="commercial", choices=tuple(GRADES),
-                   help="tolerance grade (docs/as-built.md gives the values and sources; default commercial)")
-    t.add_argument("--tolerances", metavar="FILE", help="TOML file with a [tolerances] table (grade = ..., and any "
-                   "term's limit; see docs/as-built.md)")
-    t.add_argument("--off", action="append", metavar="TERM", help="switch a tolerance term off (repeatable)")
-    t.add_argument("--no-focus-compensation", action="store_true",
-                   help="leave the image plane at the nominal distance (default: focused at assembly)")
+    add_tolerance_arguments(t)
     t.add_argument("-n", "--lenses", type=int, default=DEFAULT_LENSES,
                    help=f"Monte Carlo lenses (default {DEFAULT_LENSES})")
     t.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

@@ -24,8 +24,10 @@ def tile_label(score: dict) -> str:
 
 
 def _column_title(kind: str) -> str:
-    if kind in RESTORATION_METHODS:
-        return f"restored: {RESTORATION_METHODS[kind].label}"
+    base, _, tag = kind.partition("@")  # METHOD@nominal, METHOD@calibrated: restored with whose PSFs
+    if base in RESTORATION_METHODS:
+        whose = {"nominal": " (nominal PSFs)", "calibrated": " (lens's own PSFs)"}.get(tag, "")
+        return f"restored: {RESTORATION_METHODS[base].label}{whose}"
     return {"ideal": "ideal", "sensor": "sensor (blur + noise)", "blurred": "sensor, no noise"}.get(kind, kind)
 
 

@@ -5,6 +5,8 @@ asks a provider for the PSFs at pixel positions of an array whose optical axis i
 ``optical_center``, on an ``n x n`` grid of the sensor's pixels. Two providers:
 
 * :class:`LensPSF`: the model (camera + design, Fourier optics of the third-order pupil),
+* :class:`AsBuiltPSF`: one manufactured lens (:mod:`lenssim.optics.as_built`): no rotational symmetry, so one PSF
+  per window (the blur's mirror-group sharing is off),
 * :class:`FunctionPSF`: any callable ``fn(x_mm, y_mm, n) -> (P, n, n)`` (measured or tabulated PSFs,
   centred, unit sum), with the field geometry it lives in.
 
@@ -27,7 +29,7 @@ from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .psf_bank import max_wavefront_slope, spectral_coefficients
 from .wavefront_models import validate_wavefront_model
 
-__all__ = ["PSFProvider", "LensPSF", "FunctionPSF"]
+__all__ = ["PSFProvider", "LensPSF", "FunctionPSF", "AsBuiltPSF"]
 
 
 class PSFProvider:
@@ -170,3 +172,79 @@ class FunctionPSF(PSFProvider):
 
     def extent_px(self, rows, cols, optical_center) -> int:
         return int(self.extent)
+
+
+@dataclass(frozen=True)
+class AsBuiltPSF(PSFProvider):
+    """The PSFs of one as-built lens: ``lens`` holds one sampled lens (:class:`lenssim.model.tolerances.Perturbations`
+    of length 1) of ``design`` on ``camera``; third-order wavefront of :func:`lenssim.optics.as_built.as_built_coefficients`
+    at each PSF's field angle and azimuth, non-symmetric, each PSF centred on its as-built chief ray."""
+
+    camera: Camera
+    design: Design
+    lens: object
+    numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
+    mirror_symmetric: bool = False
+
+    def __post_init__(self):
+        if len(self.lens) != 1:
+            raise ValueError(f"AsBuiltPSF takes one lens; {len(self.lens)} were given (index the sample: lenses[i])")
+        d = self.design.to(torch.float64)
+        self.camera.lens.check_design(d)
+        d.floats()
+        object.__setattr__(self, "design", d)
+        self.camera.check_sampling()
+
+    @property
+    def channels(self) -> int:
+        return max(1, len(self.camera.channels))
+
+    @property
+    def geometry(self) -> FieldGeometry:
+        return self.camera.geometry
+
+    def _coeffs(self, cam, x_mm, y_mm):
+        from .as_built import as_built_coefficients
+
+        alpha = self.geometry.field_angle_deg(x_mm, y_mm).reshape(-1).to(torch.float64).cpu()
+        az = torch.rad2deg(torch.atan2(y_mm, x_mm)).reshape(-1).to(torch.float64).cpu()
+        return as_built_coefficients(cam, self.design, self.lens, alpha, az)[0], az  # (P, K, 6)
+
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        from .as_built import AS_BUILT_TERMS
+        from .psf_bank import psf
+
+        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
+        out = []
+        for cam in self.camera.channel_cameras():
+            c, az = self._coeffs(cam, x_mm, y_mm)
+            out.append(psf(cam, c.to(device), n, azimuth_deg=az.to(device), centered=centered, dtype=dtype,
+                           numerics=self.numerics, terms=AS_BUILT_TERMS))
+        return out[0] if not self.camera.channels else torch.stack(out, dim=1)
+
+    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
+
+    def fingerprint(self) -> str:
+        vals = {k: [float(x) for x in v.reshape(-1)] for k, (v, _) in self.lens.variables().items()}
+        return json.dumps({"camera": self.camera.to_dict(), "design": self.design.floats(), "as_built": vals,
+                           "tolerances": self.lens.tolerances.to_dict(), "numerics": self.numerics.to_dict()},
+                          sort_keys=True)
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        e = self.extents_px(rows, cols, optical_center)
+        return int(e.max()) if e.numel() else self.numerics.margin_px
+
+    def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
+        """Geometric PSF diameter (px) at each position (the largest wavefront slope over the pupil, every
+        wavelength) + the margin, ``(P,)`` int64."""
+        from .as_built import AS_BUILT_TERMS
+
+        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
+        half = torch.zeros(x_mm.numel(), dtype=torch.float64)
+        for cam in self.camera.channel_cameras():
+            c, _ = self._coeffs(cam, x_mm, y_mm)
+            for k, lam in enumerate(cam.spectrum.wavelengths_um):
+                half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :], AS_BUILT_TERMS),
+                                                                   lam).to(half))
+        return torch.ceil(2 * half).to(torch.int64) + self.numerics.margin_px
