@@ -23,7 +23,7 @@ from .optics.as_built import AS_BUILT_TERMS, as_built_coefficients, field_points
 from .optics.cost import slope_departure_cost
 from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
-from .optics.psf_bank import fft_size, otf_quarter_pair
+from .optics.psf_bank import fft_size, otf_quarter_pair, otf_quarter_spectrum
 from .optics.aberrations import pupil_monomials
 from .torch_utils import chunk_budget_bytes
 from .validate import NumericalError, check_memory
@@ -48,6 +48,15 @@ def _field_mean(v: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     return torch.stack(out, dim=-1).mean(dim=-1)
 
 
+def _otf(camera, coeffs, n, oversample, numerics, symmetric):
+    """The two quarter planes ``(B, 2, m/2+1, m/2+1)``: of the general path, or for mirror-symmetric wavefronts the
+    fast quarter bank twice (the two quarters are equal)."""
+    if symmetric:
+        H = otf_quarter_spectrum(camera, coeffs, n, oversample=oversample, numerics=numerics, terms=AS_BUILT_TERMS)
+        return torch.stack([H, H], dim=1)
+    return otf_quarter_pair(camera, coeffs, n, oversample=oversample, numerics=numerics, terms=AS_BUILT_TERMS)
+
+
 def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_db, *, rho0: float,
                       psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS, alpha_deg=None,
                       azimuths_deg=AZIMUTHS_DEG, dtype=torch.float32, device=None,
@@ -57,7 +66,9 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
     restored with its own PSFs (calibrated), ``mse_r_nominal`` with the nominal lens's. Also ``snr_db`` ``(S,)``,
     ``alpha_deg`` and ``azimuth_deg`` ``(F,)`` (the field points) and ``fft_size`` ``(N, F)``.
 
-    ``alpha_deg``: field angles (default the lens's). A colour camera is evaluated channel by channel and averaged,
+    ``alpha_deg``: field angles (default the lens's). Rotationally symmetric lenses (no decentre, tilt or
+    non-symmetric figure error: :attr:`Perturbations.rotationally_symmetric`) take one azimuth per angle and the
+    mirror-symmetric OTF bank, chosen automatically. A colour camera is evaluated channel by channel and averaged,
     as :func:`lenssim.metrics.evaluate` does. ``progress(k)`` after each chunk of ``k`` OTFs.
     """
     if camera.channels:
@@ -72,7 +83,9 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
     d64 = design.to(torch.float64)
     d64.floats()  # one design
     camera.lens.check_design(d64)
-    al, az = field_points(camera.lens.field_angles_deg if alpha_deg is None else alpha_deg, azimuths_deg)
+    symmetric = pert.rotationally_symmetric  # the mirror-symmetric fast path, one azimuth per angle
+    al, az = field_points(camera.lens.field_angles_deg if alpha_deg is None else alpha_deg,
+                          azimuths_deg[:1] if symmetric else azimuths_deg)
     N, F, K = len(pert), al.numel(), len(camera.spectrum)
     c = as_built_coefficients(camera, d64, pert, al, az)  # (N, F, K, 6)
     from .model.tolerances import Tolerances
@@ -104,13 +117,11 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
         nominal = {}
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]
-            H = otf_quarter_pair(camera, flat[sel].to(dtype=dtype, device=device), n, oversample=oversample,
-                                 numerics=numerics, terms=AS_BUILT_TERMS)
+            H = _otf(camera, flat[sel].to(dtype=dtype, device=device), n, oversample, numerics, symmetric)
             pts = point[sel]
             need = sorted(set(pts.tolist()) - set(nominal))
             if need:
-                H0 = otf_quarter_pair(camera, c0[need].to(dtype=dtype, device=device), n, oversample=oversample,
-                                      numerics=numerics, terms=AS_BUILT_TERMS)
+                H0 = _otf(camera, c0[need].to(dtype=dtype, device=device), n, oversample, numerics, symmetric)
                 nominal.update({f: H0[i] for i, f in enumerate(need)})
             ref = torch.stack([nominal[f] for f in pts.tolist()])
             B = sel.numel()

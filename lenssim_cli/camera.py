@@ -18,7 +18,7 @@ import time
 
 import torch
 
-from lenssim import LensPSF, select_device
+from lenssim import AsBuiltPSF, LensPSF, select_device
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.io.files import atomic_write_text, json_text
@@ -135,8 +135,6 @@ def cmd_simulate(args) -> int:
     psf = LensPSF(camera, design, wavefront=args.wavefront)
     built = None
     if args.as_built is not None:
-        from lenssim import AsBuiltPSF
-
         if args.as_built < 0:
             raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
         if args.wavefront != "third_order":
@@ -356,6 +354,11 @@ def cmd_psnr_table(args) -> int:
     if args.method is not None:  # after the check: an error stays one line
         print("note: --method is the former name of --restore", file=sys.stderr)
     method = spec.name
+    lens = None
+    if args.as_built is not None:
+        if args.as_built < 0:
+            raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
+        lens = tolerances_from_args(args).sample(1, seed=args.as_built)
     photos = args.photos or [None]
     out = check_output_dir(args.out, _inputs(photos))
     rows = []
@@ -367,18 +370,28 @@ def cmd_psnr_table(args) -> int:
         boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
         for name in args.designs:
             d = named[name]
-            per_iso = simulate_crops(ideal, LensPSF(camera, d), wells, boxes, seed=args.seed, methods=(spec,),
-                                     sensor=camera.sensor)
-            for iso, res in zip(args.isos, per_iso):
-                mean = lambda kind, key: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
+            nominal = LensPSF(camera, d)
+            blur = nominal if lens is None else AsBuiltPSF(camera, d, lens)
+            per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,), sensor=camera.sensor,
+                                     restoration_psf=nominal)
+            calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
+                                                                  methods=(spec,), sensor=camera.sensor)
+            for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
+                mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
                              "angles_deg": " ".join(f"{a:g}" for a in angles),
                              "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
                              "ssim_restored": mean(method, "ssim")})
+                if calibrated is not None:  # the lens restored with its own PSFs; the columns above: nominal PSFs
+                    cal = calibrated[j]
+                    rows[-1].update({"as_built_seed": args.as_built,
+                                     "psnr_restored_calibrated_db": sum(r.scores[method]["psnr_db"] for r in cal) / len(cal),
+                                     "ssim_restored_calibrated": sum(r.scores[method]["ssim"] for r in cal) / len(cal)})
                 print(f"{source} | {name} | ISO {iso}: restored {rows[-1]['psnr_restored_db']:.2f} dB", file=sys.stderr)
     for r in rows:
-        for k in ("psnr_sensor_db", "psnr_restored_db", "ssim_restored"):
-            if not math.isfinite(r[k]):
+        for k in ("psnr_sensor_db", "psnr_restored_db", "ssim_restored", "psnr_restored_calibrated_db",
+                  "ssim_restored_calibrated"):
+            if k in r and not math.isfinite(r[k]):
                 raise ValueError(f"{k} of {r['photo']} / {r['design']} / ISO {r['iso']} is not finite (identical "
                                  "images?): not written")
     keys = list(dict.fromkeys(k for r in rows for k in r))
@@ -388,9 +401,15 @@ def cmd_psnr_table(args) -> int:
     md = (f"Mean over crops {where} ({args.crop} px), sRGB PSNR/SSIM vs the "
           f"ideal image; restoration: {spec.method.label}"
           + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
-          "| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |\n|---|---|---|---|---|---|\n"
+          + (f"One manufactured lens per design (--as-built {args.as_built}): restored with the nominal PSFs and with "
+             "the lens's own (calibrated).\n\n" if lens is not None else "")
+          + ("| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |"
+             + (" PSNR calibrated [dB] | SSIM calibrated |" if lens is not None else "") + "\n|---|---|---|---|---|---|"
+             + ("---|---|" if lens is not None else "") + "\n")
           + "".join(f"| {_photo_name(r['photo'])} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
-                    f"{r['ssim_restored']:.3f} |\n" for r in rows))
+                    f"{r['ssim_restored']:.3f} |"
+                    + (f" {r['psnr_restored_calibrated_db']:.2f} | {r['ssim_restored_calibrated']:.3f} |" if lens is not None
+                       else "") + "\n" for r in rows))
     with staged_output_dir(out) as stage:
         for name, text in (("psnr_table.csv", ",".join(keys) + "\n" + csv), ("psnr_table.md", md)):
             atomic_write_text(stage / name, text)
@@ -497,4 +516,8 @@ def register(sub) -> None:
     t.add_argument("--seed", type=int, default=0)
     add_device_argument(t)
     t.add_argument("--out", required=True)
+    t.add_argument("--as-built", type=int, metavar="SEED",
+                   help="blur with one manufactured lens per design (drawn with SEED from --grade/--tolerances) and "
+                        "add the columns of its restoration with its own PSFs (calibrated) beside the nominal PSFs'")
+    add_tolerance_arguments(t, switches=False)
     t.set_defaults(func=cmd_psnr_table)

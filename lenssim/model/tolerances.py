@@ -163,6 +163,16 @@ class Perturbations:
     def __len__(self) -> int:
         return int(self.radius_front.shape[0])
 
+    @property
+    def rotationally_symmetric(self) -> bool:
+        """True if every lens is rotationally symmetric: no decentre, no tilt, and no astigmatic or comatic figure
+        error (then one azimuth per field angle and the mirror-symmetric OTF path serve)."""
+        fig = self.figure[:, [FIGURE_TERMS.index(t) for t in ("astig_0", "astig_45", "coma_x", "coma_y")]]
+        if "figure" not in self.tolerances.terms():  # the weights are drawn always, scaled by a zero slope here
+            fig = fig[:0]
+        return not any(bool(v.abs().max() > 0) for v in (self.asphere_decentre_mm, self.asphere_tilt_rad,
+                                                          self.lens_tilt_rad, fig) if v.numel())
+
     def __getitem__(self, idx) -> "Perturbations":
         sel = slice(idx, idx + 1) if isinstance(idx, int) else idx
         return Perturbations(**{f.name: (getattr(self, f.name)[sel] if f.name != "tolerances" else self.tolerances)

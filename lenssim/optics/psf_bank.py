@@ -533,12 +533,15 @@ def otf_quarter_pair(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample
         R = _radius(camera, int(n), lam)
         field = _field(flat[:, k], R, None, numerics.supersample, flat.dtype, flat.device, terms)
         amp, _ = _pupil_box_cached(float(R), int(numerics.supersample))
-        p = _intensity(field, int(n)) * (w / (float(amp.sum()) * n * n))
+        a = torch.fft.fft(torch.fft.fft(field, n=int(n), dim=-1), n=int(n), dim=-2)  # x on the pupil's rows only
+        p = (a.real.square() + a.imag.square()).mul_(w / (float(amp.sum()) * n * n))
+        del a
         acc = p if acc is None else acc.add_(p)
     acc = _pad_periodic(_pad_periodic(acc, m, -2), m, -1)
-    H = torch.fft.fft2(acc)
-    idx = torch.arange(hm + 1, device=H.device)
-    out = torch.stack([H[:, : hm + 1, : hm + 1], H[:, : hm + 1][..., (-idx) % m]], dim=1)
+    H = torch.fft.rfft2(acc)  # (B, m, m/2+1): every fy, fx >= 0 (the PSF is real)
+    del acc
+    neg = (-torch.arange(hm + 1, device=H.device)) % m
+    out = torch.stack([H[:, : hm + 1, : hm + 1], H[:, neg, : hm + 1].conj()], dim=1)  # H(fy, -fx) = conj H(-fy, fx)
     out[:, :, 0, 0] = 1
     return out
 

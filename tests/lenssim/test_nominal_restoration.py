@@ -83,3 +83,41 @@ def test_it_equals_the_matched_error_for_the_nominal_lens_and_is_never_below_it(
                           numerics=NUM)
     assert bool((r["mse_r_nominal"] >= r["mse_r"] * (1 - 1e-6)).all())
     assert float((r["mse_r_nominal"] / r["mse_r"]).max()) > 1.01  # tolerances do cost something
+
+
+def test_rotationally_symmetric_lenses_take_the_fast_path_with_the_same_result(monkeypatch):
+    """Radius, conic, index and despace errors only: one azimuth and the mirror-symmetric bank, chosen
+    automatically; the same criteria as the general path over four azimuths (float32 rounding)."""
+    from lenssim.model import tolerances as T
+
+    t = dataclasses.replace(GRADES["commercial"], asphere_decentre_um=0.0, asphere_tilt_arcmin=0.0,
+                            lens_tilt_arcmin=0.0, figure_floor=0.0, figure_per_cost=0.0)
+    p = t.sample(4, seed=2)
+    assert p.rotationally_symmetric and not GRADES["commercial"].sample(4, seed=2).rotationally_symmetric
+    cam = Camera(dataclasses.replace(CAM.lens, field_angles_deg=(0.0, 7.0, 14.0)), CAM.sensor, CAM.spectrum)
+    fast = as_built_criteria(cam, DESIGN, p, [27.6], rho0=PAPER_RHO0, numerics=NUM)
+    assert fast["alpha_deg"].numel() == 3
+    monkeypatch.setattr(T.Perturbations, "rotationally_symmetric", property(lambda self: False))
+    general = as_built_criteria(cam, DESIGN, p, [27.6], rho0=PAPER_RHO0, numerics=NUM)
+    assert general["alpha_deg"].numel() == 9
+    for k in ("mse_s", "mse_r", "mse_r_nominal", "strehl", "mtf50", "rms_w"):
+        torch.testing.assert_close(fast[k], general[k], rtol=1e-5, atol=0)
+
+
+def test_the_two_quarter_planes_are_the_lens_and_its_mirror_image():
+    """For a mirror-symmetric wavefront both quarters are the fast symmetric bank's; for a non-symmetric one the
+    second quarter, H(fy, -fx), is the first quarter of the wavefront mirrored in x (odd rho_t terms negated)."""
+    from lenssim.optics.psf_bank import otf_quarter_pair, otf_quarter_spectrum
+
+    c = as_built_coefficients(CAM, DESIGN, GRADES["commercial"].sample(2, seed=4), [8.0], [90.0])[:, 0]  # (2, K, 6)
+    c0 = as_built_coefficients(CAM, DESIGN, Tolerances().sample(1, seed=0), [8.0], [90.0])[:, 0]
+    n = 384
+    pair0 = otf_quarter_pair(CAM, c0, n, oversample=2, terms=AS_BUILT_TERMS)
+    fast = otf_quarter_spectrum(CAM, c0, n, oversample=2, terms=AS_BUILT_TERMS)
+    torch.testing.assert_close(pair0[:, 0], fast, rtol=0, atol=1e-12)
+    torch.testing.assert_close(pair0[:, 1], fast, rtol=0, atol=1e-12)
+    odd = torch.tensor([1.0 if t.c % 2 == 0 else -1.0 for t in AS_BUILT_TERMS], dtype=D)
+    pair, mirrored = otf_quarter_pair(CAM, c, n, terms=AS_BUILT_TERMS), otf_quarter_pair(CAM, c * odd, n,
+                                                                                         terms=AS_BUILT_TERMS)
+    torch.testing.assert_close(pair[:, 1], mirrored[:, 0], rtol=0, atol=1e-12)
+    assert float((pair[:, 0] - pair[:, 1]).abs().max()) > 1e-3  # the lens is not mirror-symmetric
