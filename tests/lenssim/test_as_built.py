@@ -176,3 +176,27 @@ def test_grades_and_the_tolerances_table():
         Tolerances(index=-1e-3)
     assert GRADES["commercial"].only("lens_tilt_arcmin").terms() == ("lens_tilt_arcmin",)
     assert GRADES["commercial"].only("figure").terms() == ("figure",)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_TERMS = [k for k in Tolerances().to_dict() if k != "focus_compensated"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.dictionaries(st.sampled_from(_TERMS), st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                                                          st.integers(-5, 5), st.text(max_size=3), st.booleans()),
+                       max_size=4))
+def test_a_tolerances_table_is_valid_or_one_clear_error(table):
+    """Any [tolerances] table: a valid one round-trips and samples finite lenses; any other raises ValueError
+    naming the key and what is allowed."""
+    try:
+        t = Tolerances.from_dict(table)
+    except ValueError as exc:
+        msg = str(exc)
+        assert "is not allowed" in msg and any(k in msg for k in table), msg
+        return
+    assert Tolerances.from_dict(t.to_dict()) == t
+    p = t.sample(3, seed=0)
+    assert all(bool(torch.isfinite(v).all()) for k, (v, _) in p.variables().items())
