@@ -18,7 +18,7 @@ from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights
 from .model.camera import Camera
 from .model.design import Design
 from .model.numerics import DEFAULT_NUMERICS, Numerics
-from .model.tolerances import Perturbations
+from .model.tolerances import Perturbations, Tolerances
 from .optics.as_built import AS_BUILT_TERMS, as_built_coefficients, field_points
 from .optics.cost import slope_departure_cost
 from .optics.exact_wavefront import pupil_quadrature
@@ -88,8 +88,6 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
                           azimuths_deg[:1] if symmetric else azimuths_deg)
     N, F, K = len(pert), al.numel(), len(camera.spectrum)
     c = as_built_coefficients(camera, d64, pert, al, az)  # (N, F, K, 6)
-    from .model.tolerances import Tolerances
-
     c0 = as_built_coefficients(camera, d64, Tolerances().sample(1, seed=0), al, az)[0]  # (F, K, 6) the nominal
     if not bool(torch.isfinite(c).all()):
         raise NumericalError("an as-built wavefront is not finite; no result is reported")

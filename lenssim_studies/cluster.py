@@ -65,6 +65,17 @@ def _numeric_malloc() -> None:
         libc.mallopt(ctypes.c_int(param), ctypes.c_int(value))
 
 
+def with_threads(threads: int, fn):
+    """``fn()`` with ``threads`` torch threads (a task's count: the last bits of torch's reductions depend on it),
+    the worker's own count restored after."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        return fn()
+    finally:
+        torch.set_num_threads(before)
+
+
 def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int) -> tuple[int, dict, str]:
     """On a worker: chunk ``index`` of the sweep ``config`` -> ``(index, arrays, sha256 of the arrays)``."""
     from .chunks import _checksum, _compute_chunk
@@ -77,12 +88,7 @@ def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int
     if cfg.digest() != digest:
         raise ClusterError(f"the worker's lenssim reads this sweep config differently (digest {cfg.digest()} != "
                            f"{digest}): install the client's lenssim version on every worker")
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        chunk = _compute_chunk(cfg, index, select_device(device), None)
-    finally:
-        torch.set_num_threads(before)
+    chunk = with_threads(threads, lambda: _compute_chunk(cfg, index, select_device(device), None))
     return index, chunk, _checksum(chunk)
 
 

@@ -114,18 +114,13 @@ def _chunk_task(run: ToleranceRun, digest: str, index: int, device: str, threads
     """On a dask worker: chunk ``index`` -> ``(index, arrays, sha256)`` (the cluster path of the sweeps)."""
     from lenssim.torch_utils import select_device
 
-    from .cluster import ClusterError, _numeric_malloc
+    from .cluster import ClusterError, _numeric_malloc, with_threads
 
     _numeric_malloc()
     if run.digest() != digest:
         raise ClusterError(f"the worker's lenssim reads this tolerance run differently (digest {run.digest()} != "
                            f"{digest}): install the client's lenssim version on every worker")
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        chunk = _compute_chunk(run, index, select_device(device), None)
-    finally:
-        torch.set_num_threads(before)
+    chunk = with_threads(threads, lambda: _compute_chunk(run, index, select_device(device), None))
     return index, chunk, _checksum(chunk)
 
 
@@ -387,6 +382,13 @@ def tolerance_figures(ds: xr.Dataset, summary: dict, out: Path, snr_db: float, t
     import matplotlib.pyplot as plt
 
     written = []
+
+    def save(fig, stem):
+        for ext in ("png", "svg"):
+            fig.savefig(out / f"{stem}.{ext}", dpi=120)
+            written.append(out / f"{stem}.{ext}")
+        plt.close(fig)
+
     series = [("mse_r", "restored with its own PSFs (calibrated)", "tab:blue"),
               ("mse_r_nominal", "restored with the nominal PSFs", "tab:red")]
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -402,11 +404,7 @@ def tolerance_figures(ds: xr.Dataset, summary: dict, out: Path, snr_db: float, t
     ax.set_title(f"{title}: {summary['lenses']} as-built lenses", fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    for ext in ("png", "svg"):
-        p = out / f"histogram.{ext}"
-        fig.savefig(p, dpi=120)
-        written.append(p)
-    plt.close(fig)
+    save(fig, "histogram")
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for k, label, colour in series:
         v = np.sort(_values(ds, k, snr_db))
@@ -418,9 +416,5 @@ def tolerance_figures(ds: xr.Dataset, summary: dict, out: Path, snr_db: float, t
     ax.set_title(f"{title}: cumulative distribution", fontsize=10)
     ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
-    for ext in ("png", "svg"):
-        p = out / f"cdf.{ext}"
-        fig.savefig(p, dpi=120)
-        written.append(p)
-    plt.close(fig)
+    save(fig, "cdf")
     return written

@@ -71,8 +71,32 @@ class PSFProvider:
         return torch.full((rows.numel(),), int(self.extent_px(rows, cols, optical_center)), dtype=torch.int64)
 
 
+class _CameraPSF(PSFProvider):
+    """What the providers of a camera model share: its colour channels, field geometry, spectrum, and the largest of
+    their per-position supports (``extents_px``)."""
+
+    @property
+    def channels(self) -> int:
+        """1 (one PSF for every colour) or the camera's number of colour channels."""
+        return max(1, len(self.camera.channels))
+
+    @property
+    def geometry(self) -> FieldGeometry:
+        return self.camera.geometry
+
+    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """The camera's wavelengths (um) and weights (one channel; a colour camera's channels each integrate their
+        own, :attr:`lenssim.Camera.channels`)."""
+        return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        """The largest geometric PSF diameter over the positions + margin (the margin alone for no position)."""
+        e = self.extents_px(rows, cols, optical_center)
+        return int(e.max()) if e.numel() else self.numerics.margin_px
+
+
 @dataclass(frozen=True)
-class LensPSF(PSFProvider):
+class LensPSF(_CameraPSF):
     """The model's PSFs: the camera (lens, sensor pitch, spectrum) with one design (single values)."""
 
     camera: Camera
@@ -97,15 +121,6 @@ class LensPSF(PSFProvider):
         """True: the model's lens is rotationally symmetric (third order or exact) and its pixels square."""
         return True
 
-    @property
-    def channels(self) -> int:
-        """1 (one PSF for every colour) or the camera's number of colour channels."""
-        return max(1, len(self.camera.channels))
-
-    @property
-    def geometry(self) -> FieldGeometry:
-        return self.camera.geometry
-
     def _design_like(self, t: torch.Tensor) -> Design:
         return self.design.map(lambda v: torch.full_like(t, float(v.reshape(()))))
 
@@ -114,20 +129,10 @@ class LensPSF(PSFProvider):
                                               optical_center)
         return validate_wavefront_model(self.wavefront).psfs(self, x_mm, y_mm, n, centered, dtype)
 
-    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """The camera's wavelengths (um) and weights (one channel; a colour camera's channels each integrate their
-        own, :attr:`lenssim.Camera.channels`)."""
-        return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
-
     def fingerprint(self) -> str:
         """A stable description of these PSFs (camera, design, numerics), e.g. for checkpoints."""
         return json.dumps({"camera": self.camera.to_dict(), "design": self.design.floats(),
                            "numerics": self.numerics.to_dict(), "wavefront": self.wavefront}, sort_keys=True)
-
-    def extent_px(self, rows, cols, optical_center) -> int:
-        """Geometric PSF diameter ``2 G lambda f / (y Delta)`` (largest over positions and wavelengths) + margin."""
-        e = self.extents_px(rows, cols, optical_center)
-        return int(e.max()) if e.numel() else self.numerics.margin_px  # no position: no aberration, the margin
 
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Geometric PSF diameter (px) at each position, ``(P,)`` int64: ``2 G lambda f / (y Delta)`` with ``G`` the
@@ -175,7 +180,7 @@ class FunctionPSF(PSFProvider):
 
 
 @dataclass(frozen=True)
-class AsBuiltPSF(PSFProvider):
+class AsBuiltPSF(_CameraPSF):
     """The PSFs of one as-built lens: ``lens`` holds one sampled lens (:class:`lenssim.model.tolerances.Perturbations`
     of length 1) of ``design`` on ``camera``; third-order wavefront of :func:`lenssim.optics.as_built.as_built_coefficients`
     at each PSF's field angle and azimuth, non-symmetric, each PSF centred on its as-built chief ray."""
@@ -194,14 +199,6 @@ class AsBuiltPSF(PSFProvider):
         d.floats()
         object.__setattr__(self, "design", d)
         self.camera.check_sampling()
-
-    @property
-    def channels(self) -> int:
-        return max(1, len(self.camera.channels))
-
-    @property
-    def geometry(self) -> FieldGeometry:
-        return self.camera.geometry
 
     def _coeffs(self, cam, x_mm, y_mm):
         from .as_built import as_built_coefficients
@@ -222,18 +219,11 @@ class AsBuiltPSF(PSFProvider):
                            numerics=self.numerics, terms=AS_BUILT_TERMS))
         return out[0] if not self.camera.channels else torch.stack(out, dim=1)
 
-    def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
-
     def fingerprint(self) -> str:
         vals = {k: [float(x) for x in v.reshape(-1)] for k, (v, _) in self.lens.variables().items()}
         return json.dumps({"camera": self.camera.to_dict(), "design": self.design.floats(), "as_built": vals,
                            "tolerances": self.lens.tolerances.to_dict(), "numerics": self.numerics.to_dict()},
                           sort_keys=True)
-
-    def extent_px(self, rows, cols, optical_center) -> int:
-        e = self.extents_px(rows, cols, optical_center)
-        return int(e.max()) if e.numel() else self.numerics.margin_px
 
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Geometric PSF diameter (px) at each position (the largest wavefront slope over the pupil, every
