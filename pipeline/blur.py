@@ -40,7 +40,7 @@ from .checks import check_image, check_provider
 
 __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "axis_positions", "scheme_positions",
            "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "fold_psf",
-           "apply_windowed", "blur_windowed", "blur_exact"]
+           "apply_windowed", "blur_windowed", "box_mean", "blur_exact"]
 
 
 WINDOW_ANCHORS = ("axis", "origin")
@@ -214,10 +214,14 @@ class _WindowOTFs:
     conj H(-f_y, f_x)`` for a real PSF), a transpose the transform of the transposed PSF.
     """
 
-    def __init__(self, psf: PSFProvider, center, win: int, dtype, device, symmetric: bool, n: int | None = None):
+    def __init__(self, psf: PSFProvider, center, win: int, dtype, device, symmetric: bool, n: int | None = None,
+                 pedestal: bool = False):
         self.psf, self.center, self.win, self.dtype, self.device = psf, center, win, dtype, device
         self.n = win if n is None else n  # the PSFs' grid (px): folded onto the window where it is larger
         self.symmetric = symmetric
+        # per channel, the uniform level taken out of each PSF (its pedestal, convolved apart by the caller)
+        self.level = (torch.tensor(psf.pedestal_fractions(self.n), dtype=torch.float64) / self.n**2
+                      if pedestal else None)
         self.rev = (-torch.arange(win, device=device)) % win  # the row of -f_y for each row f_y
 
     def _canonical(self, ys, xs):
@@ -248,8 +252,10 @@ class _WindowOTFs:
     def _psfs(self, ys, xs):
         # the PSFs with their centre at [0, 0], computed in the image's precision
         p = self.psf.psf_at_pixels(ys, xs, self.center, self.n, centered=False, dtype=self.dtype,
-                                   device=self.device)
-        return fold_psf(p.to(dtype=self.dtype, device=self.device), self.win)
+                                   device=self.device).to(dtype=self.dtype, device=self.device)
+        if self.level is not None and bool(self.level.any()):
+            p = p - (self.level.to(p)[:, None, None] if p.ndim == 4 else self.level.to(p)[0])
+        return fold_psf(p, self.win)
 
     def __call__(self, ys, xs) -> torch.Tensor:
         """``(k, 1, 1 or C, win, win/2+1)`` for the windows centred at ``(ys, xs)`` (px)."""
@@ -274,7 +280,7 @@ class _WindowOTFs:
 
 def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowScheme = PAPER_SCHEME,
                    optical_center=None, region=None, chunk: int | None = None, progress=None,
-                   fit: bool = False) -> torch.Tensor:
+                   fit: bool = False, pedestal: bool = False) -> torch.Tensor:
     """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
     ``patches`` is ``(k, B, C, w, w)`` (image rows ``y - w/2 .. y + w/2 - 1`` around each window's pixel
@@ -285,7 +291,9 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or with ``fit`` (for an ``op`` that convolves with
     the PSF, whose core then does not depend on the window beyond the PSF's reach) the :func:`fitted_windows`
     size of the PSF's support at the window's position plus the core, the PSF computed on the ``window`` grid
-    and folded onto ``w`` (:func:`fold_psf`); windows of one size are processed together.
+    and folded onto ``w`` (:func:`fold_psf`); windows of one size are processed together. With ``pedestal`` the
+    provider's uniform pedestal (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
+    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over the PSF grid).
     """
     check_image(image)
     check_provider(psf)
@@ -327,7 +335,7 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
         sel = sizes == w
         hw = w // 2
         k_chunk = chunk if chunk is not None else window_chunk(image, w)
-        otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=win)
+        otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=win, pedestal=pedestal)
         for gy, gx in otfs.chunks(Y[sel], X[sel], max(PSF_BATCH, k_chunk)):
             group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
             for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
@@ -379,8 +387,43 @@ def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme
     def convolve(patches, otf):
         return torch.fft.rfft2(patches).mul_(otf)
 
-    return apply_windowed(image, psf, convolve, scheme=scheme, optical_center=optical_center, region=region,
-                          chunk=chunk, progress=progress, fit=scheme.fit)
+    out = apply_windowed(image, psf, convolve, scheme=scheme, optical_center=optical_center, region=region,
+                         chunk=chunk, progress=progress, fit=scheme.fit, pedestal=True)
+    fractions = psf.pedestal_fractions(scheme.window)
+    if any(fractions):
+        out = _add_box_mean(out, image, scheme.window, fractions, region)
+    return out
+
+
+BOX_BAND_ROWS = 1024
+"""Output rows per band of :func:`box_mean` (its working set is about ``3 (band + n) (W + n)`` values per channel)."""
+
+
+def box_mean(image: torch.Tensor, n: int, region=None) -> torch.Tensor:
+    """The mean of ``image`` ``(B, C, H, W)`` over the ``n x n`` px box of every pixel, as a convolution with an
+    ``n x n`` PSF of uniform value centred at ``[n/2, n/2]`` sees it: rows ``r - n/2 + 1 .. r + n/2``, the image
+    reflect-padded as :func:`blur_exact` pads it. Only ``region = (r0, r1, c0, c1)`` is computed (zeros elsewhere).
+    Summed-area differences in ``image``'s dtype, in bands of :data:`BOX_BAND_ROWS` output rows (a band's sums start
+    afresh: in float32 a box mean is then exact to ~1e-6 of itself, 3e-9 of the signal once weighted by a pedestal)."""
+    B, C, H, W = image.shape
+    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
+    padded = _pad(image, n // 2)  # image row r is padded row r + n/2
+    out = torch.zeros_like(image)
+    for a in range(r0, r1, BOX_BAND_ROWS):
+        b = min(r1, a + BOX_BAND_ROWS)
+        slab = padded[:, :, a + 1: b + n, c0 + 1: c1 + n]  # rows a+1 .. b-1+n of the padding
+        cs = torch.nn.functional.pad(slab.cumsum(dim=-2), (0, 0, 1, 0))
+        rows = cs[:, :, n:] - cs[:, :, : b - a]  # (B, C, b - a, c1 - c0 + n - 1): each output row's n rows
+        cs = torch.nn.functional.pad(rows.cumsum(dim=-1), (1, 0))
+        out[:, :, a:b, c0:c1] = (cs[..., n:] - cs[..., : c1 - c0]).div_(n * n)
+    return out
+
+
+def _add_box_mean(out: torch.Tensor, image: torch.Tensor, n: int, fractions, region) -> torch.Tensor:
+    """``out + fraction_c * box_mean(image)`` per channel (one fraction for every channel, or one per channel)."""
+    f = torch.tensor(fractions, dtype=image.dtype, device=image.device)
+    f = f.reshape(1, -1, 1, 1)
+    return out.add_(box_mean(image, n, region).mul_(f))
 
 
 def blur_exact(image: torch.Tensor, psf: PSFProvider, rows, cols, *, n: int = 512, optical_center=None) -> torch.Tensor:

@@ -87,6 +87,9 @@ def test_mirror_groups_on_the_device_match_every_window_s_own_psf(device_dtype):
         def extents_px(self, rows, cols, optical_center):
             return lens.extents_px(rows, cols, optical_center)
 
+        def pedestal_fractions(self, n):  # and its pedestal, convolved apart as the lens's is
+            return lens.pedestal_fractions(n)
+
     own = Own(lambda x, y, n: lens.psf_at_pixels(y / pitch, x / pitch, (0.0, 0.0), n, dtype=torch.float64),
               lens.geometry, extent=60)
     for fit in (True, False):  # blur windows fitted to the PSF, and all of the scheme's 128 px

@@ -54,6 +54,9 @@ import math
 import sys
 from pathlib import Path
 
+if __name__ == "__main__":  # run as a script: tests/lenssim would shadow the lenssim package
+    sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
 import numpy as np
 import pytest
 import torch
@@ -267,8 +270,6 @@ if __name__ == "__main__":
     # --write: every part; --write PART[.KEY] ...: only those (everything else keeps its pinned value)
     if sys.argv[1:2] == ["--write"]:
         import tempfile
-
-        sys.path.remove(str(Path(__file__).parent))  # tests/lenssim would shadow the lenssim package
 
         with tempfile.TemporaryDirectory() as d:
             now = compute_pins(Path(d))

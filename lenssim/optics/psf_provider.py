@@ -26,7 +26,7 @@ from ..model.camera import Camera
 from ..model.design import Design
 from ..model.geometry import FieldGeometry
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
-from .psf_bank import max_wavefront_slope, spectral_coefficients
+from .psf_bank import max_wavefront_slope, pedestal_fraction, spectral_coefficients
 from .wavefront_models import validate_wavefront_model
 
 __all__ = ["PSFProvider", "LensPSF", "FunctionPSF", "AsBuiltPSF"]
@@ -54,6 +54,13 @@ class PSFProvider:
     def spectrum(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """The wavelengths (um) and weights the PSFs integrate (empty if unknown)."""
         return (), ()
+
+    def pedestal_fractions(self, n: int) -> tuple[float, ...]:
+        """Per channel (:attr:`channels` values), the fraction of each PSF's light on the ``n x n`` grid that is spread
+        evenly over the whole grid (a uniform pedestal, part of the PSF's unit sum): the light the sampled model
+        diffracts beyond what the grid resolves. The windowed blur convolves it as a mean over ``n x n`` px instead of
+        folding it into smaller windows. 0 (none) unless the provider says so."""
+        return (0.0,) * self.channels
 
     def bank(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
         """The PSFs at pixel positions ``rows``, ``cols`` ``(P,)`` as a :class:`lenssim.optics.bank.PSFBank`: with the
@@ -88,6 +95,10 @@ class _CameraPSF(PSFProvider):
         """The camera's wavelengths (um) and weights (one channel; a colour camera's channels each integrate their
         own, :attr:`lenssim.Camera.channels`)."""
         return tuple(self.camera.spectrum.wavelengths_um), tuple(self.camera.spectrum.weights)
+
+    def pedestal_fractions(self, n: int) -> tuple[float, ...]:
+        """Each channel's :func:`lenssim.optics.psf_bank.pedestal_fraction` on an ``n x n`` grid."""
+        return tuple(pedestal_fraction(cam, n, self.numerics) for cam in self.camera.channel_cameras())
 
     def extent_px(self, rows, cols, optical_center) -> int:
         """The largest geometric PSF diameter over the positions + margin (the margin alone for no position)."""

@@ -141,10 +141,14 @@ def test_shifted_tents_are_a_partition_of_unity(shift):
 
 
 class _SupportOfE2E(FunctionPSF):
-    """A function provider that knows E2E's support position by position (so its windows get the same sizes)."""
+    """A function provider that knows E2E's support position by position (so its windows get the same sizes) and
+    its pedestal (so the blur convolves it apart, as it does E2E's)."""
 
     def extents_px(self, rows, cols, optical_center):
         return E2E.extents_px(rows, cols, optical_center)
+
+    def pedestal_fractions(self, n):
+        return E2E.pedestal_fractions(n)
 
 
 @pytest.mark.parametrize("fit", [False, True])
