@@ -357,7 +357,7 @@ def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry
     """Whole-frame scores of a :class:`FrameResult` against ``ideal`` (linear ``(1, C, H, W)``): PSNR and SSIM in
     sRGB of the sensor and the restored images, their PSNR maps over ``tile`` px tiles and the tiles' field
     angles (deg, in ``geometry``). Each image is sRGB-encoded once; ``on_encoded(kind, encoded, linear)`` (kind
-    ``"sensor"`` or ``"restored"``, encoded ``(H, W, C)`` float32) may write it meanwhile. Returns
+    ``"sensor"`` or ``"restored"``, encoded ``(1, C, H, W)`` float32 on the device) may write it meanwhile. Returns
     ``{"psnr_sensor_db", "psnr_restored_db", "ssim_sensor", "ssim_restored", "maps": {"sensor_db", "restored_db",
     "field_deg"}, "seconds": {"write", "metrics"}}``.
     """
