@@ -15,6 +15,12 @@ blended linearly) and for every channel:
 
 With no blur (``H = 1``) and no noise (``e = inf``) this is the identity.
 
+Option ``local="pixel"`` (``wiener:local=pixel``): a per-pixel adaptive signal variance. Local variance maps over
+``pixel_stats`` x ``pixel_stats`` px boxes (kornia ``box_blur`` over each window's core and its halo) give each pixel's
+signal variance relative to the window's, ``r = max(var_y(p) - sigma_n^2(p), floor) / max(mean over the core, floor)``;
+the window is restored with a bank of filters at ``sigma_x^2 * WIENER_PIXEL_LEVELS`` and each pixel takes the two
+nearest in ``log r`` (linearly; clamped to the bank's ends). ``local="window"`` (the default): the paper's filter.
+
 References
 ----------
 .. [1] Optics Express 31(10), 16897 (2023), Section 3.3 (the adaptive local Wiener filter) and Eq. (4).
@@ -36,10 +42,21 @@ from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
 from ..checks import check_image
 from . import RestorationMethod, register
 
-__all__ = ["wiener_windowed", "WIENER_STATS_PX"]
+__all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
+
+WIENER_LOCAL = ("window", "pixel")
+"""Where the signal variance adapts: once per window (the paper), or per pixel (see the module docstring)."""
+
+WIENER_PIXEL_LEVELS = (0.25, 1.0, 4.0)
+"""Signal-variance levels (relative to the window's) of the per-pixel filter bank: each pixel interpolates between
+the two nearest in log variance (a pixel at the window's own level gets the paper's filter). The bank's ends clamp:
+flat regions get the 1/4 level's smoothing at most."""
+
+WIENER_PIXEL_STATS_PX = 9
+"""Side (px) of the box over which the per-pixel local variance is taken."""
 
 WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
@@ -49,7 +66,8 @@ model, Section 2.3; a method option, ``wiener:rho0=...``)."""
 def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_unit: float,
                     read_noise_var: float = 0.0, rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
-                    progress=None, floor: float = 1e-10) -> torch.Tensor:
+                    progress=None, floor: float = 1e-10, local: str = "window",
+                    pixel_stats: int = WIENER_PIXEL_STATS_PX) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with Poisson noise.
 
     ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
@@ -62,6 +80,12 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
     check_real("read_noise_var", read_noise_var, 0.0)
     if not (isinstance(stats, int) and 2 <= stats <= scheme.window):
         raise ValueError(f"stats={stats!r} is not allowed: an integer in [2, window={scheme.window}]")
+    if local not in WIENER_LOCAL:
+        raise ValueError(f"local={local!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
+    if not (isinstance(pixel_stats, int) and not isinstance(pixel_stats, bool) and pixel_stats >= 3
+            and pixel_stats % 2 == 1 and pixel_stats <= scheme.window - scheme.core):
+        raise ValueError(f"pixel_stats={pixel_stats!r} is not allowed: an odd number of px, >= 3 and at most the "
+                         f"window less the core ({scheme.window - scheme.core})")
     win, half = scheme.window, scheme.window // 2
     P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
     P = P / P.mean()
@@ -91,14 +115,62 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
 
-    return apply_windowed(observed, psf, restore, scheme=scheme, optical_center=optical_center, region=region,
-                          chunk=chunk, progress=progress)
+    core = scheme.core
+    levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64).log()
+
+    def restore_per_pixel(patches, otf):
+        from kornia.filters import box_blur
+
+        from ..blur import core_irfft2
+
+        centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
+        mu = centre.mean(dim=(-2, -1), keepdim=True)
+        var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
+        noise = mu.clamp_min(0) * inv_e + read_noise_var
+        H = otf
+        HP = (H.real.square() + H.imag.square()) * P
+        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
+        sx = (var_y - noise).clamp_min(floor) / gain
+        # the per-pixel signal variance relative to the window's, over the core (box filter over core + halo)
+        h = pixel_stats // 2
+        lo, hi = half - core // 2 - h, half + core // 2 + h
+        k, B, C = patches.shape[:3]
+        region = patches[..., lo:hi, lo:hi].reshape(k * B, C, hi - lo, hi - lo)
+        m = box_blur(torch.cat([region, region * region], dim=1), pixel_stats, border_type="reflect")
+        m = m[..., h:-h, h:-h].reshape(k, B, 2 * C, core, core)
+        m1, m2 = m[:, :, :C], m[:, :, C:]
+        local_sx = (m2 - m1.square() - (m1.clamp_min(0) * inv_e + read_noise_var)).clamp_min(floor)
+        ratio = local_sx / local_sx.mean(dim=(-2, -1), keepdim=True)
+        t = ratio.to(torch.float64).log().clamp(float(levels[0]), float(levels[-1]))
+        spec = torch.fft.rfft2(patches)
+        dc = mu[..., 0, 0] * (win * win)
+        spec[..., 0, 0] -= dc
+        spec.mul_(H.conj())
+        out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
+        for j, level in enumerate(WIENER_PIXEL_LEVELS):
+            G = torch.div(P, (HP + noise / (sx * level)).clamp_min_(tiny))
+            r_j = core_irfft2(spec * G, win, core)
+            # tent in log variance around level j: 1 at it, 0 at its neighbours (the ends extend flat)
+            wj = torch.ones_like(t)
+            if j > 0:
+                wj = torch.where(t < levels[j], ((t - levels[j - 1]) / (levels[j] - levels[j - 1])).clamp(0, 1), wj)
+            if j < len(WIENER_PIXEL_LEVELS) - 1:
+                wj = torch.where(t > levels[j], ((levels[j + 1] - t) / (levels[j + 1] - levels[j])).clamp(0, 1), wj)
+            out += r_j * wj.to(out.dtype)
+        out += mu
+        full = torch.zeros_like(patches)  # apply_windowed keeps the central core of a real result
+        full[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2] = out
+        return full
+
+    return apply_windowed(observed, psf, restore_per_pixel if local == "pixel" else restore, scheme=scheme,
+                          optical_center=optical_center, region=region, chunk=chunk, progress=progress)
 
 
 def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, optical_center=None, region=None,
-            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0):
+            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window"):
     return wiener_windowed(observed, psf, electrons_per_unit=electrons_per_unit, read_noise_var=read_noise_var,
-                           stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region, progress=progress)
+                           stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
+                           progress=progress, local=local)
 
 
 def _check(options, scheme):
@@ -108,7 +180,13 @@ def _check(options, scheme):
                          + (f" ({top} px)" if top else ""))
     if not 0 < options["rho0"] < 1:
         raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
+    if options["local"] not in WIENER_LOCAL:
+        raise ValueError(f"wiener option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
+    if scheme is not None and options["local"] == "pixel" and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:
+        raise ValueError(f"wiener option local=pixel needs a window at least {WIENER_PIXEL_STATS_PX} px larger than "
+                         f"the core; window={scheme.window}, core={scheme.core}")
 
 
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
-                           _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0)), check=_check))
+                           _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window")),
+                           check=_check))
