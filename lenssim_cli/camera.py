@@ -16,7 +16,6 @@ import math
 import sys
 import time
 
-import torch
 
 from lenssim import AsBuiltPSF, LensPSF, select_device
 
@@ -60,6 +59,16 @@ def _check_common(args) -> None:
 
 
 def _inputs(photos) -> list[str]:
+    """The photos that are files (not ``skimage:`` names); a photo given twice is refused (its rows would be
+    counted twice in a table's means)."""
+    from pathlib import Path
+
+    seen = {}
+    for p in photos or ():
+        key = p if not p or p.startswith("skimage:") else str(Path(p).resolve())
+        if key in seen:
+            raise ValueError(f"photo {p!r} is given twice (as {seen[key]!r} too); give each photo once")
+        seen[key] = p
     return [p for p in photos if p and not p.startswith("skimage:")]
 
 
@@ -312,7 +321,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     def write(kind, enc, img):  # each image is sRGB-encoded once, for its PNG and for all its scores
-        write_image(stage / f"{kind}.png", torch.from_numpy(enc).permute(2, 0, 1), bits=args.bits)
+        write_image(stage / f"{kind}.png", enc.cpu(), bits=args.bits)
         if args.exr:
             write_image(stage / f"{kind}_linear.exr", img, bits="float")
 

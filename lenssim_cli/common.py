@@ -9,7 +9,61 @@ from lenssim import PARAMETERS, Design
 from lenssim.torch_utils import DEVICE_CHOICES
 
 __all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
-           "add_camera_arguments", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args"]
+           "add_camera_arguments", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args",
+           "check_arguments"]
+
+
+DEFAULT_ILLUMINANT = "D65"
+"""The CIE illuminant of a colour ``--spectrum`` when none is named."""
+
+DEFAULT_GRADE = "commercial"
+"""The tolerance grade when none is named."""
+
+WORKERS_PER_CPU = 4
+"""``--workers`` may ask for at most this many local processes per CPU core (more only thrash)."""
+
+
+def check_arguments(args) -> None:
+    """Values of the common flags, checked before any work (each command has its own further checks): empty names,
+    flags that need another one, limits that must be positive. Raises ``ValueError`` with one line."""
+    import math
+    import os
+
+    for flag, name in (("--glass", "glass"), ("--spectrum", "spectrum"), ("--illuminant", "illuminant")):
+        v = getattr(args, name, None)
+        if v is not None and not str(v).strip():
+            raise ValueError(f"{flag} '' is not allowed: give a name (see {flag} in --help)")
+    colour = (getattr(args, "spectrum", None) or "paper") != "paper"
+    for flag, name in (("--illuminant", "illuminant"), ("--wavelengths-per-channel", "wavelengths_per_channel")):
+        if getattr(args, name, None) is not None and not colour and getattr(args, "command", "") != "study":
+            raise ValueError(f"{flag} applies to a colour --spectrum (e.g. \"Nikon 5100 (NPL)\"); --spectrum paper "
+                             "has one wavelength")
+    n = getattr(args, "max_fft_size", None)
+    if n is not None and n < 16:
+        raise ValueError(f"--max-fft-size {n} is not allowed: an FFT size >= 16")
+    m = getattr(args, "memory_limit", None)
+    if m is not None and not (math.isfinite(m) and m > 0):
+        raise ValueError(f"--memory-limit {m:g} is not allowed: a positive number of GiB")
+    w = getattr(args, "workers", None)
+    most = WORKERS_PER_CPU * (os.cpu_count() or 1)
+    if w is not None and w > most:
+        raise ValueError(f"--workers {w} is not allowed: at most {most} local processes ({WORKERS_PER_CPU} per CPU "
+                         "core); use --scheduler ADDRESS for a cluster")
+    focus = getattr(args, "best_focus", None)
+    if focus is not None:
+        from lenssim.criteria import quality_criteria
+
+        if focus not in quality_criteria():
+            raise ValueError(f"--best-focus {focus!r} is not allowed: an image-quality criterion of one lens, one of "
+                             f"{', '.join(quality_criteria())}")
+        if getattr(args, "param_focus_shift_um", None) is not None:
+            raise ValueError("--best-focus finds focus_shift_um; give it or --focus_shift_um, not both")
+    if hasattr(args, "as_built") and args.as_built is None:
+        given = [f for f, k in (("--grade", "grade"), ("--tolerances", "tolerances"), ("--off", "off"),
+                                ("--no-focus-compensation", "no_focus_compensation")) if getattr(args, k, None)]
+        if given:
+            raise ValueError(f"{', '.join(given)} describe(s) the manufactured lens of --as-built SEED; give "
+                             "--as-built, or leave them out")
 
 
 def add_design_arguments(p: argparse.ArgumentParser, *, named: bool = True) -> None:
@@ -65,8 +119,8 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spectrum", default="paper",
                    help="paper (one wavelength, 0.5 um, every colour) or a camera's RGB sensitivities from "
                         "colour-science, e.g. \"Nikon 5100 (NPL)\" (one spectrum per colour channel)")
-    p.add_argument("--illuminant", default="D65", help="CIE illuminant of a colour --spectrum (default D65)")
-    p.add_argument("--wavelengths-per-channel", type=int, default=DEFAULT_WAVELENGTHS_PER_CHANNEL, metavar="N",
+    p.add_argument("--illuminant", help="CIE illuminant of a colour --spectrum (default D65)")
+    p.add_argument("--wavelengths-per-channel", type=int, metavar="N",
                    help=f"wavelengths sampled per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
     p.add_argument("--wavefront", choices=("third_order", "exact"), default="third_order",
                    help="the paper's third-order (Seidel) wavefront, or the exact one (the OPD of a ray trace) "
@@ -85,15 +139,19 @@ def camera_from_args(args):
     spec = getattr(args, "spectrum", "paper") or "paper"
     if spec == "paper":
         return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum)
+    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
+
+    per = args.wavelengths_per_channel
     return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum,
-                  channels=channel_spectra(spec, args.illuminant, args.wavelengths_per_channel))
+                  channels=channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
+                                           DEFAULT_WAVELENGTHS_PER_CHANNEL if per is None else per))
 
 
 def add_tolerance_arguments(p: argparse.ArgumentParser, *, switches: bool = True) -> None:
     """``--grade``, ``--tolerances FILE`` and (``switches``) ``--off TERM``, ``--no-focus-compensation``."""
     from lenssim.model.tolerances import GRADES
 
-    p.add_argument("--grade", default="commercial", choices=tuple(GRADES),
+    p.add_argument("--grade", choices=tuple(GRADES),
                    help="tolerance grade (docs/as-built.md gives the values and sources; default commercial)")
     p.add_argument("--tolerances", metavar="FILE", help="TOML file with a [tolerances] table (grade = ..., and any "
                    "term's limit; see docs/as-built.md)")
@@ -109,14 +167,15 @@ def tolerances_from_args(args):
     from lenssim.io.files import read_toml
     from lenssim.model.tolerances import Tolerances, grade
 
-    t = grade(args.grade)
+    name = args.grade or DEFAULT_GRADE
+    t = grade(name)
     if args.tolerances:
         table = read_toml(args.tolerances, "tolerances file")
         unknown = sorted(set(table) - {"tolerances"})
         if unknown or "tolerances" not in table:
             raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
                              + (f"; unknown table(s) {unknown}" if unknown else ""))
-        t = Tolerances.from_dict({"grade": args.grade, **table["tolerances"]})
+        t = Tolerances.from_dict({"grade": name, **table["tolerances"]})
     for term in getattr(args, "off", None) or ():
         if term == "figure":
             t = dataclasses.replace(t, figure_floor=0.0, figure_per_cost=0.0)

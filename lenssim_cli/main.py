@@ -13,6 +13,7 @@ from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
 from . import camera, optics, tolerance
+from .common import check_arguments
 
 COMMAND_MODULES = (optics, tolerance, camera)
 """Each module's ``register(subparsers)`` adds its subcommands."""
@@ -32,11 +33,18 @@ optics:  evaluate, sweep, optimum, reproduce, study, designs, demo, tolerance
 camera:  simulate, psnr-table, fig8        (lenssim COMMAND --help for each)"""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, with its errors on one line (``lenssim CMD: error: ...``, exit status 2) instead of the usage block
+    and the message: the rule every other refusal of the command line follows (``--help`` still shows the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {' '.join(str(message).split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lenssim", description=DESCRIPTION,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = OneLineParser(prog="lenssim", description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"lenssim {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     for module in COMMAND_MODULES:
         module.register(sub)
     for parser in [p, *sub.choices.values()]:
@@ -60,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = show
         warnings.simplefilter("once")
         try:
+            check_arguments(args)
             return args.func(args)
         except ResourceLimitError as exc:
             flag = OVERRIDE_FLAGS.get(exc.setting)

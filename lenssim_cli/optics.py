@@ -109,9 +109,16 @@ def cmd_sweep(args) -> int:
         raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
     if args.worker_threads is not None and args.worker_threads < 1:
         raise ValueError(f"--worker-threads {args.worker_threads} is not allowed: a number of threads >= 1")
-    run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
-              memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None,
-              scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
+    if args.scheduler is not None:
+        from lenssim_studies.cluster import check_scheduler
+
+        check_scheduler(args.scheduler)
+    from lenssim.io.files import output_lock
+
+    with output_lock(args.out):  # one run at a time writes this sweep
+        run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
+                  memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None,
+                  scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
     sizes = " x ".join(f"{len(cfg.values(d))} {d}" for d in cfg.dims)
     print(f"wrote {args.out} ({sizes} x {len(cfg.lens.field_angles_deg)} angles) in {time.perf_counter() - t0:.1f} s",
           file=sys.stderr)
@@ -132,6 +139,9 @@ def cmd_optimum(args) -> int:
         raise ValueError(f"{str(path)!r} is not a sweep file (NetCDF written by `lenssim sweep`)") from None
     if "config_digest" not in ds.attrs:
         raise ValueError(f"{str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
+    from lenssim_studies.sweep import verify_sweep
+
+    verify_sweep(ds, path)
     r = find_optimum(ds, args.criterion, args.snr)
     if args.json:
         print(json_text(r))
@@ -203,14 +213,21 @@ def cmd_study(args) -> int:
     from lenssim.io.files import atomic_write_text, check_output_dir, json_text
     from lenssim_studies.study import STUDY_GRID, WhiteLightStudy, exact_along_tradeoff, exact_tradeoff_report, white_light_study
 
+    _check_study_flags(args)
     if args.name == "as-built":
         from lenssim_studies.as_built import AsBuiltStudy, as_built_study
         from lenssim_studies.paper import REFERENCE_SNR_DB
 
         from .common import tolerances_from_args
 
+        from lenssim_studies.as_built import STUDY_LENSES
+
+        args.lenses = STUDY_LENSES if args.lenses is None else args.lenses
+        args.seed = 0 if args.seed is None else args.seed
         if args.lenses < 2:
             raise ValueError(f"--lenses {args.lenses} is not allowed: at least 2 lenses per design")
+        if args.seed < 0:
+            raise ValueError(f"--seed {args.seed} is not allowed: a whole number >= 0")
         check_output_dir(args.out)
         t0 = time.perf_counter()
         study_ = AsBuiltStudy(PAPER_CAMERA, PAPER_RHO0, REFERENCE_SNR_DB, tolerances=tolerances_from_args(args),
@@ -240,9 +257,14 @@ def cmd_study(args) -> int:
         if not len(args.grid_step) == 2 or not all(v > 0 for v in args.grid_step):
             raise ValueError(f"--grid-step {args.grid_step!r} is not allowed: two positive steps (s, Q_back)")
         grid = {"s": (*STUDY_GRID["s"][:2], args.grid_step[0]), "Q_back": (*STUDY_GRID["Q_back"][:2], args.grid_step[1])}
-    study = WhiteLightStudy(glasses=tuple(args.glass), sensitivities=args.spectrum, illuminant=args.illuminant,
-                            per_channel=args.wavelengths_per_channel, grid=grid, max_evaluations=args.evaluations,
-                            q_front=not args.no_q_front)
+    defaults = WhiteLightStudy.__dataclass_fields__
+    study = WhiteLightStudy(glasses=tuple(args.glass or STUDY_GLASSES),
+                            sensitivities=args.spectrum or defaults["sensitivities"].default,
+                            illuminant=args.illuminant or defaults["illuminant"].default,
+                            per_channel=defaults["per_channel"].default if args.wavelengths_per_channel is None
+                            else args.wavelengths_per_channel, grid=grid,
+                            max_evaluations=defaults["max_evaluations"].default if args.evaluations is None
+                            else args.evaluations, q_front=not args.no_q_front)
     check_output_dir(args.out)
     t0 = time.perf_counter()
     report = white_light_study(args.out, study, log=lambda m: print(m, file=sys.stderr), show_progress=not args.quiet)
@@ -250,6 +272,29 @@ def cmd_study(args) -> int:
     print(f"wrote {args.out}/ (report.md, summary.json, per glass: sweep, trade-off, figures, Table 1) in "
           f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
+
+
+STUDY_GLASSES = ("paper", "N-BK7", "N-SF5")
+"""The white-light study's glasses unless --glass names others ('paper': the paper's model, as the baseline)."""
+
+STUDY_FLAGS = {"white-light": ("glass", "spectrum", "illuminant", "wavelengths_per_channel", "grid_step",
+                               "evaluations", "no_q_front"),
+               "exact-wavefront": (),
+               "as-built": ("lenses", "seed", "grade", "tolerances", "off", "no_focus_compensation")}
+"""The options each study takes (the others are refused, not ignored)."""
+
+
+def _check_study_flags(args) -> None:
+    for name, keys in STUDY_FLAGS.items():
+        if name == args.name:
+            continue
+        for k in keys:
+            if k in STUDY_FLAGS[args.name]:
+                continue
+            v = getattr(args, k, None)
+            if v not in (None, False):
+                raise ValueError(f"--{k.replace('_', '-')} belongs to `lenssim study {name}`, not to "
+                                 f"`lenssim study {args.name}`")
 
 
 def cmd_designs(args) -> int:
@@ -330,21 +375,22 @@ def register(sub) -> None:
                     "equal cost; exact-wavefront: the end-to-end trade-off with third-order and ray-traced wavefronts; "
                     "as-built: the trade-off for manufactured lenses restored with the nominal PSFs, and a robust design")
     st.add_argument("--out", required=True, help="output folder (a second run resumes the sweeps)")
-    st.add_argument("--glass", nargs="+", default=["paper", "N-BK7", "N-SF5"],
+    st.add_argument("--glass", nargs="+",
                     help="glasses (configs/glasses.toml; 'paper' = the paper's one-wavelength model as baseline)")
-    st.add_argument("--spectrum", default="Nikon 5100 (NPL)", help="camera RGB sensitivities (colour-science)")
-    st.add_argument("--illuminant", default="D65")
+    st.add_argument("--spectrum", help="camera RGB sensitivities (colour-science; default Nikon 5100 (NPL))")
+    st.add_argument("--illuminant", help="CIE illuminant (default D65)")
     from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
-    st.add_argument("--wavelengths-per-channel", type=int, default=DEFAULT_WAVELENGTHS_PER_CHANNEL, metavar="N")
+    st.add_argument("--wavelengths-per-channel", type=int, metavar="N",
+                    help=f"wavelengths per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
     st.add_argument("--grid-step", type=float, nargs=2, metavar=("DS", "DQ"),
                     help="steps of the (s, Q_back) grid (default 0.125 0.8 over s -1.5..0.25, Q_back -10..1.2)")
-    st.add_argument("--evaluations", type=int, default=60, help="Nelder-Mead budget per refined optimum (default 60)")
+    st.add_argument("--evaluations", type=int, help="Nelder-Mead budget per refined optimum (default 60)")
     st.add_argument("--no-q-front", action="store_true", help="skip the second-asphere search")
     from lenssim_studies.as_built import STUDY_LENSES
 
     from .common import add_tolerance_arguments
-    st.add_argument("--lenses", type=int, default=STUDY_LENSES, help=f"as-built: lenses per design (default {STUDY_LENSES})")
-    st.add_argument("--seed", type=int, default=0, help="as-built: seed of the lenses (default 0)")
+    st.add_argument("--lenses", type=int, help=f"as-built: lenses per design (default {STUDY_LENSES})")
+    st.add_argument("--seed", type=int, help="as-built: seed of the lenses (default 0)")
     add_tolerance_arguments(st)
     st.add_argument("--quiet", action="store_true", help="no progress bars")
     st.set_defaults(func=cmd_study)

@@ -12,7 +12,7 @@ __all__ = ["register", "cmd_tolerance"]
 
 
 def cmd_tolerance(args) -> int:
-    from lenssim.io.files import atomic_write_text, check_output_dir, json_text
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
     from lenssim.torch_utils import select_device
     from lenssim_studies.paper import PAPER_RHO0
@@ -37,25 +37,31 @@ def cmd_tolerance(args) -> int:
                        numerics=DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS,
                        field_angles_deg=tuple(args.angles) if args.angles else ToleranceRun.__dataclass_fields__[
                            "field_angles_deg"].default)
+    run.check_fft_sizes()
+    if args.scheduler is not None:
+        from lenssim_studies.cluster import check_scheduler
+
+        check_scheduler(args.scheduler)
     out = check_output_dir(args.out)
-    select_device(args.device)
-    t0 = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
-    ds = run_tolerance(run, out / "tolerance.nc", device=args.device, show_progress=not args.quiet,
-                       scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
-    summary = summarise(ds, nominal_values(run, ref_snr), ref_snr, yields, seed=run.seed)
-    sens = None
-    if args.sensitivity_lenses:
-        print(f"sensitivity: each tolerance alone, {args.sensitivity_lenses} lenses", file=sys.stderr)
-        sens = sensitivity(run, ref_snr, args.sensitivity_lenses, log=lambda m: print(m, file=sys.stderr))
-    text = tolerance_report(run, summary, sens, ref_snr)
-    tolerance_figures(ds, summary, out, ref_snr, run.design.name or "custom design")
-    atomic_write_text(out / "summary.json", json_text({"run": run.to_dict(), "summary": summary, "sensitivity": sens}))
-    atomic_write_text(out / "report.md", text)
-    print(text)
-    print(f"wrote {args.out}/ (tolerance.nc, report.md, summary.json, histogram and cdf .png/.svg) in "
-          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
-    return 0
+    with output_lock(out):  # one run at a time writes this folder
+        select_device(args.device)
+        t0 = time.perf_counter()
+        out.mkdir(parents=True, exist_ok=True)
+        ds = run_tolerance(run, out / "tolerance.nc", device=args.device, show_progress=not args.quiet,
+                           scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
+        summary = summarise(ds, nominal_values(run, ref_snr), ref_snr, yields, seed=run.seed)
+        sens = None
+        if args.sensitivity_lenses:
+            print(f"sensitivity: each tolerance alone, {args.sensitivity_lenses} lenses", file=sys.stderr)
+            sens = sensitivity(run, ref_snr, args.sensitivity_lenses, log=lambda m: print(m, file=sys.stderr))
+        text = tolerance_report(run, summary, sens, ref_snr)
+        tolerance_figures(ds, summary, out, ref_snr, run.design.name or "custom design")
+        atomic_write_text(out / "summary.json", json_text({"run": run.to_dict(), "summary": summary, "sensitivity": sens}))
+        atomic_write_text(out / "report.md", text)
+        print(text)
+        print(f"wrote {args.out}/ (tolerance.nc, report.md, summary.json, histogram and cdf .png/.svg) in "
+              f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
 
 
 def register(sub) -> None:

@@ -6,6 +6,8 @@ workers (:mod:`lenssim_studies.cluster`), which import it and not each other.
 from __future__ import annotations
 
 import hashlib
+import shutil
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -14,7 +16,21 @@ from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
-__all__ = ["_chunk_keys", "_compute_chunk", "_checksum"]
+__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "make_partial", "drop_empty_partial"]
+
+
+def make_partial(part: Path) -> bool:
+    """Create the chunk folder ``part`` of a resumable run; True if this call created it."""
+    created = not part.exists()
+    part.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+def drop_empty_partial(part: Path, created: bool) -> None:
+    """After a failed run: remove ``part`` if this run created it and no chunk landed in it (only its ``.json``
+    metadata), so a run refused or stopped before any result leaves nothing behind; finished chunks stay."""
+    if created and part.is_dir() and not any(p.suffix != ".json" for p in part.iterdir()):
+        shutil.rmtree(part, ignore_errors=True)
 
 
 def _chunk_keys(cfg=None) -> tuple[str, ...]:

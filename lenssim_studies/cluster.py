@@ -92,6 +92,25 @@ def _chunk_task(config: dict, digest: str, index: int, device: str, threads: int
     return index, chunk, _checksum(chunk)
 
 
+def check_scheduler(address: str) -> None:
+    """Refuse, before any work, a ``--scheduler`` address that is malformed or where no dask scheduler answers
+    (connects once, within the client's timeout, and closes)."""
+    from distributed.comm import parse_address
+
+    if not isinstance(address, str) or not address.strip():
+        raise ValueError(f"--scheduler {address!r} is not allowed: a dask scheduler address such as tcp://HOST:8786")
+    try:
+        parse_address(address, strict=True)
+        host_port = address.split("://", 1)[1]
+        if host_port.rpartition(":")[2].isdigit() is False:
+            raise ValueError("no port")
+    except ValueError:
+        raise ValueError(f"--scheduler {address!r} is not allowed: a dask scheduler address such as "
+                         "tcp://HOST:8786 (protocol, host and port)") from None
+    with dask_client(address):
+        pass
+
+
 @contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None):
     """A ``distributed.Client``: of the scheduler at ``scheduler``, or of a new ``LocalCluster`` of ``workers``

@@ -88,6 +88,12 @@ class WhiteLightStudy:
         check_int("max_evaluations", self.max_evaluations, 4, 10_000)
         if self.reference_snr_db not in self.snr_db:
             raise ValueError(f"reference_snr_db={self.reference_snr_db:g} must be one of snr_db {list(self.snr_db)}")
+        from .config import grid_count
+
+        for name, (start, stop, step) in self.grid.items():
+            grid_count(start, stop, step)
+        for glass in self.glasses:  # every glass, spectrum, illuminant and sampling now, before any work
+            study_camera(glass, self)
 
 
 def study_camera(glass: str, study: WhiteLightStudy) -> Camera:

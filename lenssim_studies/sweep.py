@@ -12,6 +12,7 @@ atomically, so it is identical to an uninterrupted run's.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -29,7 +30,7 @@ from lenssim.io.files import atomic_write
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import _checksum, _chunk_keys, _compute_chunk
+from .chunks import drop_empty_partial, make_partial, _checksum, _chunk_keys, _compute_chunk
 from .config import (SweepConfig, grid_count, grid_values, load_config)
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
@@ -63,7 +64,30 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     ds["snr"].attrs = {"long_name": "signal-to-noise ratio per pixel", "units": "dB"}
     ds.attrs = {"title": "lenssim sweep", "lenssim_version": __version__, "design_parameters": " ".join(dims),
                 "config": json.dumps(cfg.to_dict(), sort_keys=True), "config_digest": cfg.digest()}
+    ds.attrs["data_sha256"] = dataset_checksum(ds)
     return ds
+
+
+def dataset_checksum(ds: xr.Dataset) -> str:
+    """SHA-256 of every variable and coordinate of a sweep (name, dtype, shape and bytes, in name order)."""
+    h = hashlib.sha256()
+    for name in sorted(map(str, ds.variables)):
+        a = np.ascontiguousarray(ds[name].values)
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def verify_sweep(ds: xr.Dataset, path) -> None:
+    """Refuse a sweep file whose numbers are not the ones the sweep wrote (edited by hand, damaged, or written by a
+    version without a checksum): ``ValueError`` naming the file."""
+    want = ds.attrs.get("data_sha256")
+    if want is None:
+        raise ValueError(f"{str(path)!r} carries no data checksum (data_sha256): not a sweep file of this lenssim "
+                         "version; run the sweep again")
+    if dataset_checksum(ds) != want:
+        raise ValueError(f"{str(path)!r} was modified after the sweep wrote it (its data no longer match their "
+                         "SHA-256); run the sweep again")
 
 
 def _write_chunk(path: Path, chunk: dict, cfg: SweepConfig, i: int) -> None:
@@ -144,65 +168,71 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
             same = False
         if same:
-            return xr.load_dataset(out)
+            ds = xr.load_dataset(out)
+            verify_sweep(ds, out)  # a finished sweep is reused only if its numbers are the ones written
+            return ds
         raise FileExistsError(f"{str(out)!r} exists and is not a finished sweep of this config; "
                               "choose another output file or remove it")
     if out.parent.exists() and not os.access(out.parent, os.W_OK):
         raise PermissionError(f"cannot write the sweep into {str(out.parent)!r} (no write permission)")
     part = out.with_name(out.name + ".partial")
     _remove_temporaries(out, part)
-    part.mkdir(parents=True, exist_ok=True)
-    meta = part / "config.json"
-    if meta.exists():
-        try:
-            digest = json.loads(meta.read_text()).get("digest")
-        except (ValueError, OSError):
-            digest = None
-        if digest != cfg.digest():
-            raise FileExistsError(f"{str(part)!r} holds chunks of a different config; remove it or choose "
-                                  "another output file")
-    else:
-        atomic_write(meta, lambda p: Path(p).write_text(json.dumps({"digest": cfg.digest(), "config": cfg.to_dict()})))
-    n_first = len(cfg.values(cfg.dims[0]))
-    per_chunk = int(np.prod([len(cfg.values(d)) for d in cfg.dims[1:]])) * len(cfg.lens.field_angles_deg)
-    paths = [part / f"chunk_{i:05d}.npz" for i in range(n_first)]
-    for i, p in enumerate(paths):
-        if p.exists():
+    created = make_partial(part)
+    try:
+        meta = part / "config.json"
+        if meta.exists():
+            try:
+                digest = json.loads(meta.read_text()).get("digest")
+            except (ValueError, OSError):
+                digest = None
+            if digest != cfg.digest():
+                raise FileExistsError(f"{str(part)!r} holds chunks of a different config; remove it or choose "
+                                      "another output file")
+        else:
+            atomic_write(meta, lambda p: Path(p).write_text(json.dumps({"digest": cfg.digest(), "config": cfg.to_dict()})))
+        n_first = len(cfg.values(cfg.dims[0]))
+        per_chunk = int(np.prod([len(cfg.values(d)) for d in cfg.dims[1:]])) * len(cfg.lens.field_angles_deg)
+        paths = [part / f"chunk_{i:05d}.npz" for i in range(n_first)]
+        for i, p in enumerate(paths):
+            if p.exists():
+                got = _read_chunk(p, cfg, i)
+                if isinstance(got, str):
+                    warnings.warn(f"sweep chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
+                    p.unlink()
+        done = sum(p.exists() for p in paths)
+        where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
+        bar = tqdm(total=len(paths) * per_chunk, initial=done * per_chunk, unit="PSF", disable=not show_progress,
+                   file=sys.stderr, desc=f"sweep on {where}")
+        todo = [i for i, p in enumerate(paths) if not p.exists()]
+        stopped = max_chunks is not None and len(todo) > max_chunks
+        todo = todo[:max_chunks] if max_chunks is not None else todo
+        if scheduler is not None or workers is not None:
+            from .cluster import compute_chunks, dask_client
+
+            with dask_client(scheduler, workers) as client:
+                for i, chunk in compute_chunks(client, cfg, todo, device=device, threads=worker_threads):
+                    _write_chunk(paths[i], chunk, cfg, i)
+                    bar.update(per_chunk)
+        else:
+            for i in todo:
+                _write_chunk(paths[i], _compute_chunk(cfg, i, dev, bar.update), cfg, i)
+        bar.close()
+        if stopped:
+            return None
+        chunks = []
+        for i, p in enumerate(paths):
             got = _read_chunk(p, cfg, i)
             if isinstance(got, str):
-                warnings.warn(f"sweep chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
-                p.unlink()
-    done = sum(p.exists() for p in paths)
-    where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
-    bar = tqdm(total=len(paths) * per_chunk, initial=done * per_chunk, unit="PSF", disable=not show_progress,
-               file=sys.stderr, desc=f"sweep on {where}")
-    todo = [i for i, p in enumerate(paths) if not p.exists()]
-    stopped = max_chunks is not None and len(todo) > max_chunks
-    todo = todo[:max_chunks] if max_chunks is not None else todo
-    if scheduler is not None or workers is not None:
-        from .cluster import compute_chunks, dask_client
-
-        with dask_client(scheduler, workers) as client:
-            for i, chunk in compute_chunks(client, cfg, todo, device=device, threads=worker_threads):
-                _write_chunk(paths[i], chunk, cfg, i)
-                bar.update(per_chunk)
-    else:
-        for i in todo:
-            _write_chunk(paths[i], _compute_chunk(cfg, i, dev, bar.update), cfg, i)
-    bar.close()
-    if stopped:
-        return None
-    chunks = []
-    for i, p in enumerate(paths):
-        got = _read_chunk(p, cfg, i)
-        if isinstance(got, str):
-            raise ValueError(f"sweep chunk {str(p)!r} {got} after it was written; run the same command again")
-        chunks.append(got)
-    ds = _dataset(cfg, chunks)
-    atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-    if not keep_chunks:
-        shutil.rmtree(part)
-    return ds
+                raise ValueError(f"sweep chunk {str(p)!r} {got} after it was written; run the same command again")
+            chunks.append(got)
+        ds = _dataset(cfg, chunks)
+        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+        if not keep_chunks:
+            shutil.rmtree(part)
+        return ds
+    except BaseException:
+        drop_empty_partial(part, created)
+        raise
 
 
 def design_dims(ds: xr.Dataset) -> tuple[str, ...]:

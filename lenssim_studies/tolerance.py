@@ -37,7 +37,7 @@ from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import _checksum
+from .chunks import _checksum, drop_empty_partial, make_partial
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
@@ -80,6 +80,27 @@ class ToleranceRun:
         object.__setattr__(self, "snr_db", tuple(float(v) for v in self.snr_db))
         object.__setattr__(self, "field_angles_deg", tuple(float(v) for v in self.field_angles_deg))
         object.__setattr__(self, "design", d)
+        from lenssim.optics.image_model import noise_variance
+        from lenssim.validate import check_memory, check_real
+
+        noise_variance(list(self.snr_db))  # refuses what the criteria would refuse, now
+        if not self.field_angles_deg:
+            raise ValueError("field angles: give at least one angle (deg)")
+        for a in self.field_angles_deg:
+            check_real("field angle", a, 0.0, 90.0, hi_open=True, unit="deg")
+        self.eval_camera.lens.check_design(d)
+        # the lens table (perturbations and criteria per lens, float64) and its working copies
+        per_lens = 8 * (len(self.tolerances.to_dict()) + 2 * len(AS_BUILT_CRITERIA()) * len(self.snr_db)) * 4
+        check_memory(self.n_lenses * per_lens, f"a tolerance run of {self.n_lenses} lenses (use fewer --lenses)",
+                     setting="n_lenses")
+
+    def check_fft_sizes(self) -> None:
+        """The nominal lens's PSFs at the run's field angles fit ``numerics.max_fft_size`` (checked before any work;
+        a sampled lens beyond it still stops its chunk with the same error)."""
+        from lenssim.optics.psf_bank import fft_size, spectral_coefficients
+
+        for cam in self.camera.channel_cameras():
+            fft_size(cam, spectral_coefficients(cam, self.design, list(self.field_angles_deg)), self.numerics)
 
     @property
     def eval_camera(self) -> Camera:
@@ -206,62 +227,67 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
             return xr.load_dataset(out, engine="scipy")
         raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this tolerance run; choose "
                               "another output or remove it")
+    run.check_fft_sizes()
     part = out.with_name(out.name + ".partial")
     if part.exists():
         for p in part.glob(".*"):
             p.unlink(missing_ok=True)
-    part.mkdir(parents=True, exist_ok=True)
-    meta = part / "run.json"
-    if meta.exists():
-        try:
-            digest = json.loads(meta.read_text()).get("digest")
-        except (ValueError, OSError):
-            digest = None
-        if digest != run.digest():
-            raise FileExistsError(f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose "
-                                  "another output")
-    else:
-        atomic_write_text(meta, json.dumps({"digest": run.digest(), "run": run.to_dict()}))
-    ranges = run.chunks()
-    paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
-    for i, p in enumerate(paths):
-        if p.exists():
+    created = make_partial(part)
+    try:
+        meta = part / "run.json"
+        if meta.exists():
+            try:
+                digest = json.loads(meta.read_text()).get("digest")
+            except (ValueError, OSError):
+                digest = None
+            if digest != run.digest():
+                raise FileExistsError(f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose "
+                                      "another output")
+        else:
+            atomic_write_text(meta, json.dumps({"digest": run.digest(), "run": run.to_dict()}))
+        ranges = run.chunks()
+        paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
+        for i, p in enumerate(paths):
+            if p.exists():
+                got = _read_chunk(p, run, i)
+                if isinstance(got, str):
+                    warnings.warn(f"tolerance chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
+                    p.unlink()
+        per_lens = 1 + 4 * sum(a != 0 for a in run.field_angles_deg)  # field points (the axis once)
+        done = sum((k1 - k0) for (k0, k1), p in zip(ranges, paths) if p.exists())
+        where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
+        bar = tqdm(total=run.n_lenses * per_lens, initial=done * per_lens, unit="PSF", disable=not show_progress,
+                   file=sys.stderr, desc=f"tolerance on {where}")
+        todo = [i for i, p in enumerate(paths) if not p.exists()]
+        stopped = max_chunks is not None and len(todo) > max_chunks
+        todo = todo[:max_chunks] if max_chunks is not None else todo
+        if scheduler is not None or workers is not None:
+            from .cluster import compute_chunks, dask_client
+
+            with dask_client(scheduler, workers) as client:
+                for i, chunk in compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
+                                               kind="tolerance"):
+                    _write_chunk(paths[i], chunk, run, i)
+                    bar.update((ranges[i][1] - ranges[i][0]) * per_lens)
+        else:
+            for i in todo:
+                _write_chunk(paths[i], _compute_chunk(run, i, dev, bar.update), run, i)
+        bar.close()
+        if stopped:
+            return None
+        chunks = []
+        for i, p in enumerate(paths):
             got = _read_chunk(p, run, i)
             if isinstance(got, str):
-                warnings.warn(f"tolerance chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
-                p.unlink()
-    per_lens = 1 + 4 * sum(a != 0 for a in run.field_angles_deg)  # field points (the axis once)
-    done = sum((k1 - k0) for (k0, k1), p in zip(ranges, paths) if p.exists())
-    where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
-    bar = tqdm(total=run.n_lenses * per_lens, initial=done * per_lens, unit="PSF", disable=not show_progress,
-               file=sys.stderr, desc=f"tolerance on {where}")
-    todo = [i for i, p in enumerate(paths) if not p.exists()]
-    stopped = max_chunks is not None and len(todo) > max_chunks
-    todo = todo[:max_chunks] if max_chunks is not None else todo
-    if scheduler is not None or workers is not None:
-        from .cluster import compute_chunks, dask_client
-
-        with dask_client(scheduler, workers) as client:
-            for i, chunk in compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
-                                           kind="tolerance"):
-                _write_chunk(paths[i], chunk, run, i)
-                bar.update((ranges[i][1] - ranges[i][0]) * per_lens)
-    else:
-        for i in todo:
-            _write_chunk(paths[i], _compute_chunk(run, i, dev, bar.update), run, i)
-    bar.close()
-    if stopped:
-        return None
-    chunks = []
-    for i, p in enumerate(paths):
-        got = _read_chunk(p, run, i)
-        if isinstance(got, str):
-            raise ValueError(f"tolerance chunk {str(p)!r} {got} after it was written; run the same command again")
-        chunks.append(got)
-    ds = _dataset(run, chunks)
-    atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-    shutil.rmtree(part)
-    return ds
+                raise ValueError(f"tolerance chunk {str(p)!r} {got} after it was written; run the same command again")
+            chunks.append(got)
+        ds = _dataset(run, chunks)
+        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+        shutil.rmtree(part)
+        return ds
+    except BaseException:
+        drop_empty_partial(part, created)
+        raise
 
 
 def parse_yield(spec: str) -> tuple[str, str, float]:

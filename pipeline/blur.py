@@ -47,6 +47,10 @@ WINDOW_ANCHORS = ("axis", "origin")
 """Where the window grid is anchored: symmetric about the optical axis, or at pixel 0."""
 
 
+MAX_WINDOW_PX = 4096
+"""Largest local-convolution window (px): 8x the paper's 512, a PSF grid of 16.8 M samples per window."""
+
+
 @dataclass(frozen=True)
 class WindowScheme:
     """Local-convolution windows: ``window`` (px, even), centre ``stride`` (px), blended ``core`` (px), the
@@ -65,6 +69,9 @@ class WindowScheme:
             if not (isinstance(v, int) and v > 0 and v % 2 == 0):
                 raise ValueError(f"{name}={v!r} is not allowed: a positive even number of pixels")
         # stride == core would leave the pixels midway between two centres with zero weight in both tents
+        if self.window > MAX_WINDOW_PX:
+            raise ValueError(f"window={self.window} is not allowed: at most {MAX_WINDOW_PX} px (a window's patch and "
+                             "its spectrum per channel must fit in memory many times over)")
         if not self.stride < self.core <= self.window:
             raise ValueError(f"stride={self.stride}, core={self.core}, window={self.window}: need stride < core <= window")
         if self.anchor not in WINDOW_ANCHORS:

@@ -92,22 +92,62 @@ def check_output_dir(path, inputs=()) -> Path:
 @contextlib.contextmanager
 def staged_output_dir(path):
     """Write a run's files into a hidden staging folder; on success move them into ``path`` (created then),
-    on failure or interruption remove them, so a failed run leaves no partial outputs."""
+    on failure or interruption remove them, so a failed run leaves no partial outputs. The run holds
+    :func:`output_lock` on ``path`` throughout: a second run writing the same output stops with one clear error."""
     p = Path(path)
     anc = _existing_ancestor(p)
-    for old in anc.glob(f".{p.name}.staging-*"):  # left by a run that was killed
-        shutil.rmtree(old, ignore_errors=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{p.name}.staging-", dir=anc))
+    with output_lock(p):
+        for old in anc.glob(f".{p.name}.staging-*"):  # left by a run that was killed (we hold the lock)
+            shutil.rmtree(old, ignore_errors=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{p.name}.staging-", dir=anc))
+        try:
+            yield stage
+            p.mkdir(parents=True, exist_ok=True)
+            for f in sorted(stage.rglob("*")):
+                if f.is_file():
+                    dest = p / f.relative_to(stage)
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(f, dest)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+class OutputLockedError(OSError):
+    """Another run holds the lock of the output a run would write."""
+
+
+@contextlib.contextmanager
+def output_lock(path):
+    """An exclusive, non-blocking lock on the output ``path`` (a file ``.NAME.lock`` beside it, locked with
+    ``flock``; the operating system releases it when the process ends, however it ends). Held: another lenssim run
+    is writing ``path``, and :class:`OutputLockedError` says so before any work."""
+    import fcntl
+
+    p = Path(path).resolve()
+    lock = _existing_ancestor(p.parent) / f".{p.name}.lock"
+    while True:
+        fh = open(lock, "a+")
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.close()
+            raise OutputLockedError(f"another lenssim run is writing {str(p)!r} (it holds {str(lock)!r}); wait for "
+                                    "it to finish or choose another output") from None
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fh.fileno()).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:  # not a lock file its previous holder removed meanwhile
+            break
+        fh.close()
     try:
-        yield stage
-        p.mkdir(parents=True, exist_ok=True)
-        for f in sorted(stage.rglob("*")):
-            if f.is_file():
-                dest = p / f.relative_to(stage)
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(f, dest)
+        yield
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        try:
+            os.unlink(lock)  # nothing left behind; a run that opened it meanwhile re-checks the inode
+        except FileNotFoundError:
+            pass
+        fh.close()
 
 
 def read_toml(path, what: str) -> dict:
