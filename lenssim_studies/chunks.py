@@ -6,7 +6,9 @@ workers (:mod:`lenssim_studies.cluster`), which import it and not each other.
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -16,21 +18,35 @@ from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
-__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "make_partial", "drop_empty_partial"]
+__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder"]
 
 
-def make_partial(part: Path) -> bool:
-    """Create the chunk folder ``part`` of a resumable run; True if this call created it."""
+@contextmanager
+def partial_folder(part: Path, meta_name: str, digest: str, payload: dict, refusal: str):
+    """The chunk folder ``part`` of a resumable run, created or reopened: its ``meta_name`` file names the run
+    (``{"digest": digest, **payload}``), and a folder of another run is refused (``FileExistsError(refusal)``). If the
+    run fails, the folder is removed when this run created it and no chunk landed in it (only its ``.json``
+    metadata): a run refused or stopped before any result leaves nothing behind; finished chunks stay."""
+    from lenssim.io.files import atomic_write_text
+
     created = not part.exists()
     part.mkdir(parents=True, exist_ok=True)
-    return created
-
-
-def drop_empty_partial(part: Path, created: bool) -> None:
-    """After a failed run: remove ``part`` if this run created it and no chunk landed in it (only its ``.json``
-    metadata), so a run refused or stopped before any result leaves nothing behind; finished chunks stay."""
-    if created and part.is_dir() and not any(p.suffix != ".json" for p in part.iterdir()):
-        shutil.rmtree(part, ignore_errors=True)
+    try:
+        meta = part / meta_name
+        if meta.exists():
+            try:
+                old = json.loads(meta.read_text()).get("digest")
+            except (ValueError, OSError):
+                old = None
+            if old != digest:
+                raise FileExistsError(refusal)
+        else:
+            atomic_write_text(meta, json.dumps({"digest": digest, **payload}))
+        yield part
+    except BaseException:
+        if created and part.is_dir() and not any(p.suffix != ".json" for p in part.iterdir()):
+            shutil.rmtree(part, ignore_errors=True)
+        raise
 
 
 def _chunk_keys(cfg=None) -> tuple[str, ...]:

@@ -30,7 +30,7 @@ from lenssim.io.files import atomic_write
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import drop_empty_partial, make_partial, _checksum, _chunk_keys, _compute_chunk
+from .chunks import _checksum, _chunk_keys, _compute_chunk, partial_folder
 from .config import (SweepConfig, grid_count, grid_values, load_config)
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
@@ -177,19 +177,8 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         raise PermissionError(f"cannot write the sweep into {str(out.parent)!r} (no write permission)")
     part = out.with_name(out.name + ".partial")
     _remove_temporaries(out, part)
-    created = make_partial(part)
-    try:
-        meta = part / "config.json"
-        if meta.exists():
-            try:
-                digest = json.loads(meta.read_text()).get("digest")
-            except (ValueError, OSError):
-                digest = None
-            if digest != cfg.digest():
-                raise FileExistsError(f"{str(part)!r} holds chunks of a different config; remove it or choose "
-                                      "another output file")
-        else:
-            atomic_write(meta, lambda p: Path(p).write_text(json.dumps({"digest": cfg.digest(), "config": cfg.to_dict()})))
+    with partial_folder(part, "config.json", cfg.digest(), {"config": cfg.to_dict()},
+                        f"{str(part)!r} holds chunks of a different config; remove it or choose another output file"):
         n_first = len(cfg.values(cfg.dims[0]))
         per_chunk = int(np.prod([len(cfg.values(d)) for d in cfg.dims[1:]])) * len(cfg.lens.field_angles_deg)
         paths = [part / f"chunk_{i:05d}.npz" for i in range(n_first)]
@@ -230,9 +219,6 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         if not keep_chunks:
             shutil.rmtree(part)
         return ds
-    except BaseException:
-        drop_empty_partial(part, created)
-        raise
 
 
 def design_dims(ds: xr.Dataset) -> tuple[str, ...]:

@@ -29,7 +29,7 @@ import xarray as xr
 
 from lenssim import __version__
 from lenssim.criteria import CRITERIA
-from lenssim.io.files import atomic_write, atomic_write_text
+from lenssim.io.files import atomic_write
 from lenssim.model.camera import Camera
 from lenssim.model.design import Design
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
@@ -37,7 +37,7 @@ from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import _checksum, drop_empty_partial, make_partial
+from .chunks import _checksum, partial_folder
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
@@ -232,19 +232,8 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     if part.exists():
         for p in part.glob(".*"):
             p.unlink(missing_ok=True)
-    created = make_partial(part)
-    try:
-        meta = part / "run.json"
-        if meta.exists():
-            try:
-                digest = json.loads(meta.read_text()).get("digest")
-            except (ValueError, OSError):
-                digest = None
-            if digest != run.digest():
-                raise FileExistsError(f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose "
-                                      "another output")
-        else:
-            atomic_write_text(meta, json.dumps({"digest": run.digest(), "run": run.to_dict()}))
+    with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
+                        f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose another output"):
         ranges = run.chunks()
         paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
         for i, p in enumerate(paths):
@@ -285,9 +274,6 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
         atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
         shutil.rmtree(part)
         return ds
-    except BaseException:
-        drop_empty_partial(part, created)
-        raise
 
 
 def parse_yield(spec: str) -> tuple[str, str, float]:

@@ -94,16 +94,21 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
     w[0] = w[-1] = 1
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
 
-    def restore(patches, otf):
+    def window_terms(patches, H):
+        """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
+        win/2+1)``)."""
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
         noise = mu.clamp_min(0) * inv_e + read_noise_var
-        H = otf  # (k, 1, 1 or C, win, win/2+1)
         HP = (H.real.square() + H.imag.square()) * P
         # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
         gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
-        sx = (var_y - noise).clamp_min(floor) / gain
+        return mu, noise, HP, (var_y - noise).clamp_min(floor) / gain
+
+    def restore(patches, otf):
+        H = otf
+        mu, noise, HP, sx = window_terms(patches, H)
         # G = conj(H) sx P / (|H|^2 sx P + noise) = conj(H) P / (|H|^2 P + noise / sx), built in place
         G = HP + noise / sx
         torch.div(P, G.clamp_min_(tiny), out=G)
@@ -123,14 +128,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
 
         from ..blur import core_irfft2
 
-        centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
-        mu = centre.mean(dim=(-2, -1), keepdim=True)
-        var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
-        noise = mu.clamp_min(0) * inv_e + read_noise_var
         H = otf
-        HP = (H.real.square() + H.imag.square()) * P
-        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
-        sx = (var_y - noise).clamp_min(floor) / gain
+        mu, noise, HP, sx = window_terms(patches, H)
         # the per-pixel signal variance relative to the window's, over the core (box filter over core + halo)
         h = pixel_stats // 2
         lo, hi = half - core // 2 - h, half + core // 2 + h
