@@ -27,6 +27,7 @@ from lenssim import Camera, LensPSF, otf, psf_at, spectral_coefficients  # noqa:
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.focus import best_focus  # noqa: E402
+from lenssim.model.numerics import DEFAULT_NUMERICS  # noqa: E402
 from lenssim.model.spectrum import channel_spectra  # noqa: E402
 from lenssim.validate import ModelValidityWarning  # noqa: E402
 from pipeline import crop_at_field_angle, load_photo, simulate_crops  # noqa: E402
@@ -57,7 +58,7 @@ def main() -> None:
     print(f"{args.glass}, {args.spectrum}: best focus for MSE_R {fr.focus_shift_um:+.1f} um ({fr.evaluations} evaluations)")
 
     fig, axes = plt.subplots(3, 3, figsize=(11, 10), constrained_layout=True)
-    for c, (sub, colour) in enumerate(zip(cam.channel_cameras(), COLOURS)):
+    for c, (sub, colour) in enumerate(zip(cam.with_quadrature(DEFAULT_NUMERICS.spectral_tol).channel_cameras(), COLOURS)):
         for j, a in enumerate((0.0, args.angle)):
             r = float(cam.geometry.image_height_mm(a))
             p, n = psf_at(sub, design, 0.0, r, n=256)

@@ -31,7 +31,7 @@ __all__ = ["otf_criteria_bank", "evaluate"]
 def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db, *,
                       rho0: float, psd_model: str = "discrete", numerics: Numerics = DEFAULT_NUMERICS,
                       criteria=None, progress: Callable[[int], None] | None = None,
-                      terms=None) -> dict[str, torch.Tensor]:
+                      terms=None, channel_weights=None, wavelength_sizes=None) -> dict[str, torch.Tensor]:
     """OTF criteria ``{name: (P, S)}`` (``(P,)`` for a criterion that does not depend on the SNR; float64) for
     field-axis coefficient sets ``(P, K, T)`` (``terms``: their monomial table, default
     :data:`lenssim.optics.aberrations.TERMS`). Each criterion receives an :class:`lenssim.criteria.OTFContext`.
@@ -42,6 +42,11 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
     frequency integrals use ``numerics.oversample`` x finer grids than the FFT (the Wiener-error
     integrand is not band-limited and needs them). ``progress`` is called with the number of PSFs
     finished after each chunk.
+
+    ``channel_weights`` ``(C, K)`` (shared colour channels, :meth:`lenssim.Camera.node_camera`): each wavelength's PSF
+    is computed once for every channel, and every criterion is ``(C, P, S)`` (``(C, P)``), one row per channel.
+    ``wavelength_sizes`` ``(P, K)``: the FFT size each wavelength needs (:func:`lenssim.optics.psf_bank.fft_size` with
+    ``per_wavelength``; at most ``sizes``): each chunk computes a wavelength on the largest its PSFs need.
     """
     check_shape(coeffs, f"P K {N_TERMS if terms is None else len(terms)}", "coeffs (waves per wavelength)")
     names = otf_criteria() if criteria is None else tuple(criteria)
@@ -50,8 +55,15 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
             raise ValueError(f"criterion {c!r} is not computed from the OTF")
     sigma2 = noise_variance(snr_db).reshape(-1).to(coeffs.device)
     P, S = coeffs.shape[0], sigma2.numel()
-    out = {c: torch.empty((P, S) if CRITERIA[c].per_snr else (P,), dtype=torch.float64, device=coeffs.device)
+    C = 1 if channel_weights is None else len(channel_weights)
+    lead = () if channel_weights is None else (C,)
+    out = {c: torch.empty(lead + ((P, S) if CRITERIA[c].per_snr else (P,)), dtype=torch.float64, device=coeffs.device)
            for c in names}
+    if channel_weights is not None:  # each channel's criteria see a camera with its own weights on these wavelengths
+        from .model.spectrum import Spectrum
+
+        lam = camera.spectrum.wavelengths_um
+        channel_cams = [Camera(camera.lens, camera.sensor, Spectrum(lam, w)) for w in channel_weights]
     sizes = sizes.reshape(-1).cpu()
     oversample = numerics.oversample
     for n in torch.unique(sizes).tolist():
@@ -60,17 +72,31 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
         psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=coeffs.dtype, device=coeffs.device)
         weights = quarter_weights(m, psd_q.dtype, psd_q.device)
         pw = psd_q * weights
-        cache = {}  # what the contexts of this FFT size share (e.g. the diffraction-limited OTF)
-        per_psf = 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
+        caches = [{} for _ in range(C)]  # what the contexts of this FFT size share (e.g. the diffraction-limited OTF)
+        if channel_weights is not None:  # the channels' diffraction-limited OTFs from one pass over the wavelengths
+            zero = torch.zeros(1, *coeffs.shape[1:], dtype=coeffs.dtype, device=coeffs.device)
+            dl = otf_quarter_spectrum(camera, zero, n, oversample=oversample, numerics=numerics, terms=terms,
+                                      channel_weights=channel_weights)
+            for c in range(C):
+                caches[c]["dl"] = dl[:, c]
+        per_psf = C * 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
         check_memory(per_psf, f"one OTF of {m} x {m} samples", setting="max_fft_size")
         step = max(1, int(chunk_budget_bytes(coeffs.device, numerics.chunk_bytes) // per_psf))
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]
-            H = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics, terms=terms)
-            H2 = H.real.square() + H.imag.square()
-            ctx = OTFContext(H, H2, psd_q, weights, pw, sigma2, n, camera, numerics, _cache=cache)
-            for c in names:
-                out[c][sel] = CRITERIA[c].from_otf(ctx)
+            nk = None if wavelength_sizes is None else wavelength_sizes[sel.cpu()].amax(dim=0).tolist()
+            H_all = otf_quarter_spectrum(camera, coeffs[sel], n, oversample=oversample, numerics=numerics, terms=terms,
+                                         channel_weights=channel_weights, wavelength_sizes=nk)
+            for c in range(C):
+                H = H_all if channel_weights is None else H_all[:, c]
+                H2 = H.real.square() + H.imag.square()
+                ctx = OTFContext(H, H2, psd_q, weights, pw, sigma2, n,
+                                 camera if channel_weights is None else channel_cams[c], numerics, _cache=caches[c])
+                for name in names:
+                    if channel_weights is None:
+                        out[name][sel] = CRITERIA[name].from_otf(ctx)
+                    else:
+                        out[name][c, sel] = CRITERIA[name].from_otf(ctx)
             if progress is not None:
                 progress(sel.numel())
     return out
@@ -109,8 +135,13 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
     ((2, 2), (2, 2, 2), (2,))
     """
     if camera.channels:
-        parts = [evaluate(c, design, snr_db, rho0=rho0, psd_model=psd_model, fft_size=fft_size, numerics=numerics,
-                          dtype=dtype, device=device, progress=progress) for c in camera.channel_cameras()]
+        camera = camera.with_quadrature(numerics.spectral_tol)
+        if camera.shared_channels:
+            parts = _evaluate_shared(camera, design, snr_db, rho0=rho0, psd_model=psd_model, fft_size=fft_size,
+                                     numerics=numerics, dtype=dtype, device=device, progress=progress)
+        else:
+            parts = [evaluate(c, design, snr_db, rho0=rho0, psd_model=psd_model, fft_size=fft_size, numerics=numerics,
+                              dtype=dtype, device=device, progress=progress) for c in camera.channel_cameras()]
         out = {}
         for k, v in parts[0].items():
             if k in ("snr_db", "alpha_deg"):
@@ -121,9 +152,30 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
                 out[f"{k}_per_channel"] = torch.stack([p[k] for p in parts])
                 out[k] = out[f"{k}_per_channel"].mean(dim=0)
         return out
+    d64, coeffs64, flat, sizes, snr = _prepare(camera, design, snr_db, fft_size, numerics, device)
+    per_field = otf_criteria_bank(camera, flat.to(dtype), sizes, snr, rho0=rho0, psd_model=psd_model,
+                                  numerics=numerics, progress=progress)
+    return _assemble(camera, d64, coeffs64, per_field, sizes, snr, numerics)
+
+
+def _evaluate_shared(camera: Camera, design: Design, snr_db, *, rho0, psd_model, fft_size, numerics, dtype, device,
+                     progress) -> list[dict]:
+    """:func:`evaluate` per colour channel of channels on shared wavelengths: each wavelength's PSF computed once."""
+    nodes, weights = camera.node_camera()
+    d64, coeffs64, flat, sizes, snr = _prepare(nodes, design, snr_db, fft_size, numerics, device)
+    # each wavelength on the FFT size it needs (the largest sets the OTF's grid)
+    per_k = None if fft_size is not None else choose_fft_size(nodes, flat, numerics, per_wavelength=True)
+    per_field = otf_criteria_bank(nodes, flat.to(dtype), sizes, snr, rho0=rho0, psd_model=psd_model, numerics=numerics,
+                                  progress=progress, channel_weights=weights, wavelength_sizes=per_k)
+    return [_assemble(cam, d64, coeffs64, {k: v[c] for k, v in per_field.items()}, sizes, snr, numerics)
+            for c, cam in enumerate(camera.channel_cameras())]
+
+
+def _prepare(camera: Camera, design: Design, snr_db, fft_size, numerics: Numerics, device):
+    """The designs (float64, broadcast), their coefficients ``(*, A, K, T)`` and flattened ``(P, K, T)``, the FFT
+    sizes ``(P,)`` and the SNRs (dB) of :func:`evaluate`."""
     d64 = design.to(torch.float64, device).broadcast()
     camera.lens.check_design(d64)
-    shape = d64.shape
     coeffs64 = spectral_coefficients(camera, d64)  # (*, A, K, T)
     A, K = coeffs64.shape[-3], coeffs64.shape[-2]
     flat = coeffs64.reshape(-1, K, N_TERMS)
@@ -140,9 +192,13 @@ def evaluate(camera: Camera, design: Design, snr_db, *, rho0: float,
             raise ValueError(f"fft_size={fft_size!r} is not allowed: an even integer >= 16")
         sizes = torch.full((flat.shape[0],), fft_size, dtype=torch.int64)
     snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
-    S = snr.numel()
-    per_field = otf_criteria_bank(camera, flat.to(dtype), sizes, snr, rho0=rho0, psd_model=psd_model,
-                                  numerics=numerics, progress=progress)
+    return d64, coeffs64, flat, sizes, snr
+
+
+def _assemble(camera: Camera, d64: Design, coeffs64: torch.Tensor, per_field: dict, sizes, snr, numerics) -> dict:
+    """:func:`evaluate`'s result for one camera (channel) from its per-field OTF criteria."""
+    shape = d64.shape
+    A, S = coeffs64.shape[-3], snr.numel()
     out = {}
     for name, crit in lens_criteria().items():
         if crit.from_otf is not None:

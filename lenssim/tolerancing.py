@@ -74,7 +74,8 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
     if camera.channels:
         parts = [as_built_criteria(c, design, pert, snr_db, rho0=rho0, psd_model=psd_model, numerics=numerics,
                                    alpha_deg=alpha_deg, azimuths_deg=azimuths_deg, dtype=dtype, device=device,
-                                   progress=progress) for c in camera.channel_cameras()]
+                                   progress=progress)
+                 for c in camera.with_quadrature(numerics.spectral_tol).channel_cameras()]
         out = dict(parts[0])
         for k in AS_BUILT_CRITERIA():
             out[k] = torch.stack([p[k] for p in parts]).mean(dim=0)

@@ -112,8 +112,6 @@ def add_device_argument(p: argparse.ArgumentParser) -> None:
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     """``--glass NAME``, ``--spectrum NAME``, ``--illuminant NAME``, ``--wavelengths-per-channel N``."""
-    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
-
     p.add_argument("--glass", help="a glass of the catalogue (configs/glasses.toml: paper, N-BK7, N-SF5, PMMA); "
                                    "default: the paper's non-dispersive n = 1.5")
     p.add_argument("--spectrum", default="paper",
@@ -121,7 +119,8 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
                         "colour-science, e.g. \"Nikon 5100 (NPL)\" (one spectrum per colour channel)")
     p.add_argument("--illuminant", help="CIE illuminant of a colour --spectrum (default D65)")
     p.add_argument("--wavelengths-per-channel", type=int, metavar="N",
-                   help=f"wavelengths sampled per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
+                   help="wavelengths sampled per colour channel, each channel its own (default: the 5 nm table "
+                        "integrated with a few wavelengths shared by the channels, Numerics.spectral_tol)")
     p.add_argument("--wavefront", choices=("third_order", "exact"), default="third_order",
                    help="the paper's third-order (Seidel) wavefront, or the exact one (the OPD of a ray trace) "
                         "(one-wavelength spectrum only)")
@@ -139,12 +138,8 @@ def camera_from_args(args):
     spec = getattr(args, "spectrum", "paper") or "paper"
     if spec == "paper":
         return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum)
-    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
-
-    per = args.wavelengths_per_channel
     return Camera(lens, PAPER_CAMERA.sensor, PAPER_CAMERA.spectrum,
-                  channels=channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
-                                           DEFAULT_WAVELENGTHS_PER_CHANNEL if per is None else per))
+                  channels=channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT, args.wavelengths_per_channel))
 
 
 def add_tolerance_arguments(p: argparse.ArgumentParser, *, switches: bool = True) -> None:

@@ -274,7 +274,7 @@ def cmd_study(args) -> int:
     return 0
 
 
-STUDY_GLASSES = ("paper", "N-BK7", "N-SF5")
+STUDY_GLASSES = ("paper", "N-BK7", "N-SF5", "PMMA")
 """The white-light study's glasses unless --glass names others ('paper': the paper's model, as the baseline)."""
 
 STUDY_FLAGS = {"white-light": ("glass", "spectrum", "illuminant", "wavelengths_per_channel", "grid_step",
@@ -379,9 +379,9 @@ def register(sub) -> None:
                     help="glasses (configs/glasses.toml; 'paper' = the paper's one-wavelength model as baseline)")
     st.add_argument("--spectrum", help="camera RGB sensitivities (colour-science; default Nikon 5100 (NPL))")
     st.add_argument("--illuminant", help="CIE illuminant (default D65)")
-    from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL
     st.add_argument("--wavelengths-per-channel", type=int, metavar="N",
-                    help=f"wavelengths per colour channel (default {DEFAULT_WAVELENGTHS_PER_CHANNEL})")
+                    help="wavelengths per colour channel, each channel its own (default: the 5 nm table integrated "
+                         "with a few wavelengths shared by the channels)")
     st.add_argument("--grid-step", type=float, nargs=2, metavar=("DS", "DQ"),
                     help="steps of the (s, Q_back) grid (default 0.125 0.8 over s -1.5..0.25, Q_back -10..1.2)")
     st.add_argument("--evaluations", type=int, help="Nelder-Mead budget per refined optimum (default 60)")

@@ -43,7 +43,7 @@ from lenssim.metrics import evaluate
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from .paper import PAPER_CAMERA, PAPER_COST_LEVELS, PAPER_DESIGNS, PAPER_SNR_DB, REFERENCE_SNR_DB
 from lenssim.optics.psf_bank import spectral_coefficients
-from lenssim.model.spectrum import DEFAULT_WAVELENGTHS_PER_CHANNEL, channel_spectra
+from lenssim.model.spectrum import channel_spectra
 from lenssim.validate import check_int
 from lenssim_studies.paper import PAPER_RHO0
 
@@ -68,10 +68,12 @@ STUDY_FOCUS_BOUNDS_UM = (-1200.0, 600.0)
 class WhiteLightStudy:
     """Settings of :func:`white_light_study`."""
 
-    glasses: tuple[str, ...] = ("N-BK7", "N-SF5")
+    glasses: tuple[str, ...] = ("N-BK7", "N-SF5", "PMMA")
     sensitivities: str = "Nikon 5100 (NPL)"
     illuminant: str = "D65"
-    per_channel: int = DEFAULT_WAVELENGTHS_PER_CHANNEL
+    per_channel: int | None = None
+    """Wavelengths per channel, each its own; None: the 5 nm table integrated by the shared quadrature
+    (:func:`lenssim.model.spectrum.shared_quadrature` under ``numerics.spectral_tol``)."""
     grid: dict = field(default_factory=lambda: dict(STUDY_GRID))
     snr_db: tuple[float, ...] = PAPER_SNR_DB
     reference_snr_db: float = REFERENCE_SNR_DB
@@ -105,6 +107,16 @@ def study_camera(glass: str, study: WhiteLightStudy) -> Camera:
                   channels=channel_spectra(study.sensitivities, study.illuminant, study.per_channel))
 
 
+def _node_counts(study: WhiteLightStudy) -> str:
+    """The shared wavelengths each glass of the study takes, e.g. ``N-BK7 17, N-SF5 24``."""
+    parts = []
+    for glass in study.glasses:
+        cam = study_camera(glass, study).with_quadrature(study.numerics.spectral_tol)
+        if cam.channels:
+            parts.append(f"{glass} {len(cam.channels[0])}")
+    return ", ".join(parts) or "none"
+
+
 def criterion_value(camera: Camera, design: Design, criterion: str, snr_db: float, numerics: Numerics) -> dict:
     """Every criterion of one design (channel means) as floats, at ``snr_db``; the design criteria
     (``rms_w``, ``cost``) alone when ``criterion`` is one of them (no OTFs are computed)."""
@@ -114,7 +126,7 @@ def criterion_value(camera: Camera, design: Design, criterion: str, snr_db: floa
         for name, c in lens_criteria().items():
             if c.from_otf is None:
                 per = [c.from_design(cam, d64, spectral_coefficients(cam, d64), numerics)
-                       for cam in camera.channel_cameras()]
+                       for cam in camera.with_quadrature(numerics.spectral_tol).channel_cameras()]
                 vals[name] = float(torch.stack([torch.as_tensor(v, dtype=torch.float64) for v in per]).mean())
         return vals
     r = evaluate(camera, design, [snr_db], numerics=numerics, rho0=PAPER_RHO0)
@@ -266,8 +278,10 @@ def _study_glass(glass: str, study: WhiteLightStudy, out: Path, log, show_progre
 def _report(results: list[dict], study: WhiteLightStudy) -> str:
     snr = study.reference_snr_db
     lines = [f"# White light and the paper's conclusions (MSE at {snr:g} dB)", "",
-             f"Colour channels: {study.sensitivities} under {study.illuminant}, {study.per_channel} wavelengths per "
-             "channel; criteria are channel means. `paper` is the paper's one-wavelength model. Optima refined with "
+             f"Colour channels: {study.sensitivities} under {study.illuminant}, " + (
+                 f"{study.per_channel} wavelengths per channel" if study.per_channel else
+                 f"the 5 nm table integrated with wavelengths shared by the channels (indicator <= "
+                 f"{study.numerics.spectral_tol:g} px: {_node_counts(study)})") + "; criteria are channel means. `paper` is the paper's one-wavelength model. Optima refined with "
              f"the image plane free (bounded Nelder-Mead, at most {study.max_evaluations} evaluations, within s "
              f"{study.grid['s'][0]:g}..{study.grid['s'][1]:g}, conics {study.grid['Q_back'][0]:g}.."
              f"{study.grid['Q_back'][1]:g}, focus {STUDY_FOCUS_BOUNDS_UM[0]:g}..{STUDY_FOCUS_BOUNDS_UM[1]:g} um).", "",

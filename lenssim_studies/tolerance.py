@@ -99,7 +99,7 @@ class ToleranceRun:
         a sampled lens beyond it still stops its chunk with the same error)."""
         from lenssim.optics.psf_bank import fft_size, spectral_coefficients
 
-        for cam in self.camera.channel_cameras():
+        for cam in self.camera.with_quadrature(self.numerics.spectral_tol).channel_cameras():
             fft_size(cam, spectral_coefficients(cam, self.design, list(self.field_angles_deg)), self.numerics)
 
     @property

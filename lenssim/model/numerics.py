@@ -7,7 +7,10 @@ oversampling of the MSE integrals (MSE_R field error <= 0.3%, the fast sweep pre
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
+
+from .spectrum import DEFAULT_SPECTRAL_TOL
 
 __all__ = ["Numerics", "DEFAULT_NUMERICS", "FAST_NUMERICS"]
 
@@ -26,6 +29,8 @@ class Numerics:
     chunk_bytes : working memory per chunk of OTFs in the metrics (cache-sized on a CPU).
     max_fft_size : largest FFT size a PSF may ask for (samples): a design whose wavefront slope needs
         more is refused before any work (an oversampled OTF of 4096 points holds ~1.6 GB).
+    spectral_tol : error indicator bound (px) of the wavelengths shared by colour channels on one table
+        (:func:`lenssim.model.spectrum.shared_quadrature`); smaller takes more wavelengths.
     """
 
     fill: float = 0.5
@@ -36,6 +41,7 @@ class Numerics:
     cost_points: int = 101
     chunk_bytes: int = 32 * 2**20
     max_fft_size: int = 4096
+    spectral_tol: float = DEFAULT_SPECTRAL_TOL
 
     def __post_init__(self):
         if not (isinstance(self.fill, (int, float)) and 0 < self.fill <= 1):
@@ -46,6 +52,10 @@ class Numerics:
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{k}={v!r} is not allowed: an integer >= {lo}")
         object.__setattr__(self, "fill", float(self.fill))
+        if isinstance(self.spectral_tol, bool) or not (isinstance(self.spectral_tol, (int, float))
+                                                        and math.isfinite(self.spectral_tol) and self.spectral_tol > 0):
+            raise ValueError(f"spectral_tol={self.spectral_tol!r} is not allowed: a number > 0 (px)")
+        object.__setattr__(self, "spectral_tol", float(self.spectral_tol))
 
     def replace(self, **kw) -> "Numerics":
         return replace(self, **kw)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Spectrum", "channel_spectra", "camera_sensitivity_names", "DEFAULT_WAVELENGTHS_PER_CHANNEL"]
+__all__ = ["Spectrum", "channel_spectra", "channel_table", "camera_sensitivity_names", "shared_wavelengths",
+           "shared_quadrature", "DEFAULT_WAVELENGTHS_PER_CHANNEL", "DEFAULT_SPECTRAL_TOL"]
 
 DEFAULT_WAVELENGTHS_PER_CHANNEL = 16
 """Wavelengths per colour channel (equal-weight quadrature of sensitivity x illuminant); chosen by the
@@ -18,6 +19,12 @@ convergence test in tests/lenssim/test_colour.py: per-channel MSE_R of the paper
 focused at the d line (the harshest case: blue and red 1-2 waves out of focus) within 0.7% of the 32-wavelength
 value (measured 0.23 / 0.19 / 0.64% for R / G / B; against 48 wavelengths 0.26 / 0.21 / 0.50%; with 5
 wavelengths up to 4%)."""
+
+
+DEFAULT_SPECTRAL_TOL = 0.2
+"""Error indicator bound (px) of the shared spectral quadrature (:func:`shared_quadrature`); chosen by the
+convergence test against the dense 5 nm table (tests/lenssim/test_spectral_quadrature.py, docs/white-light.md):
+every channel's MSE_R within 0.5% of the table's at the tested designs in N-BK7, N-SF5 and PMMA."""
 
 
 @dataclass(frozen=True)
@@ -79,30 +86,27 @@ def camera_sensitivity_names() -> list[str]:
 
 
 def channel_spectra(camera: str = "Nikon 5100 (NPL)", illuminant: str = "D65",
-                    per_channel: int = DEFAULT_WAVELENGTHS_PER_CHANNEL) -> tuple[Spectrum, ...]:
+                    per_channel: int | None = None) -> tuple[Spectrum, ...]:
     """One :class:`Spectrum` per colour channel: the camera's spectral sensitivity times the illuminant,
-    both from colour-science's data sets, sampled at ``per_channel`` wavelengths.
+    both from colour-science's data sets; ``per_channel=None`` (the default): on the data's 5 nm table
+    (:func:`channel_table`), which the optics integrate with a few wavelengths shared by all channels
+    (:func:`shared_quadrature`, under ``Numerics.spectral_tol``); an integer: sampled at ``per_channel``
+    wavelengths of the channel's own (the former quadrature, 16 by default before issue 21).
 
     Quadrature: the channel's weight ``w(lambda)`` (5 nm table, piecewise constant) is cut into
     ``per_channel`` bins of equal weight; each bin contributes its weighted mean wavelength with its
     weight. Channels in the camera's order (red, green, blue).
     """
-    import colour
     import numpy as np
 
-    if camera not in colour.MSDS_CAMERA_SENSITIVITIES:
-        raise ValueError(f"camera sensitivities {camera!r} are not known; choose from {', '.join(camera_sensitivity_names())}")
-    if illuminant not in colour.SDS_ILLUMINANTS:
-        raise ValueError(f"illuminant {illuminant!r} is not known; e.g. D65, A, D50")
+    if per_channel is None:
+        return channel_table(camera, illuminant)
     if isinstance(per_channel, bool) or not isinstance(per_channel, int) or not 1 <= per_channel <= 64:
         raise ValueError(f"per_channel={per_channel!r} is not allowed: a whole number in [1, 64]")
-    msds = colour.MSDS_CAMERA_SENSITIVITIES[camera]
-    lam_nm = np.asarray(msds.wavelengths, dtype=np.float64)
-    ill = colour.SDS_ILLUMINANTS[illuminant].copy().align(colour.SpectralShape(lam_nm[0], lam_nm[-1], lam_nm[1] - lam_nm[0]))
-    e = np.asarray(ill.values, dtype=np.float64)
+    lam_nm, table_w, labels = _camera_weights(camera, illuminant)
     out = []
-    for c, label in enumerate(msds.labels):
-        w = np.clip(np.asarray(msds.values[:, c], dtype=np.float64), 0, None) * e
+    for c, label in enumerate(labels):
+        w = table_w[c]
         cdf = np.concatenate([[0.0], np.cumsum(w)]) / w.sum()
         edges = np.linspace(0, 1, per_channel + 1)
         lams, weights = [], []
@@ -113,3 +117,110 @@ def channel_spectra(camera: str = "Nikon 5100 (NPL)", illuminant: str = "D65",
             weights.append(float(share.sum()))
         out.append(Spectrum(tuple(lams), tuple(weights), name=f"{camera} {label}, {illuminant}, {per_channel} wavelengths"))
     return tuple(out)
+
+
+def _camera_weights(camera: str, illuminant: str):
+    """The 5 nm table: wavelengths (nm) ``(J,)``, the channels' weights (sensitivity x illuminant) ``(C, J)``, labels."""
+    import colour
+    import numpy as np
+
+    if camera not in colour.MSDS_CAMERA_SENSITIVITIES:
+        raise ValueError(f"camera sensitivities {camera!r} are not known; choose from {', '.join(camera_sensitivity_names())}")
+    if illuminant not in colour.SDS_ILLUMINANTS:
+        raise ValueError(f"illuminant {illuminant!r} is not known; e.g. D65, A, D50")
+    msds = colour.MSDS_CAMERA_SENSITIVITIES[camera]
+    lam_nm = np.asarray(msds.wavelengths, dtype=np.float64)
+    ill = colour.SDS_ILLUMINANTS[illuminant].copy().align(colour.SpectralShape(lam_nm[0], lam_nm[-1], lam_nm[1] - lam_nm[0]))
+    e = np.asarray(ill.values, dtype=np.float64)
+    w = np.clip(np.asarray(msds.values, dtype=np.float64), 0, None).T * e[None, :]
+    return lam_nm, w, tuple(msds.labels)
+
+
+def channel_table(camera: str = "Nikon 5100 (NPL)", illuminant: str = "D65") -> tuple[Spectrum, ...]:
+    """One :class:`Spectrum` per colour channel on the data's own wavelengths (colour-science's 5 nm table of the
+    camera's sensitivity times the illuminant, 380-780 nm, where a channel's weight may be 0): the colour model itself,
+    every channel on the same wavelengths. The metrics and the PSFs integrate it with :func:`shared_quadrature`
+    (a few wavelengths shared by all channels, chosen for the lens); this table is its dense reference."""
+    lam_nm, w, labels = _camera_weights(camera, illuminant)
+    keep = w.sum(axis=0) > 0  # a wavelength no channel sees is left out
+    lam = tuple(float(v) * 1e-3 for v in lam_nm[keep])
+    return tuple(Spectrum(lam, tuple(float(v) for v in w[c, keep]),
+                          name=f"{camera} {label}, {illuminant}, {len(lam)} wavelengths (5 nm table)")
+                 for c, label in enumerate(labels))
+
+
+def shared_wavelengths(channels) -> bool:
+    """True if every channel (at least one) integrates the same wavelengths (e.g. :func:`channel_table`)."""
+    return bool(channels) and all(c.wavelengths_um == channels[0].wavelengths_um for c in channels[1:])
+
+
+def shared_quadrature(channels, arc, tol: float = DEFAULT_SPECTRAL_TOL, *, max_nodes: int | None = None):
+    """A few wavelengths shared by every channel, with a weight per channel, for channels on one table.
+
+    ``channels``: spectra on the same wavelengths ``lambda_j`` (:func:`shared_wavelengths`); ``arc`` ``(J,)``: the
+    spectral arc length at each ``lambda_j``, increasing: how far the PSF changes between wavelengths, in pixels of
+    ray displacement (:meth:`lenssim.Camera.spectral_arc_px`). An OTF at ``nu`` cycles/pixel turns by
+    ``2 pi nu du`` over an arc ``du``, so at the Nyquist frequency it is ``exp(i pi u)`` to first order.
+
+    Rule: ``K`` nodes ``u_1 < ... < u_K`` spread over the table's span with density ``(w_max(u))^(1/3)`` (the
+    optimal density of piecewise-linear interpolation whose error is weighted by ``w_max``, the largest channel
+    weight per unit arc), and each table wavelength's weight split between the two nodes around it linearly in
+    ``u`` (hat functions: the channel's OTF is integrated exactly where it is linear in ``u``, every weight >= 0).
+    The error of interpolating ``exp(i pi u)`` linearly is at most ``(pi^2 / 2) (u - u_k)(u_{k+1} - u)``; its
+    weighted sum over the table, divided by the table's whole arc ``U`` (px), is each channel's error indicator (px),
+    and ``K`` is the smallest with every channel's indicator <= ``tol`` (at most ``max_nodes``, default every table
+    wavelength: then the table itself, exact). The division by ``U`` is empirical: the MSE integrals weigh the low
+    frequencies, which a wider chromatic blur leaves, and the convergence test against the table (N-BK7, N-SF5,
+    PMMA: spans of 57-122 px) found the MSE_R error to follow ``indicator``, not the raw Nyquist bound.
+
+    Returns ``(channels, indicators)``: the channels on the ``K`` nodes (a node's wavelength is interpolated in
+    ``u``) and each channel's indicator (px).
+    """
+    import numpy as np
+
+    if not shared_wavelengths(channels):
+        raise ValueError("shared_quadrature needs channels on one table of wavelengths (see channel_table)")
+    if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol={tol!r} is not allowed: a positive number (the OTF error bound)")
+    lam = np.asarray(channels[0].wavelengths_um, dtype=np.float64)
+    m = np.asarray([c.weights for c in channels], dtype=np.float64)  # (C, J), each row sums to 1
+    u = np.asarray(arc, dtype=np.float64).reshape(-1)
+    J = lam.size
+    if u.size != J or not np.all(np.isfinite(u)) or not np.all(np.diff(u) > 0):
+        raise ValueError(f"arc: {u.size} finite, strictly increasing values expected, one per wavelength ({J})")
+    if not np.all(np.diff(lam) > 0):
+        raise ValueError("the channels' wavelengths must increase")
+    if not (isinstance(tol, (int, float)) and tol > 0):
+        raise ValueError(f"tol={tol!r} is not allowed: > 0 px")
+    max_nodes = J if max_nodes is None else max(2, min(int(max_nodes), J))
+    if J <= 2:
+        return tuple(channels), np.zeros(len(channels))
+    # node density (w(u))^(1/2), w the largest channel weight per unit arc on each interval between table wavelengths
+    # (1/2 beat the L1-optimal 1/3 and 0.7 in the convergence test: the tails carry little weight but long arcs)
+    du = np.diff(u)
+    dens = np.sqrt(0.5 * (m[:, 1:] + m[:, :-1]).max(axis=0) / du) + 1e-9
+    g = np.concatenate([[0.0], np.cumsum(dens * du)])
+    g /= g[-1]
+
+    def rule(K):
+        nodes_u = np.interp(np.linspace(0, 1, K), g, u)
+        k = np.clip(np.searchsorted(nodes_u, u, side="right") - 1, 0, K - 2)
+        a, b = nodes_u[k], nodes_u[k + 1]
+        t = np.clip((u - a) / (b - a), 0, 1)
+        W = np.zeros((m.shape[0], K))
+        np.add.at(W.T, k, (m * (1 - t)).T)
+        np.add.at(W.T, k + 1, (m * t).T)
+        est = 0.5 * math.pi**2 * (m * ((u - a) * (b - u)).clip(min=0)).sum(axis=1) / (u[-1] - u[0])
+        return nodes_u, W, est
+
+    K = 2
+    nodes_u, W, est = rule(K)
+    while est.max() > tol and K < max_nodes:
+        K += 1
+        nodes_u, W, est = rule(K)
+    if K >= J:
+        return tuple(channels), np.zeros(len(channels))
+    nodes_lam = tuple(float(v) for v in np.interp(nodes_u, u, lam))
+    out = tuple(Spectrum(nodes_lam, tuple(float(v) for v in W[c]),
+                         name=f"{ch.name.split(',')[0]}, {K} shared wavelengths") for c, ch in enumerate(channels))
+    return out, est

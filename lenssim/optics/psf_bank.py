@@ -122,19 +122,22 @@ def _check_spectral(camera: Camera, coeffs: torch.Tensor, n_terms: int = N_TERMS
 
 
 def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_NUMERICS, *,
-             terms=None) -> torch.Tensor:
+             terms=None, per_wavelength: bool = False) -> torch.Tensor:
     """FFT size ``N`` for each coefficient set ``(*, K, T)`` (waves at each wavelength); int64 ``(*)``.
 
     ``N`` is the smallest :func:`nice_fft_size` with, at every wavelength, (i) at most
     ``numerics.fill`` x 0.5 wave of pupil phase per sample and (ii) the geometric PSF diameter
     ``2 G lambda f / (y Delta)`` plus ``numerics.margin_px`` pixels inside the grid (``G`` =
     :func:`max_wavefront_slope`), and ``N >= numerics.min_size``. ``terms``: the coefficients'
-    monomial table (default :data:`lenssim.optics.aberrations.TERMS`).
+    monomial table (default :data:`lenssim.optics.aberrations.TERMS`). ``per_wavelength``: the size each wavelength
+    needs by these rules on its own, ``(*, K)`` (the metrics compute each wavelength's PSF on it and zero-pad it to
+    the largest, :func:`otf_quarter_spectrum`).
     """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     camera.check_sampling()
     fill = numerics.fill
     need = None
+    needs = []
     for k, lam in enumerate(camera.spectrum.wavelengths_um):
         G = max_wavefront_slope(coeffs[..., k, :], terms).cpu()
         r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
@@ -142,6 +145,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
         n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
         nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype))
         need = nk if need is None else torch.maximum(need, nk)
+        needs.append(nk)
     if not bool(torch.isfinite(need).all()):
         raise NumericalError("a wavefront slope is not finite: the coefficients hold NaN or infinite values")
     worst = int(torch.argmax(need.reshape(-1)))
@@ -152,6 +156,8 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
                                  f"limit is max_fft_size = {numerics.max_fft_size}", "max_fft_size")
         err.index = worst
         raise err
+    if per_wavelength:
+        need = torch.stack(needs, dim=-1)
     sizes = sorted({nice_fft_size(int(math.ceil(v))) for v in need.flatten().tolist()})
     table = torch.tensor(sizes, dtype=torch.float64)
     idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
@@ -260,21 +266,25 @@ def _azimuth(azimuth_deg, flat: torch.Tensor):
 
 
 def _wavelength_fields(camera: Camera, coeffs: torch.Tensor, n: int, azimuth_deg, dtype, numerics: Numerics,
-                       terms=None):
-    """For each wavelength of the spectrum: ``(lambda, weight, pupil field (B, box, box), coeffs (B, K, T), lead shape)``."""
+                       terms=None, skip=None):
+    """For each wavelength of the spectrum (but those ``skip`` marks): ``(lambda, weight, pupil field (B, box, box),
+    coeffs (B, K, T), lead shape)``."""
     n_terms = N_TERMS if terms is None else len(terms)
     _check_spectral(camera, coeffs, n_terms)
     lead = coeffs.shape[:-2]
     flat = coeffs.reshape(-1, coeffs.shape[-2], n_terms)
     az = _azimuth(azimuth_deg, flat)
     for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
+        if skip is not None and skip[k]:
+            continue
         field = _field(flat[:, k], _radius(camera, int(n), lam), az, numerics.supersample, dtype or flat.dtype,
                        flat.device, terms)
-        yield lam, w, field, flat, lead
+        yield k, lam, w, field, flat, lead
 
 
 def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, centered: bool = True,
-        dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
+        dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS, terms=None,
+        channel_weights=None) -> torch.Tensor:
     """Intensity PSFs ``(*, n, n)`` of unit sum, from coefficients ``(*, K, T)`` (waves per wavelength).
 
     Each wavelength's ``|DFT(pupil field)|^2`` is divided by the pupil area (samples) times ``n^2`` and the light
@@ -286,17 +296,31 @@ def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, cente
     ``None`` puts the field along +y (rows). With ``centered`` the paraxial image point is at
     ``[n // 2, n // 2]``, else at ``[0, 0]``. The computation runs in ``dtype`` (default: that of
     ``coeffs``; ``torch.float32`` is ~3x faster and accurate to ~1e-6 of the peak). ``terms``: the
-    coefficients' monomial table (default :data:`lenssim.optics.aberrations.TERMS`).
+    coefficients' monomial table (default :data:`lenssim.optics.aberrations.TERMS`). ``channel_weights``
+    ``(C, K)``: one PSF per colour channel from the same wavelengths, ``(*, C, n, n)`` (each wavelength's field
+    transformed once; see :func:`otf_quarter_spectrum`).
     """
-    out = None
-    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics, terms):
+    K = len(camera.spectrum)
+    rows = (camera.spectrum.weights,) if channel_weights is None else _channel_rows(channel_weights, K)
+    outs = [None] * len(rows)
+    lead = None
+    skip = [not any(r[k] > 0 for r in rows) for k in range(K)]
+    for k, lam, _, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, dtype, numerics, terms,
+                                                           skip=skip):
         R = float(_radius(camera, int(n), lam))
         area = float(_pupil_box_cached(R, int(numerics.supersample))[0].sum())
         p = _intensity(field, int(n)).div_(area * n * n).add_(_rim_loss(R, int(numerics.supersample)) / (n * n))
-        out = p if len(camera.spectrum) == 1 else (w * p if out is None else out.add_(p, alpha=w))
+        del field
+        for c, r in enumerate(rows):
+            if r[k] > 0:
+                if len(rows) == 1 and K == 1:
+                    outs[c] = p
+                else:
+                    outs[c] = p * r[k] if outs[c] is None else outs[c].add_(p, alpha=r[k])
+    out = outs[0] if channel_weights is None else torch.stack(outs, dim=-3)
     if centered:
         out = torch.fft.fftshift(out, dim=(-2, -1))
-    return out.reshape(lead + (n, n))
+    return out.reshape(lead + out.shape[1:])
 
 
 @lru_cache(maxsize=128)
@@ -323,14 +347,15 @@ def pedestal_fraction(camera: Camera, n: int, numerics: Numerics = DEFAULT_NUMER
 
 
 def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, centered: bool = True,
-           dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS):
+           dtype: torch.dtype | None = None, numerics: Numerics = DEFAULT_NUMERICS, channel_weights=None):
     """PSFs at image points ``(x_mm, y_mm)`` (mm from the optical axis, image-plane axes).
 
     The field angle is ``atan(r / f)``, ``r = hypot(x, y)``, and the pupil is rotated to the point's
     azimuth, so the coma flare lies along the radial direction of ``(x, y)``. The design's
     parameters, ``x_mm`` and ``y_mm`` broadcast to ``(*)``; returns ``(psfs (*, n, n), n)``. ``n``
     defaults to :func:`fft_size` under ``numerics``. ``dtype``: as in :func:`psf`; Python numbers
-    follow the tensors' precision (float64 if no tensor is given).
+    follow the tensors' precision (float64 if no tensor is given). ``channel_weights`` ``(C, K)``: one PSF per colour
+    channel, ``(*, C, n, n)`` (see :func:`psf`).
     """
     given = [v for v in (x_mm, y_mm) if isinstance(v, torch.Tensor) and v.is_floating_point()]
     given += [v for v in design.values.values()]
@@ -352,8 +377,9 @@ def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, 
         n = int(fft_size(camera, coeffs, numerics).max())
     else:
         n = check_int("n", n, 16, numerics.max_fft_size)
-    out = psf(camera, coeffs, n, azimuth_deg=azimuth, centered=centered, dtype=dtype, numerics=numerics)
-    return out.reshape(shape + (n, n)), n
+    out = psf(camera, coeffs, n, azimuth_deg=azimuth, centered=centered, dtype=dtype, numerics=numerics,
+              channel_weights=channel_weights)
+    return out.reshape(shape + out.shape[1:]), n
 
 
 def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
@@ -365,7 +391,7 @@ def otf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None,
     This is the general (reference) path.
     """
     out = None
-    for lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, None, numerics):
+    for _, lam, w, field, flat, lead in _wavelength_fields(camera, coeffs, n, azimuth_deg, None, numerics):
         H = torch.fft.fft2(_intensity(field, int(n)))
         amp, _ = pupil_amplitude(camera, n, lam, numerics=numerics, dtype=flat.dtype, device=flat.device)
         H = _area_normalise(H, amp)
@@ -504,23 +530,82 @@ def _otf_from_psf_half(p_half: torch.Tensor, n: int, oversample: int, area: floa
 
 
 def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample: int = 1,
-                         numerics: Numerics = DEFAULT_NUMERICS, terms=None) -> torch.Tensor:
+                         numerics: Numerics = DEFAULT_NUMERICS, terms=None, channel_weights=None,
+                         wavelength_sizes=None) -> torch.Tensor:
     """:func:`otf_quarter` for coefficients ``(B, K, T)`` at the camera's wavelengths, weighted over the spectrum.
 
     The PSF -> OTF transform is linear, so a spectrum's PSFs (each normalised by its own pupil area) are
     summed first and transformed once: the cost per wavelength is the pupil -> PSF stage only.
+
+    ``channel_weights`` ``(C, K)`` (e.g. :meth:`lenssim.Camera.node_camera`'s): one OTF per colour channel from the
+    same wavelengths, ``(B, C, m/2+1, m/2+1)``, each wavelength's PSF computed once for every channel (a channel's
+    row is normalised to sum 1; the spectrum's own weights are then not used).
+
+    ``wavelength_sizes`` ``(K,)``: an FFT size per wavelength (even, <= ``n``; e.g. :func:`fft_size` with
+    ``per_wavelength``): each wavelength's PSF is computed on its own grid and zero-padded to ``n`` (its Nyquist row
+    and column split between the two sides), which equals computing it on ``n`` where the PSF fits its own grid.
     """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
-    if len(camera.spectrum) == 1:
-        return otf_quarter(coeffs[:, 0], n, pupil_radius_px=_radius(camera, n, camera.spectrum.wavelengths_um[0]),
-                           oversample=oversample, supersample=numerics.supersample, terms=terms)
-    acc = None
-    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        p, area = _psf_half(coeffs[:, k], n, _radius(camera, n, lam), numerics.supersample, terms)
-        acc = p.mul_(w / area) if acc is None else acc.add_(p, alpha=w / area)
+    if channel_weights is None:
+        if len(camera.spectrum) == 1:
+            return otf_quarter(coeffs[:, 0], n, pupil_radius_px=_radius(camera, n, camera.spectrum.wavelengths_um[0]),
+                               oversample=oversample, supersample=numerics.supersample, terms=terms)
+        rows = (camera.spectrum.weights,)
+    else:
+        rows = _channel_rows(channel_weights, len(camera.spectrum))
+    if channel_weights is None:  # one spectrum: its PSFs summed as they come
+        acc = None
+        for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, rows[0])):
+            p, area = _wavelength_psf_half(camera, coeffs, k, lam, n, wavelength_sizes, numerics, terms)
+            acc = p.mul_(w / area) if acc is None else acc.add_(p, alpha=w / area)
+        H = _otf_from_psf_half(acc, n, oversample, 1.0)
+        H[..., 0, 0] = 1
+        return H
+    # colour channels: the wavelengths' PSFs (each over its pupil area) stacked, mixed by one product with the
+    # channels' weights, and transformed in one batch
+    active = [k for k in range(len(camera.spectrum)) if any(r[k] > 0 for r in rows)]
+    B, h = coeffs.shape[0], n // 2
+    buf = None
+    for i, k in enumerate(active):
+        p, area = _wavelength_psf_half(camera, coeffs, k, camera.spectrum.wavelengths_um[k], n, wavelength_sizes,
+                                       numerics, terms)
+        if buf is None:
+            buf = p.new_empty(len(active), B, n, h + 1)
+        torch.mul(p, 1.0 / area, out=buf[i])
+        del p
+    mix = torch.tensor([[r[k] for k in active] for r in rows], dtype=buf.dtype, device=buf.device)
+    acc = (mix @ buf.reshape(len(active), -1)).reshape(len(rows) * B, n, h + 1)
+    del buf
     H = _otf_from_psf_half(acc, n, oversample, 1.0)
     H[..., 0, 0] = 1
-    return H
+    return H.reshape(len(rows), B, *H.shape[-2:]).transpose(0, 1)
+
+
+def _wavelength_psf_half(camera: Camera, coeffs: torch.Tensor, k: int, lam: float, n: int, wavelength_sizes,
+                         numerics: Numerics, terms):
+    """:func:`_psf_half` of wavelength ``k`` on its own FFT size (``wavelength_sizes[k]``, default ``n``), zero-padded to
+    ``n``: rows periodically, the columns ``u >= 0`` with the last one halved (it stood for both signs)."""
+    nk = n if wavelength_sizes is None else int(wavelength_sizes[k])
+    if not (nk <= n and nk % 2 == 0):
+        raise ValueError(f"wavelength_sizes[{k}] = {nk} is not allowed: an even size <= n = {n}")
+    p, area = _psf_half(coeffs[:, k], nk, _radius(camera, nk, lam), numerics.supersample, terms)
+    if nk != n:
+        p = _pad_periodic(p, n, -2)
+        col = p.new_zeros(p.shape[:-1] + (n // 2 + 1,))
+        col[..., : nk // 2].copy_(p[..., : nk // 2])
+        col[..., nk // 2].copy_(0.5 * p[..., nk // 2])
+        p = col
+    return p, area
+
+
+def _channel_rows(channel_weights, K: int) -> tuple[tuple[float, ...], ...]:
+    """``channel_weights`` ``(C, K)`` checked (finite, >= 0, each row a positive sum) and each row normalised to 1."""
+    rows = tuple(tuple(float(v) for v in r) for r in channel_weights)
+    if not rows or any(len(r) != K for r in rows):
+        raise ValueError(f"channel_weights: expected (C, K) with K = {K} wavelengths")
+    if any(not all(math.isfinite(v) and v >= 0 for v in r) or not sum(r) > 0 for r in rows):
+        raise ValueError("channel_weights: finite values >= 0 with a positive sum per channel")
+    return tuple(tuple(v / sum(r) for v in r) for r in rows)
 
 
 def _pad_periodic(p: torch.Tensor, m: int, dim: int) -> torch.Tensor:

@@ -98,7 +98,13 @@ class _CameraPSF(PSFProvider):
 
     def pedestal_fractions(self, n: int) -> tuple[float, ...]:
         """Each channel's :func:`lenssim.optics.psf_bank.pedestal_fraction` on an ``n x n`` grid."""
-        return tuple(pedestal_fraction(cam, n, self.numerics) for cam in self.camera.channel_cameras())
+        return tuple(pedestal_fraction(cam, n, self.numerics) for cam in self.quadrature_camera.channel_cameras())
+
+    @property
+    def quadrature_camera(self) -> Camera:
+        """The camera whose wavelengths the PSFs integrate: colour channels on one table reduced to their shared
+        quadrature (:meth:`lenssim.Camera.with_quadrature` under ``numerics.spectral_tol``)."""
+        return self.camera.with_quadrature(self.numerics.spectral_tol)
 
     def extent_px(self, rows, cols, optical_center) -> int:
         """The largest geometric PSF diameter over the positions + margin (the margin alone for no position)."""
@@ -152,7 +158,7 @@ class LensPSF(_CameraPSF):
         # the support depends on the field angle only: each angle once (a frame's mirror-image windows share theirs)
         a, inv = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm).flatten(), return_inverse=True)
         half = torch.zeros_like(a, dtype=torch.float64)
-        for cam in self.camera.channel_cameras():
+        for cam in self.quadrature_camera.channel_cameras():
             c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)
             for k, lam in enumerate(cam.spectrum.wavelengths_um):
                 half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]), lam).to(half))
@@ -224,7 +230,7 @@ class AsBuiltPSF(_CameraPSF):
 
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
         out = []
-        for cam in self.camera.channel_cameras():
+        for cam in self.quadrature_camera.channel_cameras():
             c, az = self._coeffs(cam, x_mm, y_mm)
             out.append(psf(cam, c.to(device), n, azimuth_deg=az.to(device), centered=centered, dtype=dtype,
                            numerics=self.numerics, terms=AS_BUILT_TERMS))
@@ -243,7 +249,7 @@ class AsBuiltPSF(_CameraPSF):
 
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
         half = torch.zeros(x_mm.numel(), dtype=torch.float64)
-        for cam in self.camera.channel_cameras():
+        for cam in self.quadrature_camera.channel_cameras():
             c, _ = self._coeffs(cam, x_mm, y_mm)
             for k, lam in enumerate(cam.spectrum.wavelengths_um):
                 half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :], AS_BUILT_TERMS),

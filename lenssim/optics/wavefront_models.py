@@ -41,8 +41,13 @@ def _third_order_psfs(provider, x_mm, y_mm, n, centered, dtype):
     from .psf_bank import psf_at
 
     d = provider.design.map(lambda v: torch.full_like(y_mm, float(v.reshape(()))))
+    camera = provider.camera.with_quadrature(provider.numerics.spectral_tol)
+    if camera.shared_channels:  # each wavelength once for every channel
+        nodes, weights = camera.node_camera()
+        return psf_at(nodes, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=provider.numerics,
+                      channel_weights=weights)[0]
     ps = [psf_at(cam, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=provider.numerics)[0]
-          for cam in provider.camera.channel_cameras()]
+          for cam in camera.channel_cameras()]
     return ps[0] if not provider.camera.channels else torch.stack(ps, dim=1)
 
 
