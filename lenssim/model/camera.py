@@ -21,6 +21,7 @@ from .spectrum import Spectrum, shared_quadrature, shared_wavelengths
 __all__ = ["Camera"]
 
 _QUADRATURE_CACHE: dict = {}
+_QUADRATURE_RESULTS: set = set()  # cameras with_quadrature returned (a few per process): not reduced again
 
 
 @dataclass(frozen=True)
@@ -58,8 +59,9 @@ class Camera:
     def with_quadrature(self, tol: float) -> "Camera":
         """This camera with channels on one table (:func:`lenssim.model.spectrum.channel_table`) reduced to the few
         wavelengths of :func:`lenssim.model.spectrum.shared_quadrature` (error indicator <= ``tol`` px), shared by
-        every channel; any other camera unchanged. Cached per camera and ``tol``."""
-        if not self.shared_channels or len(self.channels[0]) <= 2:
+        every channel; any other camera, and a camera this method returned, unchanged (reducing the few shared
+        wavelengths again as if they were a table would drop some). Cached per camera and ``tol``."""
+        if not self.shared_channels or len(self.channels[0]) <= 2 or self in _QUADRATURE_RESULTS:
             return self
         key = (self, float(tol))
         hit = _QUADRATURE_CACHE.get(key)
@@ -69,6 +71,8 @@ class Camera:
             if len(_QUADRATURE_CACHE) > 64:
                 _QUADRATURE_CACHE.clear()
             _QUADRATURE_CACHE[key] = hit
+            if hit is not self:
+                _QUADRATURE_RESULTS.add(hit)
         return hit
 
     def node_camera(self) -> tuple["Camera", tuple[tuple[float, ...], ...]]:

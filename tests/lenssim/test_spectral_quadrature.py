@@ -76,6 +76,18 @@ def test_a_smaller_bound_takes_more_wavelengths_and_the_whole_table_is_exact():
     assert full == tab and not est.any()
 
 
+def test_reducing_twice_changes_nothing():
+    """A camera already on its shared wavelengths is not reduced again (its nodes are no table), so evaluating or
+    blurring with it gives what the table camera gives."""
+    cam = colour_camera("N-BK7", angles=(0.0, 10.0))
+    q = cam.with_quadrature(DEFAULT_SPECTRAL_TOL)
+    assert q.with_quadrature(DEFAULT_SPECTRAL_TOL) is q and q.with_quadrature(0.05) is q
+    d = Design(s=-0.775, Q_back=-2.4)
+    a = evaluate(cam, d, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)["mse_r_per_channel"]
+    b = evaluate(q, d, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)["mse_r_per_channel"]
+    torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
 def test_the_count_follows_the_glass_dispersion():
     """More axial colour (a longer spectral arc) takes more wavelengths: the paper's glass (no dispersion: only the
     Airy scale changes) fewest, the flint N-SF5 most."""
