@@ -71,7 +71,7 @@ class Camera:
             if len(_QUADRATURE_CACHE) > 64:
                 _QUADRATURE_CACHE.clear()
             _QUADRATURE_CACHE[key] = hit
-            if hit is not self:
+            if hit != self:  # the table itself (a bound that keeps every wavelength) is no result
                 _QUADRATURE_RESULTS.add(hit)
         return hit
 

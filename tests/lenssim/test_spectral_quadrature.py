@@ -80,7 +80,9 @@ def test_reducing_twice_changes_nothing():
     """A camera already on its shared wavelengths is not reduced again (its nodes are no table), so evaluating or
     blurring with it gives what the table camera gives."""
     cam = colour_camera("N-BK7", angles=(0.0, 10.0))
+    assert cam.with_quadrature(1e-9) == cam  # the whole table, which stays a table
     q = cam.with_quadrature(DEFAULT_SPECTRAL_TOL)
+    assert len(q.channels[0]) < len(cam.channels[0])
     assert q.with_quadrature(DEFAULT_SPECTRAL_TOL) is q and q.with_quadrature(0.05) is q
     d = Design(s=-0.775, Q_back=-2.4)
     a = evaluate(cam, d, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)["mse_r_per_channel"]
