@@ -60,7 +60,11 @@ class Camera:
         """This camera with channels on one table (:func:`lenssim.model.spectrum.channel_table`) reduced to the few
         wavelengths of :func:`lenssim.model.spectrum.shared_quadrature` (error indicator <= ``tol`` px), shared by
         every channel; any other camera, and a camera this method returned, unchanged (reducing the few shared
-        wavelengths again as if they were a table would drop some). Cached per camera and ``tol``."""
+        wavelengths again as if they were a table would drop some). Cached per camera and ``tol``.
+
+        Channels on shared wavelengths are taken as a table to integrate: the metrics and the PSFs call this with
+        ``numerics.spectral_tol``. To use shared wavelengths of one's own as they are, give a bound that keeps every
+        one (e.g. ``spectral_tol=1e-9``)."""
         if not self.shared_channels or len(self.channels[0]) <= 2 or self in _QUADRATURE_RESULTS:
             return self
         key = (self, float(tol))
