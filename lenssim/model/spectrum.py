@@ -185,7 +185,7 @@ def shared_quadrature(channels, arc, tol: float = DEFAULT_SPECTRAL_TOL, *, max_n
     if not shared_wavelengths(channels):
         raise ValueError("shared_quadrature needs channels on one table of wavelengths (see channel_table)")
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
-        raise ValueError(f"tol={tol!r} is not allowed: a positive number (the OTF error bound)")
+        raise ValueError(f"tol={tol!r} is not allowed: a positive number (px, the error indicator's bound)")
     lam = np.asarray(channels[0].wavelengths_um, dtype=np.float64)
     m = np.asarray([c.weights for c in channels], dtype=np.float64)  # (C, J), each row sums to 1
     u = np.asarray(arc, dtype=np.float64).reshape(-1)
@@ -194,8 +194,6 @@ def shared_quadrature(channels, arc, tol: float = DEFAULT_SPECTRAL_TOL, *, max_n
         raise ValueError(f"arc: {u.size} finite, strictly increasing values expected, one per wavelength ({J})")
     if not np.all(np.diff(lam) > 0):
         raise ValueError("the channels' wavelengths must increase")
-    if not (isinstance(tol, (int, float)) and tol > 0):
-        raise ValueError(f"tol={tol!r} is not allowed: > 0 px")
     max_nodes = J if max_nodes is None else max(2, min(int(max_nodes), J))
     if J <= 2:
         return tuple(channels), np.zeros(len(channels))

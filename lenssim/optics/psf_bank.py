@@ -546,16 +546,12 @@ def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversa
     and column split between the two sides), which equals computing it on ``n`` where the PSF fits its own grid.
     """
     _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
-    if channel_weights is None:
+    if channel_weights is None:  # one spectrum: its PSFs summed as they come
         if len(camera.spectrum) == 1:
             return otf_quarter(coeffs[:, 0], n, pupil_radius_px=_radius(camera, n, camera.spectrum.wavelengths_um[0]),
                                oversample=oversample, supersample=numerics.supersample, terms=terms)
-        rows = (camera.spectrum.weights,)
-    else:
-        rows = _channel_rows(channel_weights, len(camera.spectrum))
-    if channel_weights is None:  # one spectrum: its PSFs summed as they come
         acc = None
-        for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, rows[0])):
+        for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
             p, area = _wavelength_psf_half(camera, coeffs, k, lam, n, wavelength_sizes, numerics, terms)
             acc = p.mul_(w / area) if acc is None else acc.add_(p, alpha=w / area)
         H = _otf_from_psf_half(acc, n, oversample, 1.0)
@@ -563,6 +559,7 @@ def otf_quarter_spectrum(camera: Camera, coeffs: torch.Tensor, n: int, *, oversa
         return H
     # colour channels: the wavelengths' PSFs (each over its pupil area) stacked, mixed by one product with the
     # channels' weights, and transformed in one batch
+    rows = _channel_rows(channel_weights, len(camera.spectrum))
     active = [k for k in range(len(camera.spectrum)) if any(r[k] > 0 for r in rows)]
     B, h = coeffs.shape[0], n // 2
     buf = None
