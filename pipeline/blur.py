@@ -13,7 +13,9 @@ position*
 (from a PSF provider, :mod:`lenssim.optics.psf_provider`: the lens model with exact pupil rotation, or
 measured PSFs); only the central ``core`` x ``core`` of the
 result is kept, weighted by a separable tent of half-width ``core / 2`` and blended with its
-neighbours. With the paper's scheme (512, 32, 64) the tents form a partition of unity, so every
+neighbours. Where a PSF outgrows the window (its support plus the core above ``window``, e.g. a colour PSF in a
+corner of the frame) that window alone grows: it takes :func:`grown_window` px, its PSF computed on that grid
+(:func:`window_sizes`; at most :data:`MAX_WINDOW_PX`). With the paper's scheme (512, 32, 64) the tents form a partition of unity, so every
 pixel is a linear interpolation of the 2 x 2 nearest local convolutions. Weights are normalised by
 their sum in any case. The PSF must fit in the window: its extent plus the core must stay within
 ``window`` or the circular convolution would wrap into the core (checked).
@@ -34,12 +36,14 @@ from dataclasses import dataclass
 import torch
 
 from lenssim import PSFProvider, frame_center
+from lenssim.optics.psf_bank import nice_fft_size
 from lenssim.torch_utils import chunk_budget_bytes
 
 from .checks import check_image, check_provider
 
 __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "axis_positions", "scheme_positions",
-           "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "fold_psf",
+           "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "grown_window",
+           "window_sizes", "largest_window", "fold_psf",
            "apply_windowed", "blur_windowed", "box_mean", "blur_exact"]
 
 
@@ -188,6 +192,45 @@ def fitted_windows(need: torch.Tensor, window: int) -> torch.Tensor:
     return torch.where(need > 0, w, window)
 
 
+def grown_window(need: int) -> int:
+    """The window (px) for a PSF whose support plus core, ``need`` px, is more than the scheme's window: the smallest
+    size with no prime factor above 5 (a multiple of 16) holding ``need +`` :data:`FIT_MARGIN_PX`."""
+    return nice_fft_size(int(need) + FIT_MARGIN_PX)
+
+
+def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool) -> torch.Tensor:
+    """Each window's size (px, ``(P,)`` int64) for PSF supports ``extents`` (px, ``(P,)``; 0 where unknown).
+
+    A window whose PSF support plus core fits ``scheme.window`` takes the scheme's window, or with ``fit`` its
+    :func:`fitted_windows` size; one whose PSF does not fit takes :func:`grown_window` px (its PSF then computed on
+    that grid, not folded), so no PSF wraps into a core. ``ValueError`` where that is over :data:`MAX_WINDOW_PX`.
+    """
+    win, core = scheme.window, scheme.core
+    need = torch.where(extents > 0, extents + core, 0).to(torch.int64)
+    sizes = fitted_windows(need, win) if fit else torch.full_like(need, win)
+    over = need > win
+    if bool(over.any()):
+        most = int(need.max())
+        grown = grown_window(most)
+        if grown > MAX_WINDOW_PX:
+            raise ValueError(f"the PSF spans {most - core} px: with the {core}-px core a window of {grown} px would be "
+                             f"needed, over the {MAX_WINDOW_PX} px allowed (use a smaller core, or a sharper design)")
+        sizes = torch.where(over, torch.tensor([grown_window(int(v)) for v in need.tolist()]), sizes)
+    return sizes
+
+
+def largest_window(psf: PSFProvider, shape, scheme: WindowScheme = PAPER_SCHEME, optical_center=None) -> int:
+    """The largest window (px) a windowed pass over an image of ``shape`` ``(..., H, W)`` takes: ``scheme.window``,
+    or more where a PSF outgrows it (:func:`window_sizes`). For the margins a crop needs around it."""
+    check_provider(psf)
+    center = optical_center if optical_center is not None else frame_center(shape)
+    py, px = scheme_positions(shape[-2], scheme, center[0]), scheme_positions(shape[-1], scheme, center[1])
+    Y, X = torch.meshgrid(py, px, indexing="ij")
+    symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
+    sizes = window_sizes(_extents(psf, Y.flatten(), X.flatten(), center, symmetric), scheme, fit=False)
+    return max([scheme.window] + sizes.tolist())
+
+
 def fold_psf(p: torch.Tensor, w: int) -> torch.Tensor:
     """A PSF ``(..., n, n)`` with its centre at ``[0, 0]`` (DFT order) folded onto a ``w x w`` grid: the value at
     offset ``d`` (``-n/2 < d < n/2``) is added to index ``d mod w``; the row (column) at ``n/2``, which the periodic
@@ -222,13 +265,17 @@ class _WindowOTFs:
     """
 
     def __init__(self, psf: PSFProvider, center, win: int, dtype, device, symmetric: bool, n: int | None = None,
-                 pedestal: bool = False):
+                 pedestal: int | None = None):
         self.psf, self.center, self.win, self.dtype, self.device = psf, center, win, dtype, device
         self.n = win if n is None else n  # the PSFs' grid (px): folded onto the window where it is larger
         self.symmetric = symmetric
-        # per channel, the uniform level taken out of each PSF (its pedestal, convolved apart by the caller)
-        self.level = (torch.tensor(psf.pedestal_fractions(self.n), dtype=torch.float64) / self.n**2
-                      if pedestal else None)
+        # per channel, the uniform level taken out of each PSF: the pedestal on the caller's grid of ``pedestal`` px,
+        # which the caller convolves apart. On a larger grid (a grown window) the PSF's own pedestal is smaller; the
+        # rest of the level taken out is uniform over the whole grid, which a circular convolution over it sees at
+        # the zero frequency only: the PSF keeps its exact OTF at every other frequency and a sum of one less the
+        # caller's pedestal.
+        self.level = (torch.tensor(psf.pedestal_fractions(pedestal), dtype=torch.float64) / self.n**2
+                      if pedestal is not None else None)
         self.rev = (-torch.arange(win, device=device)) % win  # the row of -f_y for each row f_y
 
     def _canonical(self, ys, xs):
@@ -298,9 +345,11 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or with ``fit`` (for an ``op`` that convolves with
     the PSF, whose core then does not depend on the window beyond the PSF's reach) the :func:`fitted_windows`
     size of the PSF's support at the window's position plus the core, the PSF computed on the ``window`` grid
-    and folded onto ``w`` (:func:`fold_psf`); windows of one size are processed together. With ``pedestal`` the
-    provider's uniform pedestal (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
-    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over the PSF grid).
+    and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus core) takes
+    :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must take the size
+    from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
+    on the ``window`` grid (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
+    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px).
     """
     check_image(image)
     check_provider(psf)
@@ -309,7 +358,7 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
         raise ValueError(f"the PSF provider has {psf.channels} channels and the image {C}: expected 1 or {C}")
     center = optical_center if optical_center is not None else frame_center(image.shape)
     r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    win, half, core = scheme.window, scheme.window // 2, scheme.core
+    win, core = scheme.window, scheme.core
     py, px = scheme_positions(H, scheme, center[0]), scheme_positions(W, scheme, center[1])
     py = py[(py + core / 2 > r0) & (py - core / 2 < r1)]
     px = px[(px + core / 2 > c0) & (px - core / 2 < c1)]
@@ -321,19 +370,9 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     Y, X = Y.flatten(), X.flatten()  # window positions (px, float64): where each PSF is evaluated
     # the origin grid has (almost) no mirror pairs: it keeps the first version's order of work, bit for bit
     symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
-    if fit:  # each window's support, asked once: for its size and for the check
-        ext = _extents(psf, Y, X, center, symmetric)
-        need = int(ext.max()) if ext.numel() else 0
-    else:
-        need = psf.extent_px(Y, X, center)
-    if need + core > win:
-        raise ValueError(f"the PSF spans {need} px but window={win} leaves room for only {win - core} beside the "
-                         f"{core}-px core: use a larger window")
-    if fit:
-        sizes = fitted_windows(torch.where(ext > 0, ext + core, 0), win)
-    else:
-        sizes = torch.full_like(Y, win, dtype=torch.int64)
-    pad = half + core
+    # each window's support, asked once: its size (the scheme's, fitted, or grown where the PSF outgrows it)
+    sizes = window_sizes(_extents(psf, Y, X, center, symmetric), scheme, fit)
+    pad = max([win] + sizes.tolist()) // 2 + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
     wsum = torch.zeros(H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
@@ -342,7 +381,8 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
         sel = sizes == w
         hw = w // 2
         k_chunk = chunk if chunk is not None else window_chunk(image, w)
-        otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=win, pedestal=pedestal)
+        otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=max(w, win),
+                           pedestal=win if pedestal else None)
         for gy, gx in otfs.chunks(Y[sel], X[sel], max(PSF_BATCH, k_chunk)):
             group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
             for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches

@@ -25,7 +25,7 @@ import json
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -35,7 +35,7 @@ from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
 from lenssim.io.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
-from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count
+from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, largest_window, window_count
 from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import expose, read_noise_variance
 from .quality import psnr_srgb, ssim_srgb
@@ -181,8 +181,11 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         r.check(scheme)
     H, W = ideal.shape[-2:]
     centre = frame_center(ideal.shape)
-    # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
-    margin = max([scheme.window // 2 + scheme.core] + [r.margin(scheme) for r in specs])
+    # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach,
+    # with the windows as large as the frame's largest (larger than the scheme's where a PSF outgrows it)
+    most = max(largest_window(p, ideal.shape, scheme) for p in {id(psf): psf, id(restoration_psf): restoration_psf}.values())
+    reach = replace(scheme, window=most)
+    margin = max([reach.window // 2 + reach.core] + [r.margin(reach) for r in specs])
     peak = float(ideal.amax())
     out = [[] for _ in wells]
     for k, (r0, r1, c0, c1) in enumerate(boxes):

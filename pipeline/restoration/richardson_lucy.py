@@ -40,10 +40,9 @@ def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterat
         raise ValueError(f"iterations={iterations!r} is not allowed: an integer >= 1")
     if (observed < 0).any():
         raise ValueError("observed image has negative values: Richardson-Lucy needs y >= 0")
-    win = scheme.window
-
     def rl(patches, otf):
         H = otf
+        win = patches.shape[-1]  # the scheme's window, or larger where the PSF outgrows it
         conv = lambda x, F: torch.fft.irfft2(torch.fft.rfft2(x) * F, s=(win, win))  # noqa: E731
         u = torch.full_like(patches, 0.5)  # scikit-image's starting point
         for _ in range(iterations):

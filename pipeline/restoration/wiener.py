@@ -86,17 +86,27 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
             and pixel_stats % 2 == 1 and pixel_stats <= scheme.window - scheme.core):
         raise ValueError(f"pixel_stats={pixel_stats!r} is not allowed: an odd number of px, >= 3 and at most the "
                          f"window less the core ({scheme.window - scheme.core})")
-    win, half = scheme.window, scheme.window // 2
-    P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
-    P = P / P.mean()
     inv_e = 0.0 if math.isinf(electrons_per_unit) else 1.0 / electrons_per_unit
-    w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
-    w[0] = w[-1] = 1
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
+    grids = {}
+
+    def grid_terms(win):
+        """The image PSD ``P`` on a ``win`` px window (half-plane, mean 1) and the half-plane's column weights
+        (the scheme's window, or a larger one where the PSF outgrows it: see :func:`pipeline.blur.window_sizes`)."""
+        if win not in grids:
+            half = win // 2
+            P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
+            w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
+            w[0] = w[-1] = 1
+            grids[win] = (P / P.mean(), w)
+        return grids[win]
 
     def window_terms(patches, H):
         """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
-        win/2+1)``)."""
+        win/2+1)``), and ``P``."""
+        win = patches.shape[-1]
+        half = win // 2
+        P, w = grid_terms(win)
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
@@ -104,11 +114,12 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         HP = (H.real.square() + H.imag.square()) * P
         # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
         gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
-        return mu, noise, HP, (var_y - noise).clamp_min(floor) / gain
+        return mu, noise, HP, (var_y - noise).clamp_min(floor) / gain, P
 
     def restore(patches, otf):
         H = otf
-        mu, noise, HP, sx = window_terms(patches, H)
+        win = patches.shape[-1]
+        mu, noise, HP, sx, P = window_terms(patches, H)
         # G = conj(H) sx P / (|H|^2 sx P + noise) = conj(H) P / (|H|^2 P + noise / sx), built in place
         G = HP + noise / sx
         torch.div(P, G.clamp_min_(tiny), out=G)
@@ -129,7 +140,9 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         from ..blur import core_irfft2
 
         H = otf
-        mu, noise, HP, sx = window_terms(patches, H)
+        win = patches.shape[-1]
+        half = win // 2
+        mu, noise, HP, sx, P = window_terms(patches, H)
         # the per-pixel signal variance relative to the window's, over the core (box filter over core + halo)
         h = pixel_stats // 2
         lo, hi = half - core // 2 - h, half + core // 2 + h
