@@ -463,7 +463,8 @@ def register(sub) -> None:
         f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos))
     p.add_argument("--full-well", type=float, metavar="E", help="any full-well capacity (electrons) instead of --iso")
     p.add_argument("--scheme", type=int, nargs=3, default=[512, 32, 64], metavar=("WINDOW", "STRIDE", "CORE"),
-                   help="local-convolution windows (px): window, stride, blended core (paper: 512 32 64)")
+                   help="local-convolution windows (px): window, stride, blended core (paper: 512 32 64); a window "
+                        "grows where its PSF and core do not fit")
     p.add_argument("--window-grid", choices=WINDOW_ANCHORS, default=PAPER_SCHEME.anchor,
                    help="where the windows lie: 'axis' (symmetric about the optical axis, one PSF per mirror group "
                         "of up to 8 windows; default) or 'origin' (from pixel 0, the first version's grid)")

@@ -13,12 +13,12 @@ position*
 (from a PSF provider, :mod:`lenssim.optics.psf_provider`: the lens model with exact pupil rotation, or
 measured PSFs); only the central ``core`` x ``core`` of the
 result is kept, weighted by a separable tent of half-width ``core / 2`` and blended with its
-neighbours. Where a PSF outgrows the window (its support plus the core above ``window``, e.g. a colour PSF in a
-corner of the frame) that window alone grows: it takes :func:`grown_window` px, its PSF computed on that grid
-(:func:`window_sizes`; at most :data:`MAX_WINDOW_PX`). With the paper's scheme (512, 32, 64) the tents form a partition of unity, so every
+neighbours. With the paper's scheme (512, 32, 64) the tents form a partition of unity, so every
 pixel is a linear interpolation of the 2 x 2 nearest local convolutions. Weights are normalised by
 their sum in any case. The PSF must fit in the window: its extent plus the core must stay within
-``window`` or the circular convolution would wrap into the core (checked).
+the window or the circular convolution would wrap into the core. Where a PSF outgrows ``window`` (e.g. a
+colour PSF in a corner of the frame) that window alone grows to hold it: it takes :func:`grown_window` px, its PSF
+computed on that grid (:func:`window_sizes`; at most :data:`MAX_WINDOW_PX`, else ``ValueError``).
 
 Geometry: image rows/columns are ``y``/``x`` in the image plane (:class:`lenssim.FieldGeometry`);
 ``optical_center`` (row, col) in pixels of this array, default the array centre. Crops of a
@@ -215,7 +215,9 @@ def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool) -> torc
         if grown > MAX_WINDOW_PX:
             raise ValueError(f"the PSF spans {most - core} px: with the {core}-px core a window of {grown} px would be "
                              f"needed, over the {MAX_WINDOW_PX} px allowed (use a smaller core, or a sharper design)")
-        sizes = torch.where(over, torch.tensor([grown_window(int(v)) for v in need.tolist()]), sizes)
+        values, inv = torch.unique(need[over], return_inverse=True)
+        sizes = sizes.clone()
+        sizes[over] = torch.tensor([grown_window(int(v)) for v in values.tolist()], dtype=sizes.dtype)[inv]
     return sizes
 
 
