@@ -198,6 +198,10 @@ def cmd_simulate(args) -> int:
               "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
               "blur_windows": args.blur_windows,
               "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0]}
+    # what the figures' titles say of the optics: the design, and the glass and colour channels where not the paper's
+    report["optics"] = ", ".join([design.label()] + ([camera.lens.glass.name] if camera.lens.glass != PAPER_CAMERA.lens.glass
+                                                     or camera.channels else [])
+                                 + ([f"{args.spectrum} RGB"] if camera.channels else []))
     with staged_output_dir(out) as stage:
         if args.full_frame:
             results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0])
@@ -219,12 +223,12 @@ def cmd_simulate(args) -> int:
                                     "psnr_restored_db": r.scores[methods[0]]["psnr_db"],
                                     **({"psnr_restored_calibrated_db": r.scores[methods[1]]["psnr_db"]}
                                        if built is not None else {})})
-        title = f"{source}: {design.label()}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
+        title = f"{source}: {report['optics']}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
         shown = [m for m in methods if m in results[0].images]
         mosaic_figure(results, shown, stage / "mosaic.png", title=title)
         atomic_write_text(stage / "metrics.json", json_text(report))
         _index_page(stage, title, report, results, shown)
-    print(f"{source}, {design.label()}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
+    print(f"{source}, {report['optics']}, " + (f"ISO {args.iso} " if args.iso else "") + f"({fwc:g} e- full well):")
     print("  field [deg]   PSNR [dB] / SSIM: sensor -> " + ", ".join(_kind_label(m) for m in methods))
     for c in report["crops"]:
         sc = c["scores"]
@@ -333,7 +337,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
         "shape_c_h_w": list(ideal.shape[1:]), "windows_per_pass": n, "electrons_per_unit": frame.electrons_per_unit,
         "method": frame.method, **scores, "resumed": frame.resumed}
     plot_field_psnr(maps, stage / "field_psnr.png",
-                    title=f"{report['source']}: {psf.design.label()}, {fwc:g} e- full well")
+                    title=f"{report['source']}: {report['optics']}, {fwc:g} e- full well")
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
         k: [[round(x, 3) if math.isfinite(x) else None for x in row] for row in v.tolist()] for k, v in maps.items()}
     frame.seconds["metrics"] += time.perf_counter() - t0

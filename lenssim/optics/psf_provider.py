@@ -106,6 +106,18 @@ class _CameraPSF(PSFProvider):
         quadrature (:meth:`lenssim.Camera.with_quadrature` under ``numerics.spectral_tol``)."""
         return self.camera.with_quadrature(self.numerics.spectral_tol)
 
+    def _support_cameras(self) -> tuple[Camera, ...]:
+        """The cameras whose wavelengths a PSF's support is the largest over: the shared wavelengths once (every
+        channel integrates them), else each channel's own."""
+        q = self.quadrature_camera
+        return (q.node_camera()[0],) if q.channels and q.shared_channels else q.channel_cameras()
+
+    @staticmethod
+    def _radius_px(cam: Camera, slopes: torch.Tensor) -> torch.Tensor:
+        """The largest geometric radius (px) over ``cam``'s wavelengths for the wavefront slopes ``(P, K)``."""
+        lam = torch.tensor(cam.spectrum.wavelengths_um, dtype=torch.float64)
+        return cam.geometric_radius_px(slopes.to(torch.float64), lam).amax(dim=-1)
+
     def extent_px(self, rows, cols, optical_center) -> int:
         """The largest geometric PSF diameter over the positions + margin (the margin alone for no position)."""
         e = self.extents_px(rows, cols, optical_center)
@@ -158,10 +170,9 @@ class LensPSF(_CameraPSF):
         # the support depends on the field angle only: each angle once (a frame's mirror-image windows share theirs)
         a, inv = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm).flatten(), return_inverse=True)
         half = torch.zeros_like(a, dtype=torch.float64)
-        for cam in self.quadrature_camera.channel_cameras():
-            c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)
-            for k, lam in enumerate(cam.spectrum.wavelengths_um):
-                half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :]), lam).to(half))
+        for cam in self._support_cameras():
+            c = spectral_coefficients(cam, self._design_like(a), a, elementwise=True)  # (A, K, T)
+            half = torch.maximum(half, self._radius_px(cam, max_wavefront_slope(c)))
         half = half * validate_wavefront_model(self.wavefront).support_factor
         return (torch.ceil(2 * half).to(torch.int64) + self.numerics.margin_px)[inv]
 
@@ -249,9 +260,7 @@ class AsBuiltPSF(_CameraPSF):
 
         x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
         half = torch.zeros(x_mm.numel(), dtype=torch.float64)
-        for cam in self.quadrature_camera.channel_cameras():
-            c, _ = self._coeffs(cam, x_mm, y_mm)
-            for k, lam in enumerate(cam.spectrum.wavelengths_um):
-                half = torch.maximum(half, cam.geometric_radius_px(max_wavefront_slope(c[..., k, :], AS_BUILT_TERMS),
-                                                                   lam).to(half))
+        for cam in self._support_cameras():
+            c, _ = self._coeffs(cam, x_mm, y_mm)  # (P, K, T)
+            half = torch.maximum(half, self._radius_px(cam, max_wavefront_slope(c, AS_BUILT_TERMS)))
         return torch.ceil(2 * half).to(torch.int64) + self.numerics.margin_px
