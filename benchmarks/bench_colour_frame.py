@@ -89,7 +89,8 @@ def frame(photo: str, extra: list[str]) -> tuple[float, float]:
         line = [ln for ln in p.stderr.splitlines() if ln.startswith("BENCH")][-1].split()
         with open(os.path.join(tmp, "out", "metrics.json")) as f:
             report = json.load(f)["full_frame"]
-        print(f"  stages (s): {report['seconds']}", flush=True)
+        print(f"  stages (s): {report['seconds']}; PSNR sensor {report['psnr_sensor_db']:.2f} dB -> restored "
+              f"{report['psnr_restored_db']:.2f} dB", flush=True)
         return float(line[1]), float(line[2]) / 2**20
 
 

@@ -221,12 +221,17 @@ def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool) -> torc
     return sizes
 
 
-def largest_window(psf: PSFProvider, shape, scheme: WindowScheme = PAPER_SCHEME, optical_center=None) -> int:
+def largest_window(psf: PSFProvider, shape, scheme: WindowScheme = PAPER_SCHEME, optical_center=None,
+                   region=None) -> int:
     """The largest window (px) a windowed pass over an image of ``shape`` ``(..., H, W)`` takes: ``scheme.window``,
-    or more where a PSF outgrows it (:func:`window_sizes`). For the margins a crop needs around it."""
+    or more where a PSF outgrows it (:func:`window_sizes`); with ``region = (r0, r1, c0, c1)`` only the windows whose
+    cores touch it. For the margins a crop needs around it."""
     check_provider(psf)
     center = optical_center if optical_center is not None else frame_center(shape)
+    r0, r1, c0, c1 = region if region is not None else (0, shape[-2], 0, shape[-1])
     py, px = scheme_positions(shape[-2], scheme, center[0]), scheme_positions(shape[-1], scheme, center[1])
+    py = py[(py + scheme.core / 2 > r0) & (py - scheme.core / 2 < r1)]
+    px = px[(px + scheme.core / 2 > c0) & (px - scheme.core / 2 < c1)]
     Y, X = torch.meshgrid(py, px, indexing="ij")
     symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
     sizes = window_sizes(_extents(psf, Y.flatten(), X.flatten(), center, symmetric), scheme, fit=False)

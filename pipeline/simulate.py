@@ -181,14 +181,26 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         r.check(scheme)
     H, W = ideal.shape[-2:]
     centre = frame_center(ideal.shape)
-    # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach,
-    # with the windows as large as the frame's largest (larger than the scheme's where a PSF outgrows it)
-    most = max(largest_window(p, ideal.shape, scheme) for p in {id(psf): psf, id(restoration_psf): restoration_psf}.values())
-    reach = replace(scheme, window=most)
-    margin = max([reach.window // 2 + reach.core] + [r.margin(reach) for r in specs])
+    providers = {id(psf): psf, id(restoration_psf): restoration_psf}.values()
+
+    def crop_margin(r0, r1, c0, c1) -> int:
+        """What the passes read beyond the crop (px): half a window and a core, the windows as large as the largest
+        within that reach (larger than the scheme's where a PSF outgrows it), found by widening until it holds."""
+        w = scheme.window
+        while True:
+            reach = replace(scheme, window=w)
+            m = max([reach.window // 2 + reach.core] + [r.margin(reach) for r in specs])
+            near = (max(r0 - m, 0), min(r1 + m, H), max(c0 - m, 0), min(c1 + m, W))
+            most = max(largest_window(p, ideal.shape, scheme, region=near) for p in providers)
+            if most <= w:
+                return m
+            w = most
+
     peak = float(ideal.amax())
     out = [[] for _ in wells]
     for k, (r0, r1, c0, c1) in enumerate(boxes):
+        # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
+        margin = crop_margin(r0, r1, c0, c1)
         R0, R1, C0, C1 = max(r0 - 2 * margin, 0), min(r1 + 2 * margin, H), max(c0 - 2 * margin, 0), min(c1 + 2 * margin, W)
         sub = ideal[..., R0:R1, C0:C1].to(dtype)
         oc = (centre[0] - R0, centre[1] - C0)

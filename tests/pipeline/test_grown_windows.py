@@ -54,6 +54,10 @@ def test_a_window_grows_only_where_its_psf_and_core_do_not_fit():
     assert largest_window(DISC, (1, 3, 200, 200), SMALL) == 240
     assert largest_window(disc_psf(20, 41), (1, 3, 200, 200), SMALL) == 128
     assert largest_window(DISC, (1, 3, 200, 200), WindowScheme(512, 32, 64)) == 512
+    # a lens PSF grows with the field: a region about the axis keeps the scheme's window, the whole frame does not
+    mid = WindowScheme(256, 32, 64)
+    assert largest_window(E2E, (1, 3, 4000, 6000), mid, region=(1900, 2100, 2900, 3100)) == 256
+    assert largest_window(E2E, (1, 3, 4000, 6000), mid) > 256
     with pytest.raises(ValueError, match=f"over the {MAX_WINDOW_PX} px allowed"):
         blur_windowed(texture(64, 64), disc_psf(20, 5000), scheme=SMALL)
 
@@ -123,7 +127,7 @@ def test_a_crop_reads_as_far_as_its_grown_windows(monkeypatch):
         return float((res.images["wiener"] - whole).abs().mean())
 
     err = crop_error()
-    monkeypatch.setattr(sim, "largest_window", lambda psf, shape, scheme: scheme.window)  # the scheme's margins
+    monkeypatch.setattr(sim, "largest_window", lambda psf, shape, scheme, **kw: scheme.window)  # the scheme's margins
     err_scheme = crop_error()
     print(f"crop vs whole image: {err:.2e} (margins of the scheme's window: {err_scheme:.2e})")
     assert err < 2e-3 and err_scheme > 0.1
