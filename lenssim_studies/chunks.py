@@ -18,7 +18,7 @@ from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
-__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder"]
+__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks"]
 
 
 @contextmanager
@@ -47,6 +47,56 @@ def partial_folder(part: Path, meta_name: str, digest: str, payload: dict, refus
         if created and part.is_dir() and not any(p.suffix != ".json" for p in part.iterdir()):
             shutil.rmtree(part, ignore_errors=True)
         raise
+
+
+def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight, desc: str, show_progress: bool,
+                  max_chunks: int | None = None, cluster=None) -> list | None:
+    """The chunks of a resumable run, one file each at ``paths``: those already there are kept where they verify, the
+    others computed and written, and all of them read back and verified.
+
+    ``read(path, i)`` gives the chunk or a string saying why it is not trusted (a chunk already there is then warned
+    about as a :class:`lenssim.validate.ResumeWarning` and computed again; one just written stops the run with a
+    ``ValueError``); ``write(path, chunk, i)`` writes it atomically; ``compute(i, progress)`` computes it here, or
+    ``cluster(todo)`` (optional) yields ``(i, chunk)`` for the indices ``todo`` as they are done elsewhere.
+    ``weight(i)``: chunk ``i``'s share of the progress bar (``desc``, on stderr, in PSFs). With ``max_chunks`` at most
+    that many are computed; if any are left, None. ``kind`` names the chunks in messages ("sweep", "tolerance").
+    """
+    import sys
+    import warnings
+
+    from tqdm import tqdm
+
+    from lenssim.validate import ResumeWarning
+
+    for i, p in enumerate(paths):
+        if p.exists():
+            got = read(p, i)
+            if isinstance(got, str):
+                warnings.warn(f"{kind} chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=3)
+                p.unlink()
+    total = sum(weight(i) for i in range(len(paths)))
+    done = sum(weight(i) for i, p in enumerate(paths) if p.exists())
+    bar = tqdm(total=total, initial=done, unit="PSF", disable=not show_progress, file=sys.stderr, desc=desc)
+    todo = [i for i, p in enumerate(paths) if not p.exists()]
+    stopped = max_chunks is not None and len(todo) > max_chunks
+    todo = todo[:max_chunks] if max_chunks is not None else todo
+    if cluster is not None:
+        for i, chunk in cluster(todo):
+            write(paths[i], chunk, i)
+            bar.update(weight(i))
+    else:
+        for i in todo:
+            write(paths[i], compute(i, bar.update), i)
+    bar.close()
+    if stopped:
+        return None
+    chunks = []
+    for i, p in enumerate(paths):
+        got = read(p, i)
+        if isinstance(got, str):
+            raise ValueError(f"{kind} chunk {str(p)!r} {got} after it was written; run the same command again")
+        chunks.append(got)
+    return chunks
 
 
 def _chunk_keys(cfg=None) -> tuple[str, ...]:

@@ -16,8 +16,6 @@ import hashlib
 import json
 import os
 import shutil
-import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +28,7 @@ from lenssim.io.files import atomic_write
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import _checksum, _chunk_keys, _compute_chunk, partial_folder
+from .chunks import _checksum, _chunk_keys, _compute_chunk, partial_folder, resume_chunks
 from .config import (SweepConfig, grid_count, grid_values, load_config)
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
@@ -152,8 +150,6 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     reported with a :class:`ResumeWarning` naming the file and computed again. Temporaries of a
     killed run are removed.
     """
-    from tqdm import tqdm
-
     out = Path(out)
     dev = select_device(device)
     if scheduler is not None and workers is not None:
@@ -182,38 +178,22 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
         n_first = len(cfg.values(cfg.dims[0]))
         per_chunk = int(np.prod([len(cfg.values(d)) for d in cfg.dims[1:]])) * len(cfg.lens.field_angles_deg)
         paths = [part / f"chunk_{i:05d}.npz" for i in range(n_first)]
-        for i, p in enumerate(paths):
-            if p.exists():
-                got = _read_chunk(p, cfg, i)
-                if isinstance(got, str):
-                    warnings.warn(f"sweep chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
-                    p.unlink()
-        done = sum(p.exists() for p in paths)
         where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
-        bar = tqdm(total=len(paths) * per_chunk, initial=done * per_chunk, unit="PSF", disable=not show_progress,
-                   file=sys.stderr, desc=f"sweep on {where}")
-        todo = [i for i, p in enumerate(paths) if not p.exists()]
-        stopped = max_chunks is not None and len(todo) > max_chunks
-        todo = todo[:max_chunks] if max_chunks is not None else todo
-        if scheduler is not None or workers is not None:
+
+        def on_cluster(todo):
             from .cluster import compute_chunks, dask_client
 
             with dask_client(scheduler, workers) as client:
-                for i, chunk in compute_chunks(client, cfg, todo, device=device, threads=worker_threads):
-                    _write_chunk(paths[i], chunk, cfg, i)
-                    bar.update(per_chunk)
-        else:
-            for i in todo:
-                _write_chunk(paths[i], _compute_chunk(cfg, i, dev, bar.update), cfg, i)
-        bar.close()
-        if stopped:
+                yield from compute_chunks(client, cfg, todo, device=device, threads=worker_threads)
+
+        chunks = resume_chunks(paths, kind="sweep", read=lambda p, i: _read_chunk(p, cfg, i),
+                               write=lambda p, chunk, i: _write_chunk(p, chunk, cfg, i),
+                               compute=lambda i, progress: _compute_chunk(cfg, i, dev, progress),
+                               weight=lambda i: per_chunk, desc=f"sweep on {where}", show_progress=show_progress,
+                               max_chunks=max_chunks,
+                               cluster=on_cluster if scheduler is not None or workers is not None else None)
+        if chunks is None:
             return None
-        chunks = []
-        for i, p in enumerate(paths):
-            got = _read_chunk(p, cfg, i)
-            if isinstance(got, str):
-                raise ValueError(f"sweep chunk {str(p)!r} {got} after it was written; run the same command again")
-            chunks.append(got)
         ds = _dataset(cfg, chunks)
         atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
         if not keep_chunks:

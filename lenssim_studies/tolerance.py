@@ -17,8 +17,6 @@ import json
 import math
 import os
 import shutil
-import sys
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,9 +33,9 @@ from lenssim.model.design import Design
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
-from lenssim.validate import ResumeWarning, check_int
+from lenssim.validate import check_int
 
-from .chunks import _checksum, partial_folder
+from .chunks import _checksum, partial_folder, resume_chunks
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
@@ -209,8 +207,6 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     again. ``out`` must not be an existing file other than the finished result of the same run. With ``workers`` or
     ``scheduler`` the chunks are dask tasks (:mod:`lenssim_studies.cluster`); the file is the same, byte for byte.
     """
-    from tqdm import tqdm
-
     from lenssim.torch_utils import select_device
 
     out = Path(out)
@@ -236,40 +232,24 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
                         f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose another output"):
         ranges = run.chunks()
         paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
-        for i, p in enumerate(paths):
-            if p.exists():
-                got = _read_chunk(p, run, i)
-                if isinstance(got, str):
-                    warnings.warn(f"tolerance chunk {str(p)!r} {got}; computing it again", ResumeWarning, stacklevel=2)
-                    p.unlink()
         per_lens = 1 + 4 * sum(a != 0 for a in run.field_angles_deg)  # field points (the axis once)
-        done = sum((k1 - k0) for (k0, k1), p in zip(ranges, paths) if p.exists())
         where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
-        bar = tqdm(total=run.n_lenses * per_lens, initial=done * per_lens, unit="PSF", disable=not show_progress,
-                   file=sys.stderr, desc=f"tolerance on {where}")
-        todo = [i for i, p in enumerate(paths) if not p.exists()]
-        stopped = max_chunks is not None and len(todo) > max_chunks
-        todo = todo[:max_chunks] if max_chunks is not None else todo
-        if scheduler is not None or workers is not None:
+
+        def on_cluster(todo):
             from .cluster import compute_chunks, dask_client
 
             with dask_client(scheduler, workers) as client:
-                for i, chunk in compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
-                                               kind="tolerance"):
-                    _write_chunk(paths[i], chunk, run, i)
-                    bar.update((ranges[i][1] - ranges[i][0]) * per_lens)
-        else:
-            for i in todo:
-                _write_chunk(paths[i], _compute_chunk(run, i, dev, bar.update), run, i)
-        bar.close()
-        if stopped:
+                yield from compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
+                                          kind="tolerance")
+
+        chunks = resume_chunks(paths, kind="tolerance", read=lambda p, i: _read_chunk(p, run, i),
+                               write=lambda p, chunk, i: _write_chunk(p, chunk, run, i),
+                               compute=lambda i, progress: _compute_chunk(run, i, dev, progress),
+                               weight=lambda i: (ranges[i][1] - ranges[i][0]) * per_lens, desc=f"tolerance on {where}",
+                               show_progress=show_progress, max_chunks=max_chunks,
+                               cluster=on_cluster if scheduler is not None or workers is not None else None)
+        if chunks is None:
             return None
-        chunks = []
-        for i, p in enumerate(paths):
-            got = _read_chunk(p, run, i)
-            if isinstance(got, str):
-                raise ValueError(f"tolerance chunk {str(p)!r} {got} after it was written; run the same command again")
-            chunks.append(got)
         ds = _dataset(run, chunks)
         atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
         shutil.rmtree(part)
