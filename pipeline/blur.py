@@ -228,14 +228,20 @@ def largest_window(psf: PSFProvider, shape, scheme: WindowScheme = PAPER_SCHEME,
     cores touch it. For the margins a crop needs around it."""
     check_provider(psf)
     center = optical_center if optical_center is not None else frame_center(shape)
-    r0, r1, c0, c1 = region if region is not None else (0, shape[-2], 0, shape[-1])
-    py, px = scheme_positions(shape[-2], scheme, center[0]), scheme_positions(shape[-1], scheme, center[1])
-    py = py[(py + scheme.core / 2 > r0) & (py - scheme.core / 2 < r1)]
-    px = px[(px + scheme.core / 2 > c0) & (px - scheme.core / 2 < c1)]
-    Y, X = torch.meshgrid(py, px, indexing="ij")
+    Y, X = torch.meshgrid(*_region_positions(shape, scheme, center, region), indexing="ij")
     symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
     sizes = window_sizes(_extents(psf, Y.flatten(), X.flatten(), center, symmetric), scheme, fit=False)
     return max([scheme.window] + sizes.tolist())
+
+
+def _region_positions(shape, scheme: WindowScheme, center, region=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The window positions (px, float64) along the rows and the columns of an image of ``shape`` ``(..., H, W)``
+    whose cores touch ``region = (r0, r1, c0, c1)`` (default: the whole image)."""
+    H, W = shape[-2], shape[-1]
+    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
+    py, px = scheme_positions(H, scheme, center[0]), scheme_positions(W, scheme, center[1])
+    half = scheme.core / 2
+    return py[(py + half > r0) & (py - half < r1)], px[(px + half > c0) & (px - half < c1)]
 
 
 def fold_psf(p: torch.Tensor, w: int) -> torch.Tensor:
@@ -366,9 +372,7 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     center = optical_center if optical_center is not None else frame_center(image.shape)
     r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
     win, core = scheme.window, scheme.core
-    py, px = scheme_positions(H, scheme, center[0]), scheme_positions(W, scheme, center[1])
-    py = py[(py + core / 2 > r0) & (py - core / 2 < r1)]
-    px = px[(px + core / 2 > c0) & (px - core / 2 < c1)]
+    py, px = _region_positions(image.shape, scheme, center, region)
     # each window's patch and core sit on the pixel ceil(position); along an axis the positions are evenly
     # spaced from the optical centre, so every window lies the same fraction of a pixel before its pixel
     shift_y = float(torch.ceil(py[0]) - py[0]) if py.numel() else 0.0

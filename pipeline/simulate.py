@@ -196,11 +196,13 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
                 return m
             w = most
 
+    # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
+    # (every crop's, before any work: a PSF too large for any window stops the run here)
+    margins = [crop_margin(*box) for box in boxes]
     peak = float(ideal.amax())
     out = [[] for _ in wells]
     for k, (r0, r1, c0, c1) in enumerate(boxes):
-        # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
-        margin = crop_margin(r0, r1, c0, c1)
+        margin = margins[k]
         R0, R1, C0, C1 = max(r0 - 2 * margin, 0), min(r1 + 2 * margin, H), max(c0 - 2 * margin, 0), min(c1 + 2 * margin, W)
         sub = ideal[..., R0:R1, C0:C1].to(dtype)
         oc = (centre[0] - R0, centre[1] - C0)
