@@ -5,6 +5,11 @@ For each field angle of the lens and each noise level the OTF criteria of :mod:`
 weighted over the camera's spectrum) and the image model of :mod:`lenssim.optics.image_model`, then
 averaged over the field; the design criteria (``rms_w``, ``cost``) come from the wavefront
 coefficients and the surfaces.
+
+The criteria of each wavefront model (:data:`lenssim.optics.wavefront_models.WAVEFRONT_MODELS`) live here, in the
+evaluation layer: ``third_order`` is :func:`evaluate`, ``exact`` takes the OTF criteria from the ray-traced wavefront
+(:func:`exact_criteria`); this module registers them with the optics' table when it is imported
+(:func:`lenssim.optics.wavefront_models.register_evaluator`), so that the optics never imports the criteria.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from collections.abc import Callable
 import torch
 
 from .optics.aberrations import N_TERMS
+from .optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
 from .model.camera import Camera
 from .checks import check_shape
 from .criteria import CRITERIA, OTFContext, lens_criteria, otf_criteria, quarter_weights, validate_criterion, wavefront_rms_per_field
@@ -22,10 +28,11 @@ from .optics.image_model import image_psd_quarter, noise_variance
 from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.psf_bank import fft_size as choose_fft_size
 from .optics.psf_bank import otf_quarter_spectrum, spectral_coefficients
+from .optics.wavefront_models import WAVEFRONT_MODELS, register_evaluator
 from .torch_utils import as_tensor, chunk_budget_bytes
 from .validate import NumericalError, ResourceLimitError, check_memory
 
-__all__ = ["otf_criteria_bank", "evaluate"]
+__all__ = ["otf_criteria_bank", "evaluate", "exact_criteria"]
 
 
 def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor, snr_db, *,
@@ -219,3 +226,45 @@ def _assemble(camera: Camera, d64: Design, coeffs64: torch.Tensor, per_field: di
             raise NumericalError(f"criterion {name} of the design {at} is not finite (numerical breakdown); "
                                  "no result is reported")
     return out
+
+
+def exact_criteria(camera: Camera, design: Design, snr_db, *, rho0: float,
+                   numerics: Numerics = DEFAULT_NUMERICS) -> dict:
+    """Every registered OTF criterion (field averages, ``(S,)`` float64, ``()`` for one that does not depend on the
+    SNR) of one design with the exact (ray-traced, fitted) wavefront at each field angle
+    (:func:`lenssim.optics.exact_wavefront.exact_wavefront_coefficients`), one wavelength (the spectrum's first);
+    also ``NAME_alpha`` ``(A, S)`` (``(A,)``) and ``fft_size`` ``(A,)``."""
+    if len(camera.spectrum) != 1 or camera.channels:
+        raise ValueError("exact_criteria takes a one-wavelength camera")
+    lam = camera.spectrum.wavelengths_um[0]
+    c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
+    sizes = choose_fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS)
+    per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
+                            terms=EXACT_TERMS)
+    out = {}
+    for k, v in per.items():
+        out[k], out[f"{k}_alpha"] = v.mean(dim=0), v
+    out["fft_size"] = sizes
+    return out
+
+
+# ---- the wavefront models' criteria (WavefrontModel.evaluate), registered with the optics' table --------------
+def _third_order_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
+    return evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
+
+
+def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
+    """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
+    at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
+    WAVEFRONT_MODELS["exact"].check(camera)
+    out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
+    ex = exact_criteria(camera, design, snr_db, rho0=rho0, numerics=numerics)
+    for name, c in lens_criteria().items():
+        if c.from_otf is not None:
+            out[name], out[f"{name}_alpha"] = ex[name], ex[f"{name}_alpha"]
+    out["fft_size"] = ex["fft_size"]
+    return out
+
+
+register_evaluator("third_order", _third_order_evaluate)
+register_evaluator("exact", _exact_evaluate)

@@ -345,7 +345,7 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
     Returns one dict per level: ``third_order`` and ``exact`` optima (``s``, ``Q_back``, ``mse_r``) and
     ``exact_at_third_order`` (the exact MSE_R of the third-order optimum).
     """
-    from lenssim.optics.exact_wavefront import exact_criteria
+    from lenssim.metrics import exact_criteria
     from .tradeoff import iso_cost_curve
 
     s_all = np.arange(s_range[0], s_range[1] + 1e-12, s_step)

@@ -1,1 +1,1 @@
-"""The model a designer names: lens, design, sensor, spectrum, glass, camera, field geometry, numerics."""
+"""The model a designer names: lens, surface, design, sensor, spectrum, glass, camera, field geometry, numerics."""

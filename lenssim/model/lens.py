@@ -22,7 +22,7 @@ import torch
 
 from .design import Design
 from .glass import ConstantGlass, as_glass
-from ..optics.paraxial import Surface
+from .surface import Surface
 from ..torch_utils import as_tensor
 from ..validate import warn_model
 

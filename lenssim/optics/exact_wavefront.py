@@ -20,7 +20,8 @@ third order neglects it by order (it is fifth order), and the exact model uses t
 with the paraxial scale. The former exact model fitted the image-plane ray errors with the paraxial scale, which
 folded that stretch into the wavefront itself (an RMS 6% too large at 14 degrees; issue 19).
 
-The criteria then follow from the same OTF machinery as the third-order ones (:func:`exact_criteria`).
+The criteria then follow from the same OTF machinery as the third-order ones, in the evaluation layer
+(:func:`lenssim.metrics.exact_criteria`; this module, in the optics, does not import it).
 """
 
 from __future__ import annotations
@@ -34,13 +35,9 @@ import torch
 from .aberrations import Term, pupil_monomials
 from ..model.camera import Camera
 from ..model.design import Design
-from ..metrics import otf_criteria_bank
-from ..model.numerics import DEFAULT_NUMERICS, Numerics
-from .psf_bank import fft_size
 from .raytrace import opd
 
-__all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "exact_criteria", "pupil_quadrature",
-           "opd_rms_waves"]
+__all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "pupil_quadrature", "opd_rms_waves"]
 
 EXACT_TERMS = tuple(Term(f"E{a}{b}", a, b) for a in range(5) for b in range(9) if 0 < 2 * a + b <= 8)
 """Pupil monomials ``rho^2a rho_r^b`` up to degree 8 (no piston)."""
@@ -105,22 +102,3 @@ def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: floa
     """Coefficients (waves at ``wavelength_um``, default the spectrum's first) of :data:`EXACT_TERMS`: the exact
     OPD at field angle ``alpha_deg`` (:func:`exact_wavefront_fit`); float64 ``(T,)``."""
     return exact_wavefront_fit(camera, design, alpha_deg, wavelength_um)[0]
-
-
-def exact_criteria(camera: Camera, design: Design, snr_db, *, rho0: float,
-                   numerics: Numerics = DEFAULT_NUMERICS) -> dict:
-    """Every registered OTF criterion (field averages, ``(S,)`` float64, ``()`` for one that does not depend on the
-    SNR) of one design with the exact (ray-traced, fitted) wavefront at each field angle, one wavelength (the
-    spectrum's first); also ``NAME_alpha`` ``(A, S)`` (``(A,)``) and ``fft_size`` ``(A,)``."""
-    if len(camera.spectrum) != 1 or camera.channels:
-        raise ValueError("exact_criteria takes a one-wavelength camera")
-    lam = camera.spectrum.wavelengths_um[0]
-    c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
-    sizes = fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS)
-    per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
-                            terms=EXACT_TERMS)
-    out = {}
-    for k, v in per.items():
-        out[k], out[f"{k}_alpha"] = v.mean(dim=0), v
-    out["fft_size"] = sizes
-    return out

@@ -1,7 +1,7 @@
 """The optical-system protocol: what the optics code (Seidel sums, PSFs, cost, exact ray trace) reads of a lens.
 
 An optical system, for a design (:class:`lenssim.Design`), is a centred sequence of refracting surfaces
-(:class:`lenssim.optics.paraxial.Surface`: curvature in 1/mm, conic constant, index after it per wavelength, thickness
+(:class:`lenssim.model.surface.Surface`: curvature in 1/mm, conic constant, index after it per wavelength, thickness
 after it in mm, semi-aperture in mm, whether its conic is a free design parameter), with the aperture stop at
 surface :attr:`OpticalSystem.stop_index`, an object at infinity or at a finite conjugate, a focal length, an
 entrance-pupil radius and an image plane. Today's thin singlet, :class:`lenssim.Lens`, is one implementation;

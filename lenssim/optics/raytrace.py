@@ -18,7 +18,7 @@ import torch
 
 from ..model.design import Design
 from ..model.lens import Lens
-from .paraxial import Surface
+from ..model.surface import Surface
 
 __all__ = ["trace_rays", "trace_rays_opl", "transverse_aberration", "surface_frame", "opd"]
 

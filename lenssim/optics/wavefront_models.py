@@ -5,11 +5,13 @@
 * ``exact``: the optical path difference of an exact ray trace through the real surfaces at each field angle
   (:mod:`lenssim.optics.exact_wavefront`; one-wavelength cameras).
 
-A model gives the PSFs of a :class:`lenssim.LensPSF` at image points (:attr:`WavefrontModel.psfs`), every
-registered criterion of designs (:attr:`WavefrontModel.evaluate`: the OTF criteria from its wavefront, the
-design criteria as they are) and the factor by which its PSF support may exceed third order's. The PSF
+A model gives the PSFs of a :class:`lenssim.LensPSF` at image points (:attr:`WavefrontModel.psfs`), the cameras it
+serves and the factor by which its PSF support may exceed third order's. Its criteria
+(:attr:`WavefrontModel.evaluate`: every registered criterion of designs, the OTF criteria from its wavefront) belong
+to the evaluation layer above the optics: :mod:`lenssim.metrics` registers them here (:func:`register_evaluator`)
+when it is imported, which ``import lenssim`` does, so that this module never imports the criteria. The PSF
 provider, ``lenssim evaluate --wavefront`` and ``lenssim simulate --wavefront`` read this table; a new model
-(e.g. a measured wavefront) is one entry.
+(e.g. a measured wavefront) is one entry here and its evaluator in :mod:`lenssim.metrics`.
 """
 
 from __future__ import annotations
@@ -19,22 +21,44 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["WavefrontModel", "WAVEFRONT_MODELS", "validate_wavefront_model"]
+__all__ = ["WavefrontModel", "WAVEFRONT_MODELS", "validate_wavefront_model", "register_evaluator"]
 
 
 @dataclass(frozen=True)
 class WavefrontModel:
-    """``psfs(provider, x_mm, y_mm, n, centered, dtype) -> (P, n, n)`` or ``(P, C, n, n)``;
-    ``evaluate(camera, design, snr_db, *, rho0, numerics, device) -> {criterion: tensor}`` (as
-    :func:`lenssim.metrics.evaluate`); ``check(camera)`` raises ``ValueError`` for a camera the model cannot
-    serve; ``support_factor``: how much wider than third order's geometric support its PSFs may be."""
+    """``psfs(provider, x_mm, y_mm, n, centered, dtype) -> (P, n, n)`` or ``(P, C, n, n)``; ``check(camera)``
+    raises ``ValueError`` for a camera the model cannot serve; ``support_factor``: how much wider than third
+    order's geometric support its PSFs may be. :attr:`evaluate` is the evaluator registered for the model from
+    above (:func:`register_evaluator`)."""
 
     name: str
     label: str
     psfs: Callable
-    evaluate: Callable
     check: Callable | None = None
     support_factor: float = 1.0
+
+    @property
+    def evaluate(self) -> Callable:
+        """``evaluate(camera, design, snr_db, *, rho0, numerics, device) -> {criterion: tensor}`` (as
+        :func:`lenssim.metrics.evaluate`), registered by the evaluation layer (:mod:`lenssim.metrics`)."""
+        try:
+            return _EVALUATORS[self.name]
+        except KeyError:
+            raise LookupError(f"wavefront model {self.name!r} has no evaluator: the evaluation layer registers one "
+                              "(lenssim.optics.wavefront_models.register_evaluator)") from None
+
+
+_EVALUATORS: dict[str, Callable] = {}
+"""Each model's evaluator by model name, filled from above by :func:`register_evaluator`."""
+
+
+def register_evaluator(name: str, evaluate: Callable) -> Callable:
+    """Register ``evaluate`` as the criteria of the wavefront model ``name`` (:attr:`WavefrontModel.evaluate`);
+    called by the evaluation layer, which may import the optics (this module never imports it). Returns
+    ``evaluate``."""
+    validate_wavefront_model(name)
+    _EVALUATORS[name] = evaluate
+    return evaluate
 
 
 def _third_order_psfs(provider, x_mm, y_mm, n, centered, dtype):
@@ -49,12 +73,6 @@ def _third_order_psfs(provider, x_mm, y_mm, n, centered, dtype):
     ps = [psf_at(cam, d, x_mm, y_mm, n=n, centered=centered, dtype=dtype, numerics=provider.numerics)[0]
           for cam in camera.channel_cameras()]
     return ps[0] if not provider.camera.channels else torch.stack(ps, dim=1)
-
-
-def _third_order_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
-    from ..metrics import evaluate
-
-    return evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
 
 
 def _one_wavelength(camera):
@@ -73,26 +91,9 @@ def _exact_psfs(provider, x_mm, y_mm, n, centered, dtype):
                numerics=provider.numerics, terms=EXACT_TERMS)
 
 
-def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
-    """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
-    at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
-    from ..criteria import lens_criteria
-    from .exact_wavefront import exact_criteria
-    from ..metrics import evaluate
-
-    _one_wavelength(camera)
-    out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
-    ex = exact_criteria(camera, design, snr_db, rho0=rho0, numerics=numerics)
-    for name, c in lens_criteria().items():
-        if c.from_otf is not None:
-            out[name], out[f"{name}_alpha"] = ex[name], ex[f"{name}_alpha"]
-    out["fft_size"] = ex["fft_size"]
-    return out
-
-
 WAVEFRONT_MODELS: dict[str, WavefrontModel] = {m.name: m for m in (
-    WavefrontModel("third_order", "third order (Seidel, closed form)", _third_order_psfs, _third_order_evaluate),
-    WavefrontModel("exact", "exact (the OPD of a real ray trace; RMS_W stays third order)", _exact_psfs, _exact_evaluate,
+    WavefrontModel("third_order", "third order (Seidel, closed form)", _third_order_psfs),
+    WavefrontModel("exact", "exact (the OPD of a real ray trace; RMS_W stays third order)", _exact_psfs,
                    check=_one_wavelength, support_factor=1.25),  # fifth and higher orders: 25% more support
 )}
 """The registry: name -> :class:`WavefrontModel`."""

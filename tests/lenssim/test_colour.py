@@ -192,7 +192,8 @@ def test_the_exact_wavefront_fit_reduces_to_third_order_at_small_aperture_and_di
     from third order's by about 1%, and the RMS_W design stays ~37% worse than the end-to-end one."""
     from lenssim import FAST_NUMERICS
     from lenssim_studies.paper import PAPER_DESIGNS
-    from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_criteria, exact_wavefront_coefficients
+    from lenssim.metrics import exact_criteria
+    from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
     from lenssim.optics.psf_bank import spectral_coefficients
 
     cam = Camera(dataclasses.replace(PAPER_LENS, pupil_radius_mm=0.05), PAPER_SENSOR, PAPER_SPECTRUM)

@@ -27,7 +27,7 @@ def test_every_model_gives_unit_sum_psfs_and_every_criterion(name):
 
 
 def test_the_exact_model_takes_every_otf_criterion_from_the_exact_wavefront():
-    from lenssim.optics.exact_wavefront import exact_criteria
+    from lenssim.metrics import exact_criteria
 
     third = WAVEFRONT_MODELS["third_order"].evaluate(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
     exact = WAVEFRONT_MODELS["exact"].evaluate(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)

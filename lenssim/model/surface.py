@@ -1,0 +1,38 @@
+"""A refracting surface: the data an optical system is made of (:meth:`lenssim.Lens.surfaces`).
+
+The model layer's description of a surface; the optics reads it (the paraxial Seidel sums of
+:mod:`lenssim.optics.paraxial`, the exact ray trace of :mod:`lenssim.optics.raytrace`, the cost of
+:mod:`lenssim.optics.cost`). ``lenssim.optics.paraxial.Surface`` is the same class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["Surface"]
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A refracting surface.
+
+    curvature : 1/mm; conic : conic constant kappa (0 = sphere);
+    n_after : refractive index after the surface; thickness_after_mm : distance to the next one;
+    aspheric : the conic is a free design parameter (named ``conic_name``): counted by the
+    industrial cost (:mod:`lenssim.optics.cost`); semi_aperture_mm : the clear radius over which the surface is
+    used (and made: the cost's aperture); None: the system's pupil radius; decentre_mm : ``(dx, dy)`` mm of the
+    vertex off the axis and tilt_deg : ``(tx, ty)`` degrees about the vertex (x axis, then y axis): a displaced
+    surface, which only the exact ray trace (:mod:`lenssim.optics.raytrace`) reads.
+    """
+
+    curvature: float | torch.Tensor
+    conic: float | torch.Tensor = 0.0
+    n_after: float = 1.0
+    thickness_after_mm: float = 0.0
+    aspheric: bool = False
+    conic_name: str | None = None
+    semi_aperture_mm: float | None = None
+    decentre_mm: tuple[float, float] = (0.0, 0.0)
+    tilt_deg: tuple[float, float] = (0.0, 0.0)
