@@ -218,13 +218,20 @@ class Lens:
 
         Every parameter must be finite, and every surface (curvature ``c``, conic ``kappa``) must
         be defined over the whole aperture: ``(1 + kappa) c^2 y^2 < 1`` (for the spherical front,
-        not a hemisphere smaller than the aperture).
+        not a hemisphere smaller than the aperture); the image plane must lie within a focal length of
+        the focus (``|focus_shift_um| < 1000 f``: beyond, it would sit on or in front of the lens).
         """
         design = design.to(torch.float64)
         for name, t in design.values.items():
             bad = ~torch.isfinite(t)
             if bad.any():
                 raise LensError(f"{name}={t[bad].flatten()[0].item()!r} is not allowed: a finite number")
+        if "focus_shift_um" in design.values:  # the image plane stays behind the lens: |shift| < f
+            dz = design.values["focus_shift_um"]
+            if bool((dz.abs() >= 1e3 * self.focal_length_mm).any()):
+                v = dz[dz.abs() >= 1e3 * self.focal_length_mm].flatten()[0].item()
+                raise LensError(f"focus_shift_um={v!r} is not allowed: the image plane must stay within the lens's "
+                                f"focal length of the focus, |focus_shift_um| < {1e3 * self.focal_length_mm:g} um")
         y2 = self.pupil_radius_mm**2
         shape = design.shape
         for i, surf in enumerate(self.surfaces(design)):

@@ -58,17 +58,34 @@ __all__ = [
 ]
 
 
+def _smooth_part(k: int) -> int:
+    """``k`` with its factors 2, 3 and 5 divided out."""
+    for p in (2, 3, 5):
+        while k % p == 0:
+            k //= p
+    return k
+
+
 def nice_fft_size(n: int, multiple: int = 16) -> int:
-    """Smallest ``m >= n`` that is a multiple of ``multiple`` and has no prime factor above 5."""
-    m = max(multiple, int(math.ceil(n / multiple)) * multiple)
-    while True:
-        k = m
-        for p in (2, 3, 5):
-            while k % p == 0:
-                k //= p
-        if k == 1:
-            return m
-        m += multiple
+    """Smallest ``m >= n`` that is a multiple of ``multiple`` and has no prime factor above 5.
+
+    Found among the numbers ``2^a 3^b 5^c`` (a few hundred candidates for any size), not by counting up, so a
+    size of any magnitude is answered at once (an absurd design asks for absurd sizes, refused by its caller).
+    """
+    if isinstance(multiple, bool) or not isinstance(multiple, int) or multiple < 1 or _smooth_part(multiple) != 1:
+        raise ValueError(f"multiple={multiple!r} is not allowed: a whole number >= 1 with no prime factor above 5")
+    j = max(1, -(-int(math.ceil(n)) // multiple))  # m = multiple * k, k the smallest 5-smooth number >= j
+    best, p5 = None, 1
+    while p5 < 2 * j:
+        p35 = p5
+        while p35 < 2 * j:
+            k = p35
+            while k < j:
+                k *= 2
+            best = k if best is None else min(best, k)
+            p35 *= 3
+        p5 *= 5
+    return multiple * best
 
 
 @lru_cache(maxsize=8)
@@ -152,7 +169,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     if float(need.reshape(-1)[worst]) > numerics.max_fft_size:
         n_req = nice_fft_size(int(math.ceil(float(need.reshape(-1)[worst]))))
         gib = 6 * (n_req * numerics.oversample) ** 2 / 2 * 8 / 2**30
-        err = ResourceLimitError(f"a PSF needs an FFT of {n_req} samples (about {gib:.1f} GiB for its OTF); the "
+        err = ResourceLimitError(f"a PSF needs an FFT of {n_req} samples (about {gib:.3g} GiB for its OTF); the "
                                  f"limit is max_fft_size = {numerics.max_fft_size}", "max_fft_size")
         err.index = worst
         raise err
