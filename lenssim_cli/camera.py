@@ -7,7 +7,9 @@
 writes, for crops centred at the given field angles (along the frame diagonal), the ideal, sensor
 and restored images (8-bit sRGB PNG), a mosaic, and ``metrics.json`` (PSNR/SSIM in sRGB per
 restoration method); with ``--full-frame`` also the whole sensor and restored frames and
-whole-frame metrics (resumable). Without PHOTO the built-in generated 6000 x 4000 scene is used.
+whole-frame metrics (resumable). With ``--as-built SEED`` the image is blurred by one manufactured lens and
+restored with the nominal lens's PSFs and with the lens's own (crops, or the whole frame with ``--full-frame``).
+Without PHOTO the built-in generated 6000 x 4000 scene is used.
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ from lenssim import AsBuiltPSF, LensPSF, select_device
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.io.files import atomic_write_text, json_text
 from lenssim_studies.paper import PAPER_FIG8_ANGLES_DEG
-from pipeline import RESTORATION_METHODS, load_photo, write_image
+from pipeline import RESTORATION_METHODS, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
+from pipeline.restoration.richardson_lucy import MAX_RL_ITERATIONS
 from pipeline.figures import mosaic_figure
+from pipeline.photo import PHOTO_KEEP_BYTES, Photo
 from pipeline.simulate import MAP_TILE_PX
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
@@ -33,6 +37,8 @@ from .common import (add_camera_arguments, add_design_arguments, add_device_argu
 DEFAULT_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 TABLE_ANGLES_DEG = (1.0, 5.0, 9.0)
 MIN_CROP_PX = 16
+PROGRESS_DELAY_S = 5.0
+"""Work that runs longer than this (s) shows a progress bar with its rate and time left on stderr."""
 MIN_IMAGE_PX = 32
 
 
@@ -72,15 +78,38 @@ def _inputs(photos) -> list[str]:
     return [p for p in photos if p and not p.startswith("skimage:")]
 
 
-def _load(spec, device):
-    from pipeline.checks import check_scene
+def _header(spec):
+    """A photo file's header, checked before anything else (size, channels; no pixel decoded); None for
+    ``skimage:`` names and the generated scene."""
+    from pipeline.io import image_info
 
-    ideal, source = load_photo(spec, PAPER_CAMERA)
-    check_scene(ideal, f"image {source!r}")
-    H, W = ideal.shape[-2:]
+    if not spec or spec.startswith("skimage:"):
+        return None
+    info = image_info(spec, "photo")
+    _check_size(spec, info.shape)
+    return info
+
+
+def _check_size(source, shape) -> None:
+    H, W = shape[-2:]
     if min(H, W) < MIN_IMAGE_PX:
-        raise ValueError(f"image {source!r} is {W} x {H} px: at least {MIN_IMAGE_PX} x {MIN_IMAGE_PX} px")
-    return ideal.to(device), source
+        raise ValueError(f"photo {source!r} is {W} x {H} px: at least {MIN_IMAGE_PX} x {MIN_IMAGE_PX} px")
+
+
+def _load(spec, device, keep_bytes=None):
+    """The photo as a :class:`pipeline.photo.Photo` (every pixel checked, kept in memory if it fits, else read
+    region by region), on ``device``, and its description."""
+    from tqdm import tqdm
+
+    from pipeline.photo import PHOTO_KEEP_BYTES, open_photo
+
+    info = _header(spec)
+    with tqdm(total=None if info is None else info.height, unit="row", desc=f"checking {spec}", file=sys.stderr,
+              delay=PROGRESS_DELAY_S, mininterval=2.0, leave=False) as bar:  # shown only for a long check
+        photo = open_photo(spec, PAPER_CAMERA, keep_bytes=PHOTO_KEEP_BYTES if keep_bytes is None else keep_bytes,
+                           progress=bar.update)
+    _check_size(photo.source, photo.shape)
+    return photo.to(device), photo.source
 
 
 def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]:
@@ -96,6 +125,36 @@ def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]
         print(f"crop angles {', '.join(f'{a:g}' for a in chosen)} deg: those that fit {source!r} ({W} x {H} px, "
               f"{size} px crops; give --angles to choose)", file=sys.stderr)
     return chosen
+
+
+def _window_bar(desc: str):
+    """A progress bar of windows computed on stderr, shown once the work has run :data:`PROGRESS_DELAY_S`."""
+    from tqdm import tqdm
+
+    return tqdm(unit="window", desc=desc, file=sys.stderr, delay=PROGRESS_DELAY_S, mininterval=2.0, leave=False)
+
+
+def _check_photo_shape(args, shape, source, psf) -> None:
+    """What a photo's size and channels must meet for this run (from its header, before its pixels are read)."""
+    if psf.channels not in (1, shape[1]):
+        raise ValueError(f"--spectrum {args.spectrum!r} has {psf.channels} colour channels but {source!r} has "
+                         f"{shape[1]}: use an RGB image, or --spectrum paper")
+    H, W = shape[-2:]
+    if args.full_frame:
+        if min(H, W) < MAP_TILE_PX:
+            raise ValueError(f"--full-frame needs an image of at least {MAP_TILE_PX} x {MAP_TILE_PX} px (one tile of "
+                             f"the PSNR map); {source!r} is {W} x {H}: simulate crops instead")
+        from lenssim.validate import check_memory
+        from pipeline.simulate import frame_memory_bytes
+
+        restored = 1 if args.as_built is None else 2  # --as-built: nominal and calibrated restored frames
+        check_memory(frame_memory_bytes(shape, restored), f"--full-frame on the {W} x {H} photo {source!r}", _memory_limit(args))
+    elif args.denoise:
+        from lenssim.validate import check_memory
+        from pipeline.denoise import DENOISE_WORKING_COPIES
+
+        check_memory(DENOISE_WORKING_COPIES * 4 * math.prod(shape), f"--denoise on the {W} x {H} photo {source!r}",
+                     _memory_limit(args))
 
 
 def _photo_name(source: str) -> str:
@@ -125,7 +184,7 @@ def _methods(args, scheme):
     from pipeline.simulate import check_methods
 
     specs = [parse_restoration(m) for m in (args.restore or ["wiener"])]
-    if args.rl:
+    if args.rl is not None:
         specs = [r for r in specs if r.name != "richardson_lucy"] + [parse_restoration(f"richardson_lucy:iterations={args.rl}")]
     return check_methods(specs, scheme=scheme)
 
@@ -137,7 +196,8 @@ def cmd_simulate(args) -> int:
     from pipeline.checks import check_full_well
     from pipeline.colour_space import linear_to_srgb
 
-    # every argument and the output folder are checked before any work
+    # the photo's header, every argument and the output folder are checked before any work, then the photo's pixels
+    header = _header(args.photo)
     _check_common(args)
     design = design_from_args(args)
     camera = camera_from_args(args)
@@ -148,8 +208,6 @@ def cmd_simulate(args) -> int:
             raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
         if args.wavefront != "third_order":
             raise ValueError("--as-built takes the third-order wavefront (the as-built model's), not --wavefront exact")
-        if args.full_frame:
-            raise ValueError("--as-built simulates crops; --full-frame is not available with it")
         tol = tolerances_from_args(args)
         built = AsBuiltPSF(camera, design, tol.sample(1, seed=args.as_built))
     if args.full_well is not None:
@@ -157,8 +215,9 @@ def cmd_simulate(args) -> int:
     else:
         fwc = camera.sensor.full_well_for_iso(args.iso)
     scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows == "fitted")
-    if args.rl < 0:
-        raise ValueError(f"--rl {args.rl} is not allowed: a number of iterations >= 0 (0: no Richardson-Lucy)")
+    if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
+        raise ValueError(f"--rl {args.rl} is not allowed: a number of Richardson-Lucy iterations from 1 to "
+                         f"{MAX_RL_ITERATIONS} (leave --rl out for none)")
     if args.denoise and not 0 < args.denoise <= 2:
         raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength in (0, 2], or 0 for none")
     specs = _methods(args, scheme)
@@ -166,30 +225,26 @@ def cmd_simulate(args) -> int:
     if args.full_frame and len(specs) > 1:
         raise ValueError(f"--full-frame restores with one method; {len(specs)} were given ({', '.join(methods)}): "
                          "give one with --restore, or compare methods on crops")
+    whole = bool(args.full_frame or args.denoise)  # the whole frame in memory (else crops read what they need)
     inputs = _inputs([args.photo])
     out = check_output_dir(args.out, inputs)
+    if header is not None:
+        _check_photo_shape(args, header.shape, header.path, psf)
     t0 = time.perf_counter()
-    ideal, source = _load(args.photo, select_device(args.device))
-    if psf.channels not in (1, ideal.shape[1]):
-        raise ValueError(f"--spectrum {args.spectrum!r} has {psf.channels} colour channels but {source!r} has "
-                         f"{ideal.shape[1]}: use an RGB image, or --spectrum paper")
-    H, W = ideal.shape[-2:]
+    # the whole frame (checked against the memory limit above) is decoded once; crops of a photo too large to keep
+    # read only the rows or tiles they reach
+    ideal, source = _load(args.photo, select_device(args.device), math.inf if whole else None)
+    _check_photo_shape(args, ideal.shape, source, psf)
     size = _crop_size(args, ideal, source)
     angles = _angles(args, ideal, size, camera.geometry, DEFAULT_ANGLES_DEG, source)
     boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
-    if args.full_frame:
-        if min(H, W) < MAP_TILE_PX:
-            raise ValueError(f"--full-frame needs an image of at least {MAP_TILE_PX} x {MAP_TILE_PX} px (one tile of "
-                             f"the PSNR map); {source!r} is {W} x {H}: simulate crops instead")
-        from lenssim.validate import check_memory
-        from pipeline.simulate import frame_memory_bytes
-
-        check_memory(frame_memory_bytes(ideal.shape), f"--full-frame on a {W} x {H} image", _memory_limit(args))
     if args.denoise:
         from pipeline import gentle_denoise
 
-        ideal = gentle_denoise(ideal, args.denoise)
         source += f" (gently denoised, strength {args.denoise:g})"
+        ideal = Photo.of(gentle_denoise(ideal.load(), args.denoise), source)
+    if args.full_frame:
+        ideal = ideal.load()
     params = design.complete().floats()
     report = {"source": source, "design": design.name or "custom", "parameters": params, **params,
               "glass": camera.lens.glass.name, "wavefront": args.wavefront,
@@ -204,13 +259,16 @@ def cmd_simulate(args) -> int:
                                  + ([f"{args.spectrum} RGB"] if camera.channels else []))
     with staged_output_dir(out) as stage:
         if args.full_frame:
-            results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0])
+            results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0], built)
+            if built is not None:  # the crops cut from the frame carry both restorations, as --as-built crops do
+                methods = tuple(f"{m}@{tag}" for m in methods for tag in ("nominal", "calibrated"))
         elif built is not None:
             results = _as_built_crops(ideal, psf, built, fwc, boxes, args, specs, scheme, camera, report)
             methods = tuple(f"{m}@{tag}" for m in methods for tag in ("nominal", "calibrated"))
         else:
-            results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
-                                     sensor=camera.sensor)
+            with _window_bar("blur + restore crops") as bar:
+                results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
+                                         sensor=camera.sensor, progress=bar.update)
         report["crops"] = []
         for a, r in zip(angles, results):
             tag = f"crop_{a:g}deg"
@@ -261,9 +319,7 @@ def _index_page(stage, title, report, results, methods) -> None:
     if "full_frame" in report:
         f = report["full_frame"]
         body += ["<h2>Whole frame</h2>",
-                 html.table(["image", "PSNR [dB]", "SSIM"], [["sensor", f"{f['psnr_sensor_db']:.2f}", f"{f['ssim_sensor']:.3f}"],
-                                                            ["restored", f"{f['psnr_restored_db']:.2f}",
-                                                             f"{f['ssim_restored']:.3f}"]])]
+                 html.table(["image", "PSNR [dB]", "SSIM"], _frame_rows(f))]
         if (stage / "field_psnr.png").exists():
             body.append(html.image(stage / "field_psnr.png", "PSNR per 256-px tile and against field angle"))
     html.write_page(stage / "index.html", title, body, note="lenssim simulate; numbers also in metrics.json")
@@ -289,10 +345,7 @@ def _as_built_crops(ideal, nominal, built, fwc, boxes, args, specs, scheme, came
         for m in [s.name for s in specs]:
             r.images[f"{m}@nominal"], r.scores[f"{m}@nominal"] = r.images.pop(m), r.scores.pop(m)
             r.images[f"{m}@calibrated"], r.scores[f"{m}@calibrated"] = c.images[m], c.scores[m]
-    lens = built.lens
-    report["as_built"] = {"seed": args.as_built, "tolerances": lens.tolerances.to_dict(),
-                          "errors": {k: round(float(v[0]), 6) for k, (v, _) in lens.variables().items()},
-                          "units": {k: u for k, (_, u) in lens.variables().items()}}
+    report["as_built"] = _as_built_report(built, args.as_built)
     return results
 
 
@@ -306,9 +359,11 @@ def _file_kind(kind: str) -> str:
                                                                         else f"restored_{kind}")
 
 
-def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, method):
+def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, method, built=None):
     """``simulate --full-frame``: the whole frame (resumable from ``out/.checkpoint``), whole-frame metrics,
-    crops cut from it; files go to ``stage``."""
+    crops cut from it; files go to ``stage``. With ``built`` (``--as-built``): blurred once by that lens, the same
+    noisy frame restored with the nominal lens's PSFs (``restored_nominal``) and with the lens's own
+    (``restored_calibrated``); the checkpoint's stamp holds the lens, so no other lens's sensor image is resumed."""
     import shutil
 
     from tqdm import tqdm
@@ -317,11 +372,13 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     from pipeline.field_map import plot_field_psnr
     from pipeline.simulate import crops_from_frame, score_frame, simulate_frame
 
+    blur, restorers = (psf, None) if built is None else (built, {"nominal": psf, "calibrated": built})
     n = window_count(ideal.shape, scheme)
     checkpoint = out / ".checkpoint"
-    with tqdm(total=2 * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
-        frame = simulate_frame(ideal, psf, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
-                               checkpoint=checkpoint, sensor=psf.camera.sensor, method=method)
+    passes = 1 + (1 if restorers is None else len(restorers))
+    with tqdm(total=passes * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
+        frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
+                               checkpoint=checkpoint, sensor=psf.camera.sensor, method=method, restoration_psf=restorers)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     def write(kind, enc, img):  # each image is sRGB-encoded once, for its PNG and for all its scores
@@ -336,23 +393,61 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     report["full_frame"] = {
         "shape_c_h_w": list(ideal.shape[1:]), "windows_per_pass": n, "electrons_per_unit": frame.electrons_per_unit,
         "method": frame.method, **scores, "resumed": frame.resumed}
-    plot_field_psnr(maps, stage / "field_psnr.png",
-                    title=f"{report['source']}: {report['optics']}, {fwc:g} e- full well")
+    labels = {}
+    if built is not None:
+        report["full_frame"]["restorations"] = {"restored_nominal": "the nominal design's PSFs",
+                                                "restored_calibrated": "the as-built lens's own PSFs"}
+        report["as_built"] = _as_built_report(built, args.as_built)
+        labels = {"restored_nominal": "restored, nominal PSFs", "restored_calibrated": "restored, the lens's own PSFs"}
+    plot_field_psnr(maps, stage / "field_psnr.png", labels=labels,
+                    title=f"{report['source']}: {report['optics']}, {fwc:g} e- full well"
+                          + (f", as built (seed {args.as_built})" if built is not None else ""))
     report["full_frame"]["field_psnr_256px_tiles"] = {  # JSON has no inf: identical tiles are null
         k: [[round(x, 3) if math.isfinite(x) else None for x in row] for row in v.tolist()] for k, v in maps.items()}
     frame.seconds["metrics"] += time.perf_counter() - t0
     report["full_frame"]["seconds"] = {k: round(v, 2) for k, v in frame.seconds.items()}
     shutil.rmtree(checkpoint, ignore_errors=True)  # done: the checkpoint is no longer needed
     f = report["full_frame"]
-    print(f"whole frame: PSNR sensor {f['psnr_sensor_db']:.2f} dB -> restored {f['psnr_restored_db']:.2f} dB, "
-          f"SSIM {f['ssim_sensor']:.3f} -> {f['ssim_restored']:.3f}")
+    if built is None:
+        print(f"whole frame: PSNR sensor {f['psnr_sensor_db']:.2f} dB -> restored {f['psnr_restored_db']:.2f} dB, "
+              f"SSIM {f['ssim_sensor']:.3f} -> {f['ssim_restored']:.3f}")
+    else:
+        kinds = [k for k in frame.restored_images()]
+        print(f"whole frame: PSNR sensor {f['psnr_sensor_db']:.2f} dB -> "
+              + ", ".join(f"{_frame_label(f, k)} {f[f'psnr_{k}_db']:.2f} dB" for k in kinds)
+              + f"; SSIM {f['ssim_sensor']:.3f} -> " + ", ".join(f"{f[f'ssim_{k}']:.3f}" for k in kinds))
     return crops_from_frame(ideal, frame, boxes, psf.geometry)
+
+
+def _frame_label(f: dict, kind: str) -> str:
+    """The label of a whole-frame image kind (``sensor``, ``restored``, ``restored_TAG``) of ``report["full_frame"]``
+    ``f``."""
+    if kind in ("sensor", "restored"):
+        return kind
+    return "restored, " + _kind_label(f"{f['method']}@{kind.removeprefix('restored_')}")
+
+
+def _frame_rows(f: dict) -> list[list[str]]:
+    """The index page's whole-frame table: image, PSNR, SSIM for the sensor image and every restored frame."""
+    kinds = [k[len("psnr_"):-len("_db")] for k in f if k.startswith("psnr_") and k.endswith("_db")]
+    return [[_frame_label(f, k), f"{f[f'psnr_{k}_db']:.2f}", f"{f[f'ssim_{k}']:.3f}"] for k in kinds]
+
+
+def _as_built_report(built, seed) -> dict:
+    """``metrics.json``'s ``as_built`` block: the seed, the tolerances and the sampled lens's errors (with units)."""
+    lens = built.lens
+    return {"seed": seed, "tolerances": lens.tolerances.to_dict(),
+            "errors": {k: round(float(v[0]), 6) for k, (v, _) in lens.variables().items()},
+            "units": {k: u for k, (_, u) in lens.variables().items()}}
 
 
 def cmd_psnr_table(args) -> int:
     from lenssim.io.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
 
+    photos = args.photos or [None]
+    for photo in photos:  # every photo's header first, then the designs and options, the output, every photo's pixels
+        _header(photo)
     _check_common(args)
     named = designs(args.designs_file)
     for d in args.designs:
@@ -372,12 +467,15 @@ def cmd_psnr_table(args) -> int:
         if args.as_built < 0:
             raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
         lens = tolerances_from_args(args).sample(1, seed=args.as_built)
-    photos = args.photos or [None]
     out = check_output_dir(args.out, _inputs(photos))
     rows = []
     t0 = time.perf_counter()
-    for photo in photos:
-        ideal, source = _load(photo, select_device(args.device))
+    opened, kept = [], 0
+    for photo in photos:  # all checked before the first computation; kept in memory while they fit together
+        ideal, source = _load(photo, select_device(args.device), max(PHOTO_KEEP_BYTES - kept, 0))
+        kept += ideal.nbytes() if ideal.in_memory else 0
+        opened.append((ideal, source))
+    for ideal, source in opened:
         size = _crop_size(args, ideal, source)
         angles = _angles(args, ideal, size, camera.geometry, TABLE_ANGLES_DEG, source)
         boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
@@ -385,8 +483,9 @@ def cmd_psnr_table(args) -> int:
             d = named[name]
             nominal = LensPSF(camera, d)
             blur = nominal if lens is None else AsBuiltPSF(camera, d, lens)
-            per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,), sensor=camera.sensor,
-                                     restoration_psf=nominal)
+            with _window_bar(f"{source} | {name}") as bar:
+                per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
+                                         sensor=camera.sensor, restoration_psf=nominal, progress=bar.update)
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
                                                                   methods=(spec,), sensor=camera.sensor)
             for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
@@ -437,6 +536,7 @@ def cmd_fig8(args) -> int:
 
     from pipeline.restoration import parse_restoration
 
+    _header(args.photo)
     _check_common(args)
     spec = parse_restoration(args.restore)
     spec.check(PAPER_SCHEME)  # the windows fig8 restores in
@@ -486,14 +586,16 @@ def register(sub) -> None:
     p.add_argument("--restore", nargs="+", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration methods to run, each with its options ({methods}; default: wiener), e.g. "
                         "--restore wiener tikhonov:weight=0.003 richardson_lucy:iterations=30; --full-frame takes one")
-    p.add_argument("--rl", type=int, default=0, metavar="N",
-                   help="shorthand: also restore with N iterations of windowed Richardson-Lucy (slow)")
+    p.add_argument("--rl", type=int, default=None, metavar="N",
+                   help="shorthand: also restore with N (1 to %d) iterations of windowed Richardson-Lucy (slow)"
+                        % MAX_RL_ITERATIONS)
     p.add_argument("--full-frame", action="store_true",
                    help="simulate the whole frame (sensor.png, restored.png, whole-frame PSNR/SSIM; ~5 min at 24 MP on "
                         "2 CPU cores; resumes after an interruption) instead of crops only")
     p.add_argument("--as-built", type=int, metavar="SEED",
                    help="render through one manufactured lens (drawn from --grade/--tolerances with SEED) and restore "
-                        "with the nominal lens's PSFs and with the lens's own (calibrated); crops")
+                        "with the nominal lens's PSFs and with the lens's own (calibrated), from the same noisy image; "
+                        "crops, or with --full-frame the whole frame (restored_nominal.png, restored_calibrated.png)")
     add_tolerance_arguments(p)
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="--full-frame PNG bit depth (sRGB)")
     p.add_argument("--exr", action="store_true", help="--full-frame: also write linear float EXRs")

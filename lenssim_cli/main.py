@@ -4,6 +4,7 @@ expected failures into one line on stderr (exit status 2) and Ctrl-C into status
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 import warnings
@@ -56,6 +57,74 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+SYMLINK_LOOP = re.compile(r"^Symlink loop from (.*)$", re.DOTALL)
+"""Python 3.11's ``pathlib.Path.resolve()`` reports a symbolic link loop as this RuntimeError (naming the resolved
+path)."""
+
+
+def _user_paths(args) -> list[str]:
+    """The string values of the command line (the paths the user gave among them)."""
+    out = []
+    for v in vars(args).values():
+        for x in v if isinstance(v, (list, tuple)) else (v,):
+            if isinstance(x, (str, os.PathLike)) and str(x):
+                out.append(str(x))
+    return out
+
+
+def _as_given(filename, args) -> str | None:
+    """The path the user gave for ``filename`` (an error's file name, maybe resolved or internal: a lock file, a
+    staging folder or a temporary beside an output), or None."""
+    name = os.fsdecode(filename)
+    if name in _user_paths(args):
+        return name
+    target = os.path.abspath(name)
+    best = None
+    for v in _user_paths(args):
+        for a in {os.path.abspath(v), os.path.realpath(v)}:
+            base, folder = os.path.basename(a.rstrip("/")), os.path.dirname(a.rstrip("/"))
+            inside = target == a or target.startswith(a.rstrip("/") + "/")
+            beside = bool(base) and any(target.startswith(os.path.join(folder, f".{b}.")) for b in
+                                        {base, os.path.splitext(base)[0]})  # .NAME.lock, .NAME.staging-*, .STEM.*.EXT
+            if (inside or beside) and (best is None or len(a) > best[0]):
+                best = (len(a), v)
+    return best[1] if best else None
+
+
+def _internal(filename) -> bool:
+    base = os.path.basename(os.fsdecode(filename).rstrip("/"))
+    return base.startswith(".") and any(k in base for k in (".lock", ".staging-", ".lenssim-probe-"))
+
+
+def _os_error_line(exc: OSError, args) -> str:
+    from lenssim.io.files import describe_os_error
+
+    given = _as_given(exc.filename, args)
+    if given is None and _internal(exc.filename):
+        return describe_os_error(exc, None, "an output", action="written")
+    return describe_os_error(exc, given if given is not None else os.fsdecode(exc.filename), "", action="used")
+
+
+def _loop_line(exc: RuntimeError, args) -> str:
+    """A symbolic link loop (pathlib's RuntimeError) on one line, naming the path the user gave that loops."""
+    import errno
+
+    from lenssim.io.files import describe_os_error
+
+    loop = OSError(errno.ELOOP, os.strerror(errno.ELOOP))
+    for v in _user_paths(args):
+        try:
+            os.stat(v)
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                return describe_os_error(loop, v, "", action="used")
+        except ValueError:
+            pass
+    found = SYMLINK_LOOP.match(str(exc)).group(1).strip()
+    given = _as_given(found.strip("'\""), args)
+    return describe_os_error(loop, given, "", action="used") if given else f"a symbolic link loop at {found}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -75,10 +144,19 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{prefix}: error: {_one_line(exc)}" + (f"; raise it with {flag}" if flag else ""), file=sys.stderr)
             return 2
         except (MemoryError, RuntimeError) as exc:
+            if isinstance(exc, RuntimeError) and SYMLINK_LOOP.match(str(exc)):
+                print(f"{prefix}: error: {_loop_line(exc, args)}", file=sys.stderr)
+                return 2
             if isinstance(exc, RuntimeError) and "out of memory" not in str(exc).lower():
                 raise
             print(f"{prefix}: error: out of memory ({_one_line(exc)[:200]}); use a smaller input, grid or window",
                   file=sys.stderr)
+            return 2
+        except OSError as exc:  # the last net: one line naming the user's path, the reason in words
+            if exc.filename is not None and exc.errno is not None:
+                print(f"{prefix}: error: {_os_error_line(exc, args)}", file=sys.stderr)
+            else:
+                print(f"{prefix}: error: {_one_line(exc)}", file=sys.stderr)
             return 2
         except EXPECTED_ERRORS as exc:
             print(f"{prefix}: error: {_one_line(exc)}", file=sys.stderr)

@@ -113,9 +113,10 @@ def cmd_sweep(args) -> int:
         from lenssim_studies.cluster import check_scheduler
 
         check_scheduler(args.scheduler)
-    from lenssim.io.files import output_lock
+    from lenssim.io.files import check_output_file, output_lock
 
-    with output_lock(args.out):  # one run at a time writes this sweep
+    check_output_file(args.out, "sweep output")
+    with output_lock(args.out, what="sweep output"):  # one run at a time writes this sweep
         run_sweep(cfg, args.out, device=args.device, show_progress=not args.quiet, keep_chunks=args.keep_chunks,
                   memory_limit_bytes=args.memory_limit * 2**30 if args.memory_limit else None,
                   scheduler=args.scheduler, workers=args.workers, worker_threads=args.worker_threads)
@@ -130,9 +131,9 @@ def cmd_optimum(args) -> int:
 
     from lenssim_studies.tradeoff import find_optimum
 
-    path = Path(args.file)
-    if not path.is_file():
-        raise FileNotFoundError(f"sweep file {str(path)!r} does not exist or is not a file")
+    from lenssim.io.files import check_input_file
+
+    path = check_input_file(args.file, "sweep file")
     try:
         ds = xr.load_dataset(path, engine="scipy")
     except Exception:  # noqa: BLE001 - whatever the reader says, the file is not a sweep
@@ -162,7 +163,10 @@ def cmd_demo(args) -> int:
     from lenssim_studies.sweep import load_config, run_sweep
     from lenssim_studies.tradeoff import find_optimum
 
+    from lenssim.io.files import check_output_file
+
     named = designs()
+    check_output_file(args.out, "demo sweep output")
     select_device(args.device)
     results = [(n, evaluate_design(named[n], PAPER_SNR_DB, args.device)) for n in DEMO_DESIGNS]
     lens = PAPER_CAMERA.lens

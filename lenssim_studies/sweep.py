@@ -24,7 +24,7 @@ import xarray as xr
 from lenssim import __version__
 from lenssim.criteria import lens_criteria
 from lenssim.model.design import PARAMETERS
-from lenssim.io.files import atomic_write
+from lenssim.io.files import atomic_write, check_output_file
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
@@ -157,6 +157,7 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     workers = None if workers is None else check_int("workers", workers, 1)
     worker_threads = None if worker_threads is None else check_int("worker_threads", worker_threads, 1)
     cfg.check(memory_limit_bytes)
+    check_output_file(out, "sweep output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
     if out.exists():
         try:
             with xr.open_dataset(out) as old:
@@ -169,8 +170,6 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
             return ds
         raise FileExistsError(f"{str(out)!r} exists and is not a finished sweep of this config; "
                               "choose another output file or remove it")
-    if out.parent.exists() and not os.access(out.parent, os.W_OK):
-        raise PermissionError(f"cannot write the sweep into {str(out.parent)!r} (no write permission)")
     part = out.with_name(out.name + ".partial")
     _remove_temporaries(out, part)
     with partial_folder(part, "config.json", cfg.digest(), {"config": cfg.to_dict()},

@@ -213,6 +213,9 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     dev = select_device(device)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
+    from lenssim.io.files import check_output_file
+
+    check_output_file(out, "tolerance output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
     if out.exists():
         try:
             with xr.open_dataset(out, engine="scipy") as old:

@@ -16,7 +16,11 @@ from lenssim.validate import check_real
 from .checks import check_scene
 from .colour_space import linear_to_srgb, srgb_to_linear
 
-__all__ = ["gentle_denoise"]
+__all__ = ["gentle_denoise", "DENOISE_WORKING_COPIES"]
+
+DENOISE_WORKING_COPIES = 12
+"""Frame-sized float32 buffers :func:`gentle_denoise` holds at its peak (the image, its sRGB copy in float64, the
+denoised float64 planes and scikit-image's wavelet temporaries), for the memory check before a run."""
 
 
 def gentle_denoise(linear: torch.Tensor, strength: float = 0.5) -> torch.Tensor:

@@ -4,7 +4,8 @@ For a full-frame simulation the restored image's quality varies with the field, 
 aberrations do. :func:`field_psnr` cuts the frame into ``tile`` x ``tile`` blocks, computes the
 sRGB PSNR of the sensor and restored images in each, and the field angle (degrees) of each
 block's centre in the camera's field geometry (optical axis at the frame centre);
-:func:`plot_field_psnr` draws both maps on one colour scale and PSNR against field angle.
+:func:`plot_field_psnr` draws the maps (the sensor image's and each restored frame's) on one colour scale and
+PSNR against field angle.
 """
 
 from __future__ import annotations
@@ -43,31 +44,43 @@ def field_psnr(ideal: torch.Tensor, sensor: torch.Tensor, restored: torch.Tensor
     return {"sensor_db": m_s, "restored_db": m_r, "field_deg": tile_field_angles(ideal.shape, tile, geometry=geometry)}
 
 
-def plot_field_psnr(maps: dict, path, *, title: str = "") -> Path:
-    """Write the figure (PNG, plus SVG beside it) for the output of :func:`field_psnr`; returns the PNG path."""
+def plot_field_psnr(maps: dict, path, *, title: str = "", labels: dict | None = None) -> Path:
+    """Write the figure (PNG, plus SVG beside it) for the output of :func:`field_psnr` or
+    :func:`pipeline.simulate.score_frame`; returns the PNG path.
+
+    Every map ``KIND_db`` of ``maps`` (the sensor image's first, then each restored frame's: ``restored_db``, or
+    ``restored_TAG_db`` for a frame restored with several PSF providers) gets a panel on one colour scale, and a
+    curve of PSNR against field angle. ``labels`` ``{KIND: label}`` names them (default: "sensor image", "restored
+    image", "restored image (TAG)")."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    s, r, a = (maps[k].numpy() for k in ("sensor_db", "restored_db", "field_deg"))
-    finite = [v[torch.isfinite(torch.from_numpy(v)).numpy()] for v in (s, r)]
+    kinds = sorted((k[:-3] for k in maps if k.endswith("_db")), key=lambda k: k != "sensor")
+    default = {"sensor": "sensor image", "restored": "restored image"}
+    names = {k: (labels or {}).get(k) or default.get(k) or f"restored image ({k.removeprefix('restored_')})"
+             for k in kinds}
+    vals = {k: maps[f"{k}_db"].numpy() for k in kinds}
+    a = maps["field_deg"].numpy()
+    finite = [v[torch.isfinite(torch.from_numpy(v)).numpy()] for v in vals.values()]
     lo = math.floor(min(float(f.min()) for f in finite if f.size))
     hi = math.ceil(max(float(f.max()) for f in finite if f.size))
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
-    for ax, m, name in ((axes[0], s, "sensor image"), (axes[1], r, "restored image")):
-        im = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis", interpolation="nearest")
-        ax.set_title(f"PSNR per tile, {name} [dB]")
+    n = len(kinds)
+    fig, axes = plt.subplots(1, n + 1, figsize=(5 * (n + 1), 4.2), constrained_layout=True)
+    for ax, k in zip(axes[:n], kinds):
+        im = ax.imshow(vals[k], vmin=lo, vmax=hi, cmap="viridis", interpolation="nearest")
+        ax.set_title(f"PSNR per tile, {names[k]} [dB]")
         ax.set_xlabel("tile column")
         ax.set_ylabel("tile row")
-    fig.colorbar(im, ax=axes[:2], shrink=0.9, label="PSNR (sRGB) [dB]")
-    axes[2].plot(a.ravel(), s.ravel(), ".", ms=4, label="sensor image")
-    axes[2].plot(a.ravel(), r.ravel(), ".", ms=4, label="restored image")
-    axes[2].set_xlabel("field angle of the tile centre [deg]")
-    axes[2].set_ylabel("PSNR (sRGB) [dB]")
-    axes[2].set_title("PSNR against field angle")
-    axes[2].grid(alpha=0.3)
-    axes[2].legend()
+    fig.colorbar(im, ax=axes[:n], shrink=0.9, label="PSNR (sRGB) [dB]")
+    for k in kinds:
+        axes[n].plot(a.ravel(), vals[k].ravel(), ".", ms=4, label=names[k])
+    axes[n].set_xlabel("field angle of the tile centre [deg]")
+    axes[n].set_ylabel("PSNR (sRGB) [dB]")
+    axes[n].set_title("PSNR against field angle")
+    axes[n].grid(alpha=0.3)
+    axes[n].legend()
     if title:
         fig.suptitle(title)
     png = Path(path)

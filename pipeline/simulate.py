@@ -25,6 +25,7 @@ import json
 import math
 import time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -38,6 +39,7 @@ from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, largest_window, window_count
 from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import expose, read_noise_variance
+from .photo import Photo
 from .quality import psnr_srgb, ssim_srgb
 from .restoration import Restoration, restore
 
@@ -159,7 +161,8 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
                    sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
                    restoration_psf: PSFProvider | None = None):
-    """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``) at each box ``(r0, r1, c0, c1)``.
+    """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
+    where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
     ``full_well`` (electrons) is a number, giving a list of :class:`CropResult` (one per box), or a
     sequence of numbers (e.g. three ISOs), giving one such list per full well: the blur is computed
@@ -170,17 +173,22 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     ``dtype`` is the working precision (float32: ~1e-7 relative, far below the noise; float64 for reference
     runs); results come back in ``ideal``'s dtype.
     """
-    check_scene(ideal, "ideal")
+    if isinstance(ideal, Photo):  # read region by region (a photo too large to keep decodes only what it needs)
+        shape, peak, read, out_dtype = ideal.shape, ideal.peak, ideal.region, ideal.dtype
+    else:
+        check_scene(ideal, "ideal")
+        shape, peak, out_dtype = ideal.shape, float(ideal.amax()), ideal.dtype
+        read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
     specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
     wells = [check_full_well(f) for f in (full_well if several else [full_well])]
-    boxes = check_boxes(boxes, ideal.shape)
+    boxes = check_boxes(boxes, shape)
     for r in specs:  # the options against the windows, after the other arguments, before any work
         r.check(scheme)
-    H, W = ideal.shape[-2:]
-    centre = frame_center(ideal.shape)
+    H, W = shape[-2:]
+    centre = frame_center(shape)
     providers = {id(psf): psf, id(restoration_psf): restoration_psf}.values()
 
     def crop_margin(r0, r1, c0, c1) -> int:
@@ -191,27 +199,33 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
             reach = replace(scheme, window=w)
             m = max([reach.window // 2 + reach.core] + [r.margin(reach) for r in specs])
             near = (max(r0 - m, 0), min(r1 + m, H), max(c0 - m, 0), min(c1 + m, W))
-            most = max(largest_window(p, ideal.shape, scheme, region=near) for p in providers)
+            most = max(largest_window(p, shape, scheme, region=near) for p in providers)
             if most <= w:
                 return m
             w = most
 
     # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
     # (every crop's, before any work: a PSF too large for any window stops the run here)
+    for r0, r1, c0, c1 in boxes:  # a PSF wider than the photo leaves nothing of the scene resolved
+        y, x = torch.tensor([(r0 + r1 - 1) / 2]), torch.tensor([(c0 + c1 - 1) / 2])
+        support = max(int(p.extents_px(y, x, centre).max()) for p in providers)
+        if support > max(H, W):
+            raise ValueError(f"the PSF at the crop {(r0, r1, c0, c1)} spans about {support} px, more than the {W} x {H} "
+                             "px frame: nothing of the scene would remain resolved (give a sharper design, or a "
+                             "larger photo)")
     margins = [crop_margin(*box) for box in boxes]
-    peak = float(ideal.amax())
     out = [[] for _ in wells]
     for k, (r0, r1, c0, c1) in enumerate(boxes):
         margin = margins[k]
         R0, R1, C0, C1 = max(r0 - 2 * margin, 0), min(r1 + 2 * margin, H), max(c0 - 2 * margin, 0), min(c1 + 2 * margin, W)
-        sub = ideal[..., R0:R1, C0:C1].to(dtype)
+        sub = read(R0, R1, C0, C1).to(dtype)
         oc = (centre[0] - R0, centre[1] - C0)
         br = (max(r0 - margin, R0) - R0, min(r1 + margin, R1) - R0, max(c0 - margin, C0) - C0, min(c1 + margin, C1) - C0)
         blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress)
         rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)
-        crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(ideal.dtype)  # noqa: E731
+        crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(out_dtype)  # noqa: E731
         ci = crop(sub)
-        field_deg = psf.geometry.box_field_angle(ideal.shape, (r0, r1, c0, c1))
+        field_deg = psf.geometry.box_field_angle(shape, (r0, r1, c0, c1))
         for i, fwc in enumerate(wells):
             e = fwc / peak
             g = torch.Generator(device=blurred.device).manual_seed(seed + k)
@@ -233,11 +247,28 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
 @dataclass
 class FrameResult:
     sensor: torch.Tensor  # (B, C, H, W) linear, blurred + noise
-    restored: torch.Tensor  # (B, C, H, W) linear, restored by `method`
+    restored: torch.Tensor  # (B, C, H, W) linear, restored by `method` (with the first restoration provider)
     method: str  # restoration method (registry name)
     electrons_per_unit: float  # photo-electrons per unit of the linear image
     resumed: bool  # the sensor image came from the checkpoint
     seconds: dict  # wall-clock time of each stage run here
+    restorations: dict = field(default_factory=dict)
+    """``{tag: (B, C, H, W)}``: the frame restored with each provider of a ``restoration_psf`` mapping ``{tag:
+    provider}`` (:func:`simulate_frame`), in its order, all from the one :attr:`sensor` image (the first is also
+    :attr:`restored`); empty for one restoration provider."""
+
+    def restored_images(self) -> dict:
+        """The restored frames by image kind: ``{"restored": ...}``, or ``{"restored_TAG": ...}`` per tag of
+        :attr:`restorations` (the names of their files and scores)."""
+        if not self.restorations:
+            return {"restored": self.restored}
+        return {f"restored_{tag}": img for tag, img in self.restorations.items()}
+
+    def restored_by_method(self) -> dict:
+        """The restored frames keyed as crops key theirs: ``{method: ...}``, or ``{"METHOD@TAG": ...}`` per tag."""
+        if not self.restorations:
+            return {self.method: self.restored}
+        return {f"{self.method}@{tag}": img for tag, img in self.restorations.items()}
 
 
 def _fingerprint(ideal: torch.Tensor, params: dict) -> str:
@@ -263,25 +294,33 @@ def _provider_key(psf: PSFProvider):
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
-                   restoration_psf: PSFProvider | None = None) -> FrameResult:
+                   restoration_psf: PSFProvider | dict | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
     ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
     ``restoration_psf`` (default ``psf``).
 
+    ``restoration_psf`` may also be a mapping ``{tag: provider}`` (tags: letters, digits, ``_``; e.g.
+    ``{"nominal": LensPSF(...), "calibrated": as_built}``): the frame is blurred and exposed once and the one
+    noisy frame restored with each provider in turn (:attr:`FrameResult.restorations`; the first is also
+    :attr:`FrameResult.restored`), each restoration equal to that of a run with that provider alone.
+
     Two passes of ``ceil((H-1)/stride + 1) x ceil((W-1)/stride + 1)`` windows (23,688 each at
-    6000 x 4000 with the paper's scheme); ``progress(k)`` is called after every ``k`` windows.
+    6000 x 4000 with the paper's scheme; one more restoration pass per further provider); ``progress(k)`` is
+    called after every ``k`` windows.
     ``dtype``: working precision, as in :func:`simulate_crops`; images come back in ``ideal``'s dtype.
 
     ``checkpoint`` (a folder): after the first pass the sensor image (float EXR) and a stamp of the
     input and parameters are written there atomically; a later call with the same input and
     parameters resumes from them and runs the restoration only (not for providers without a
-    :meth:`fingerprint`, e.g. :class:`lenssim.FunctionPSF`).
+    :meth:`fingerprint`, e.g. :class:`lenssim.FunctionPSF`). The stamp holds the blur provider's fingerprint (for
+    :class:`lenssim.AsBuiltPSF` the sampled lens's errors), so a sensor image is never taken from another lens; the
+    restorations are always run again.
     """
-    from .io import read_image, write_image
+    from .io import ImageFileError, read_image, write_image
 
     check_scene(ideal, "ideal")
     check_provider(psf)
-    restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    restoration_psf = _restoration_providers(psf, restoration_psf)
     (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
     method.check(scheme)
@@ -309,7 +348,11 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                     warnings.warn(f"checkpoint {str(sensor_path)!r} does not match its stamp (changed or corrupted); "
                                   "computing the sensor image again", ResumeWarning, stacklevel=2)
                 else:
-                    noisy, _ = read_image(sensor_path)
+                    try:
+                        noisy, _ = read_image(sensor_path, what="checkpoint")
+                    except ImageFileError as exc:  # unreadable now (e.g. the disk failed): computed again
+                        warnings.warn(f"{exc}; computing the sensor image again", ResumeWarning, stacklevel=2)
+                        noisy = torch.empty(0)
                     if tuple(noisy.shape) == tuple(ideal.shape):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme))
@@ -332,41 +375,75 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
 
 
 def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry) -> list[CropResult]:
-    """:class:`CropResult` for boxes ``(r0, r1, c0, c1)`` cut from a full-frame :class:`FrameResult`."""
+    """:class:`CropResult` for boxes ``(r0, r1, c0, c1)`` cut from a full-frame :class:`FrameResult`: the restored
+    images keyed by the method's name, or ``METHOD@TAG`` per restoration provider of a tagged frame
+    (:meth:`FrameResult.restored_by_method`)."""
     out = []
     for box in boxes:
         r0, r1, c0, c1 = box
         cut = lambda t: t[..., r0:r1, c0:c1]  # noqa: E731
-        ci, cs_, cr = cut(ideal), cut(frame.sensor), cut(frame.restored)
-        out.append(CropResult(tuple(box), geometry.box_field_angle(ideal.shape, box),
-                              {"ideal": ci, "sensor": cs_, frame.method: cr},
-                              {"sensor": _score(ci, cs_), frame.method: _score(ci, cr)}))
+        ci, cs_ = cut(ideal), cut(frame.sensor)
+        res = CropResult(tuple(box), geometry.box_field_angle(ideal.shape, box), {"ideal": ci, "sensor": cs_},
+                         {"sensor": _score(ci, cs_)})
+        for kind, img in frame.restored_by_method().items():
+            res.images[kind] = cr = cut(img)
+            res.scores[kind] = _score(ci, cr)
+        out.append(res)
+    return out
+
+
+def _restoration_providers(psf: PSFProvider, restoration_psf) -> PSFProvider | dict:
+    """``restoration_psf`` checked: ``psf`` when None, a provider, or a non-empty mapping ``{tag: provider}`` whose
+    tags are file-name parts (letters, digits, ``_``)."""
+    if restoration_psf is None:
+        return psf
+    if not isinstance(restoration_psf, Mapping):
+        return check_provider(restoration_psf, "restoration_psf")
+    if not restoration_psf:
+        raise ValueError("restoration_psf is an empty mapping: give at least one {tag: provider}")
+    out = {}
+    for tag, prov in restoration_psf.items():
+        if not isinstance(tag, str) or not tag or not all(ch.isascii() and (ch.isalnum() or ch == "_") for ch in tag):
+            raise ValueError(f"restoration_psf tag {tag!r} is not allowed: letters, digits and _ (it names files)")
+        out[tag] = check_provider(prov, f"restoration_psf[{tag!r}]")
     return out
 
 
 def _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, seconds, resumed) -> FrameResult:
+    """Restore the one noisy frame with ``psf`` (a provider, or ``{tag: provider}``: each in turn)."""
     t0 = time.perf_counter()
-    restored = restore(method, noisy, psf, electrons_per_unit=e, read_noise_var=read_noise_variance(sensor, e),
-                       scheme=scheme, progress=progress)
+    several = isinstance(psf, dict)
+    restored = {}
+    for tag, prov in (psf.items() if several else [("", psf)]):
+        restored[tag] = restore(method, noisy, prov, electrons_per_unit=e, read_noise_var=read_noise_variance(sensor, e),
+                                scheme=scheme, progress=progress).to(ideal.dtype)
     seconds["restore"] = time.perf_counter() - t0
-    return FrameResult(noisy.to(ideal.dtype), restored.to(ideal.dtype), method.name, e, resumed, seconds)
+    first = next(iter(restored.values()))
+    return FrameResult(noisy.to(ideal.dtype), first, method.name, e, resumed, seconds,
+                       restored if several else {})
 
 
 FRAME_WORKING_COPIES = 12
 """Frame-sized float32 buffers a whole-frame simulation and its scoring hold at their peak (measured 3.4 GiB at
 24 MP, 3 channels)."""
 
+FRAME_COPIES_PER_EXTRA_RESTORATION = 1
+"""Frame-sized float32 buffers each further restored frame adds (``restoration_psf`` as a mapping): the restored
+frame, held while the next restoration runs and until it is scored; the restoration's own working buffers are
+freed between restorations."""
+
 MAP_TILE_PX = 256
 """Side (px) of the tiles of a frame's PSNR map."""
 
 
-def frame_memory_bytes(shape) -> int:
+def frame_memory_bytes(shape, restorations: int = 1) -> int:
     """Memory (bytes) that :func:`simulate_frame` and :func:`score_frame` plan for an ideal image of ``shape``
-    ``(B, C, H, W)`` in float32."""
+    ``(B, C, H, W)`` in float32, with ``restorations`` restored frames (the providers of ``restoration_psf``)."""
+    restorations = check_int("restorations", restorations, 1)
     n = 1
     for v in shape:
         n *= int(v)
-    return FRAME_WORKING_COPIES * n * 4
+    return (FRAME_WORKING_COPIES + FRAME_COPIES_PER_EXTRA_RESTORATION * (restorations - 1)) * n * 4
 
 
 def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry, *, tile: int = MAP_TILE_PX,
@@ -376,7 +453,9 @@ def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry
     angles (deg, in ``geometry``). Each image is sRGB-encoded once; ``on_encoded(kind, encoded, linear)`` (kind
     ``"sensor"`` or ``"restored"``, encoded ``(1, C, H, W)`` float32 on the device) may write it meanwhile. Returns
     ``{"psnr_sensor_db", "psnr_restored_db", "ssim_sensor", "ssim_restored", "maps": {"sensor_db", "restored_db",
-    "field_deg"}, "seconds": {"write", "metrics"}}``.
+    "field_deg"}, "seconds": {"write", "metrics"}}``. A frame restored with several providers
+    (:attr:`FrameResult.restorations`) has kind ``"restored_TAG"`` for each in place of ``"restored"``:
+    ``psnr_restored_TAG_db``, ``ssim_restored_TAG`` and the map ``restored_TAG_db``.
     """
     from .quality import encode_srgb, scores_encoded
 
@@ -386,18 +465,18 @@ def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry
     seconds = {"write": 0.0, "metrics": 0.0}
     ref = encode_srgb(ideal)
     scores = {}
-    for kind in ("sensor", "restored"):
-        img = getattr(frame, kind)
+    for kind, img in {"sensor": frame.sensor, **frame.restored_images()}.items():
         enc = encode_srgb(img)
         t0 = time.perf_counter()
         if on_encoded is not None:
             on_encoded(kind, enc, img)
         t1 = time.perf_counter()
         scores[kind] = scores_encoded(ref, enc, tile=tile)
+        del enc
         seconds["write"] += t1 - t0
         seconds["metrics"] += time.perf_counter() - t1
-    return {"psnr_sensor_db": scores["sensor"]["psnr_db"], "psnr_restored_db": scores["restored"]["psnr_db"],
-            "ssim_sensor": scores["sensor"]["ssim"], "ssim_restored": scores["restored"]["ssim"],
-            "maps": {"sensor_db": scores["sensor"]["psnr_map_db"], "restored_db": scores["restored"]["psnr_map_db"],
+    return {**{f"psnr_{k}_db": v["psnr_db"] for k, v in scores.items()},
+            **{f"ssim_{k}": v["ssim"] for k, v in scores.items()},
+            "maps": {**{f"{k}_db": v["psnr_map_db"] for k, v in scores.items()},
                      "field_deg": geometry.tile_field_angles(ideal.shape, tile)},
             "seconds": seconds}

@@ -29,11 +29,25 @@ def builtin_configs() -> list[str]:
 
 def config_path(spec: str | Path) -> Path:
     """The sweep config ``spec``: an existing file, else a built-in config of that name (``.toml`` optional)."""
+    import os
+
+    from .files import check_input_file
+
     p = Path(spec)
     if p.is_file():
         return p
     name = p.name[:-5] if p.name.endswith(".toml") else p.name
-    if p.parent == Path(".") and name in builtin_configs():
+    builtin = p.parent == Path(".") and name in builtin_configs()
+    try:
+        os.lstat(p)
+        there = not (builtin and p.is_dir())  # a folder named like a built-in config (an output folder) is not it
+    except FileNotFoundError:
+        there = False
+    except (OSError, ValueError):  # a name too long, a path through a file, ...: said in words below
+        there = True
+    if there:  # a link loop, a dangling link, a folder, a pipe or device: check_input_file says which
+        return check_input_file(p, "sweep config")
+    if builtin:
         return _root() / f"{name}.toml"
     raise FileNotFoundError(f"sweep config {str(spec)!r} does not exist; built-in configs: {', '.join(builtin_configs())}")
 

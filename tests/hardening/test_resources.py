@@ -42,7 +42,7 @@ def test_a_full_frame_larger_than_the_memory_limit_is_refused(tmp_path, capsys):
     assert main(["simulate", "skimage:astronaut", "--design", "end_to_end_paper", "--full-frame", "--angles", "0", "--memory-limit", "0.001",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert "--full-frame on a 512 x 512 image needs about" in err and "--memory-limit GIB" in err
+    assert "--full-frame on the 512 x 512 photo 'skimage:astronaut' needs about" in err and "--memory-limit GIB" in err
 
 
 def test_check_memory_names_the_setting():

@@ -14,7 +14,7 @@ E = ["--design", "end_to_end_paper"]
 
 
 # class 3: hostile files
-@pytest.mark.parametrize("photo, match", [("huge.png", "cannot read image"), ("trunc.jpg", "cannot read image"),
+@pytest.mark.parametrize("photo, match", [("huge.png", "cannot read photo"), ("trunc.jpg", "cannot read photo"),
                                           ("nan.exr", "NaN or infinite"), ("adir", "is not a file")])
 def test_hostile_photos_are_refused(photo, match, files, refused):
     refused(["simulate", photo, *E, "--out", "o"], match, files)

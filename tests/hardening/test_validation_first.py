@@ -38,6 +38,7 @@ def _args(tmp_path, *extra, photo=None):
     (["--crop", "0"], "--crop 0 is not allowed"),
     (["--crop", "8"], "--crop 8 is not allowed"),
     (["--rl", "-1"], "--rl -1 is not allowed"),
+    (["--rl", "0"], "--rl 0 is not allowed"),
     (["--seed", "-3"], "--seed -3"),
     (["--angles", "1", "1.0"], "--angles holds 1 deg more than once"),
     (["--angles", "-5"], "--angles -5 is not allowed"),
@@ -62,7 +63,7 @@ def test_bad_arguments_stop_before_any_work(tmp_path, capsys, no_compute, extra,
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("shape, value, match", [((1, 1), None, "at least 32 x 32 px"), ((64, 64), 0.0, "is black"),
+@pytest.mark.parametrize("shape, value, match", [((1, 1), None, "at least 32 x 32 px"), ((256, 256), 0.0, "is black"),
                                                  ((200, 250), None, "--full-frame needs an image of at least 256")])
 def test_bad_images_stop_before_any_work(tmp_path, capsys, no_compute, shape, value, match):
     photo = _png(tmp_path / "in.png", *shape, value=value)

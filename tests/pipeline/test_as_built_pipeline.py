@@ -100,7 +100,7 @@ def test_simulate_as_built_restores_with_the_nominal_and_the_calibrated_psfs(tmp
 
 @pytest.mark.parametrize("argv, message", [
     (["--as-built", "-1"], "--as-built -1 is not allowed"),
-    (["--as-built", "1", "--full-frame"], "--as-built simulates crops"),
+    (["--as-built", "1", "--full-frame", "--restore", "wiener", "tikhonov"], "--full-frame restores with one method"),
     (["--as-built", "1", "--wavefront", "exact"], "--as-built takes the third-order wavefront"),
 ])
 def test_simulate_as_built_bad_arguments(tmp_path, capsys, argv, message):
