@@ -51,7 +51,8 @@ FLAGS = [
     (["simulate", "ok.png", *E, "--memory-limit", "-5", "--out", "o"], "--memory-limit -5 is not allowed"),
     (["simulate", "ok.png", *E, "--grade", "precision", "--out", "o"], "give --as-built"),
     (["simulate", "ok.png", *E, "--as-built", "-1", "--out", "o"], "--as-built -1 is not allowed"),
-    (["simulate", "ok.png", *E, "--as-built", "1", "--full-frame", "--out", "o"], "--full-frame is not available"),
+    (["simulate", "ok.png", *E, "--as-built", "1", "--full-frame", "--rl", "2", "--out", "o"],
+     "--full-frame restores with one method"),  # --full-frame --as-built itself works since issue 28
     (["simulate", "ok.png", *E, "--as-built", "1", "--off", "warp", "--out", "o"], "--off 'warp' is not allowed"),
     (["simulate", "ok.png", *E, "--as-built", "1", "--tolerances", "tol_typo.toml", "--out", "o"],
      "unknown key(s) ['radius_pct']"),

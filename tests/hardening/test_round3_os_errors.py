@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import json
 import os
 import signal
@@ -158,45 +157,39 @@ def test_special_files_as_outputs_are_refused(hostile, capsys):
                "is not a folder (a character device)")
 
 
-def _in_a_read_only_mount(folder: Path, argv: list[str]) -> tuple[int, str]:
-    """``main(argv)`` in a child process whose own mount namespace has a read-only tmpfs on ``folder`` (root does
-    not bypass a read-only file system as it bypasses permission bits); (exit status, stderr). Skips where mounts
-    are not allowed."""
-    import ctypes
+_CHILD = """
+import contextlib, io, json, sys
+from lenssim_cli.main import main
+buf = io.StringIO()
+with contextlib.redirect_stderr(buf):
+    try:
+        rc = main(json.loads(sys.argv[1]))
+    except SystemExit as exc:
+        rc = exc.code
+print(json.dumps({"rc": rc, "err": buf.getvalue()}))
+"""
 
-    libc = ctypes.CDLL(None, use_errno=True)
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: never returns to pytest
-        try:
-            out = {"skip": None, "rc": None, "err": ""}
-            clone_newns, ms_rdonly, ms_rec, ms_private = 0x00020000, 1, 16384, 1 << 18
-            if (libc.unshare(clone_newns) != 0 or libc.mount(None, b"/", None, ms_rec | ms_private, None) != 0
-                    or libc.mount(b"none", os.fsencode(folder), b"tmpfs", ms_rdonly, None) != 0):
-                out["skip"] = f"no private read-only mount here: {os.strerror(ctypes.get_errno())}"
-            else:
-                buf = io.StringIO()
-                with contextlib.redirect_stderr(buf):
-                    try:
-                        out["rc"] = main(argv)
-                    except SystemExit as exc:
-                        out["rc"] = exc.code
-                    except BaseException as exc:  # noqa: BLE001 - reported to the parent as a traceback would be
-                        out["err"] = f"Traceback: {type(exc).__name__}: {exc}\n"
-                out["err"] += buf.getvalue()
-            os.write(w, json.dumps(out).encode())
-        finally:
-            os._exit(0)
-    os.close(w)
-    with deadline(30):
-        data = b""
-        while chunk := os.read(r, 65536):
-            data += chunk
-        os.waitpid(pid, 0)
-    os.close(r)
-    out = json.loads(data)
-    if out["skip"]:
-        pytest.skip(out["skip"])
+
+def _in_a_read_only_mount(folder: Path, argv: list[str]) -> tuple[int, str]:
+    """``main(argv)`` in a new process (``unshare --mount``: its own mount namespace) that has a read-only tmpfs on
+    ``folder`` (root does not bypass a read-only file system as it bypasses permission bits); (exit status, stderr).
+    A fresh process, not a fork of this one (a fork of a process with torch's threads can deadlock). Skips where
+    private mounts are not allowed."""
+    import shutil
+    import subprocess
+    import sys
+
+    if shutil.which("unshare") is None:
+        pytest.skip("no unshare command here")
+    probe = subprocess.run(["unshare", "--mount", "sh", "-c", 'mount -t tmpfs -o ro none "$1"', "sh", str(folder)],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"no private read-only mount here: {probe.stderr.strip()}")
+    r = subprocess.run(["unshare", "--mount", "sh", "-c", 'mount -t tmpfs -o ro none "$1" && exec "$2" -c "$3" "$4"',
+                        "sh", str(folder), sys.executable, _CHILD, json.dumps(argv)],
+                       capture_output=True, text=True, timeout=120, cwd=os.getcwd())
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
     return out["rc"], out["err"]
 
 
