@@ -17,7 +17,7 @@ import torch
 
 __all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "ResumeWarning", "check_real", "check_int", "check_finite",
            "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
-           "FULL_WELL_RANGE_E", "MEMORY_FRACTION"]
+           "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED"]
 
 SNR_DB_RANGE = (-20.0, 100.0)
 """SNR (dB per pixel) accepted by the criteria: beyond 100 dB the noise variance (1e-10) is below the
@@ -31,6 +31,10 @@ FULL_WELL_RANGE_E = (1.0, 1e9)
 
 MEMORY_FRACTION = 0.8
 """Share of the available memory one run may plan to use."""
+
+MAX_SEED = 2**62
+"""Largest random seed a run takes: torch's generators take seeds below 2**64, and runs add offsets to the seed
+(one per crop or lens chunk), so a margin is left below that."""
 
 
 class ResourceLimitError(ValueError):

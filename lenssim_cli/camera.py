@@ -28,6 +28,7 @@ from pipeline import RESTORATION_METHODS, write_image
 from pipeline.blur import PAPER_SCHEME, WINDOW_ANCHORS
 from pipeline.restoration.richardson_lucy import MAX_RL_ITERATIONS
 from pipeline.figures import mosaic_figure
+from pipeline.denoise import DENOISE_STRENGTH_RANGE
 from pipeline.photo import PHOTO_KEEP_BYTES, Photo
 from pipeline.simulate import MAP_TILE_PX
 
@@ -218,8 +219,9 @@ def cmd_simulate(args) -> int:
     if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
         raise ValueError(f"--rl {args.rl} is not allowed: a number of Richardson-Lucy iterations from 1 to "
                          f"{MAX_RL_ITERATIONS} (leave --rl out for none)")
-    if args.denoise and not 0 < args.denoise <= 2:
-        raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength in (0, 2], or 0 for none")
+    lo, hi = DENOISE_STRENGTH_RANGE
+    if args.denoise and not lo <= args.denoise <= hi:
+        raise ValueError(f"--denoise {args.denoise:g} is not allowed: a strength from {lo:g} to {hi:g}, or 0 for none")
     specs = _methods(args, scheme)
     methods = tuple(r.name for r in specs)
     if args.full_frame and len(specs) > 1:

@@ -29,6 +29,8 @@ def check_arguments(args) -> None:
     import math
     import os
 
+    from lenssim.validate import MAX_SEED
+
     for flag, name in (("--glass", "glass"), ("--spectrum", "spectrum"), ("--illuminant", "illuminant")):
         v = getattr(args, name, None)
         if v is not None and not str(v).strip():
@@ -38,6 +40,9 @@ def check_arguments(args) -> None:
         if getattr(args, name, None) is not None and not colour and getattr(args, "command", "") != "study":
             raise ValueError(f"{flag} applies to a colour --spectrum (e.g. \"Nikon 5100 (NPL)\"); --spectrum paper "
                              "has one wavelength")
+    seed = getattr(args, "seed", None)
+    if isinstance(seed, int) and not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"--seed {seed} is not allowed: a whole number from 0 to {MAX_SEED} (2**62)")
     n = getattr(args, "max_fft_size", None)
     if n is not None and n < 16:
         raise ValueError(f"--max-fft-size {n} is not allowed: an FFT size >= 16")

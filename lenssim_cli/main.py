@@ -22,6 +22,9 @@ COMMAND_MODULES = (optics, tolerance, camera)
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
                    PermissionError, OSError, ClusterError)
 
+OUT_OF_MEMORY_WORDS = ("out of memory", "can't allocate memory", "cannot allocate memory")
+"""How torch's allocators (CPU, CUDA) word a failed allocation in their RuntimeErrors."""
+
 OVERRIDE_FLAGS = {"max_fft_size": "--max-fft-size N", "memory_limit_gib": "--memory-limit GIB"}
 """The command-line flag that raises each library limit (ResourceLimitError.setting)."""
 
@@ -147,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
             if isinstance(exc, RuntimeError) and SYMLINK_LOOP.match(str(exc)):
                 print(f"{prefix}: error: {_loop_line(exc, args)}", file=sys.stderr)
                 return 2
-            if isinstance(exc, RuntimeError) and "out of memory" not in str(exc).lower():
+            if isinstance(exc, RuntimeError) and not any(w in str(exc).lower() for w in OUT_OF_MEMORY_WORDS):
                 raise
             print(f"{prefix}: error: out of memory ({_one_line(exc)[:200]}); use a smaller input, grid or window",
                   file=sys.stderr)

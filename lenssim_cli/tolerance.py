@@ -5,6 +5,10 @@ from __future__ import annotations
 import sys
 import time
 
+MAX_SENSITIVITY_LENSES = 100_000
+"""Most lenses per tolerance term of the sensitivity table: 9 terms x 100,000 lenses is already past a long Monte
+Carlo on a workstation; 2**31 asked for 16 GiB before it was bounded."""
+
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
                      camera_from_args, design_from_args, tolerances_from_args)
 
@@ -27,8 +31,9 @@ def cmd_tolerance(args) -> int:
     yields = [parse_yield(s) for s in args.yield_ or ()]
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
-    if args.sensitivity_lenses < 0:
-        raise ValueError(f"--sensitivity-lenses {args.sensitivity_lenses} is not allowed: >= 0 (0: no sensitivity table)")
+    if not 0 <= args.sensitivity_lenses <= MAX_SENSITIVITY_LENSES:
+        raise ValueError(f"--sensitivity-lenses {args.sensitivity_lenses} is not allowed: from 0 to "
+                         f"{MAX_SENSITIVITY_LENSES} (0: no sensitivity table)")
     snr = list(args.snr)
     ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
     if ref_snr not in snr:

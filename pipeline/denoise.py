@@ -16,7 +16,11 @@ from lenssim.validate import check_real
 from .checks import check_scene
 from .colour_space import linear_to_srgb, srgb_to_linear
 
-__all__ = ["gentle_denoise", "DENOISE_WORKING_COPIES"]
+__all__ = ["gentle_denoise", "DENOISE_WORKING_COPIES", "DENOISE_STRENGTH_RANGE"]
+
+DENOISE_STRENGTH_RANGE = (1e-3, 2.0)
+"""Strengths (multiples of the estimated noise sigma) the denoiser takes: below 1e-3 it removes nothing visible, and
+below about 1e-160 its thresholds underflow to NaN."""
 
 DENOISE_WORKING_COPIES = 12
 """Frame-sized float32 buffers :func:`gentle_denoise` holds at its peak (the image, its sRGB copy in float64, the
@@ -27,7 +31,7 @@ def gentle_denoise(linear: torch.Tensor, strength: float = 0.5) -> torch.Tensor:
     """Denoise a linear ``(1, C, H, W)`` image in the sRGB domain; returns linear, same shape and dtype."""
     from skimage.restoration import denoise_wavelet, estimate_sigma
 
-    check_real("strength", strength, 0.0, 2.0, lo_open=True)
+    check_real("strength", strength, *DENOISE_STRENGTH_RANGE)
     check_scene(linear, "image")
     enc = linear_to_srgb(linear.clamp(0, 1))[0].permute(1, 2, 0).double().cpu().numpy()
     multichannel = enc.shape[-1] > 1

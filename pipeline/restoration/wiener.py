@@ -194,8 +194,8 @@ def _check(options, scheme):
         raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
     if options["local"] not in WIENER_LOCAL:
         raise ValueError(f"wiener option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
-    if scheme is not None and options["local"] == "pixel" and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:
-        raise ValueError(f"wiener option local=pixel needs a window at least {WIENER_PIXEL_STATS_PX} px larger than "
+    if scheme is not None and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:  # wiener_windowed's own rule
+        raise ValueError(f"the wiener restoration needs a window at least {WIENER_PIXEL_STATS_PX} px larger than "
                          f"the core; window={scheme.window}, core={scheme.core}")
 
 

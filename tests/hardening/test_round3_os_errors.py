@@ -157,53 +157,55 @@ def test_special_files_as_outputs_are_refused(hostile, capsys):
                "is not a folder (a character device)")
 
 
-_CHILD = """
-import contextlib, io, json, sys
+READ_ONLY_CHILD = """
+import contextlib, ctypes, io, json, os, sys
+
+folder, argvs = sys.argv[1], json.loads(sys.argv[2])
+libc = ctypes.CDLL(None, use_errno=True)
+CLONE_NEWNS, MS_RDONLY, MS_REC, MS_PRIVATE = 0x00020000, 1, 16384, 1 << 18
+if (libc.unshare(CLONE_NEWNS) != 0 or libc.mount(None, b"/", None, MS_REC | MS_PRIVATE, None) != 0
+        or libc.mount(b"none", os.fsencode(folder), b"tmpfs", MS_RDONLY, None) != 0):
+    print(json.dumps({"skip": "no private read-only mount here: " + os.strerror(ctypes.get_errno())}))
+    sys.exit(0)
 from lenssim_cli.main import main
-buf = io.StringIO()
-with contextlib.redirect_stderr(buf):
-    try:
-        rc = main(json.loads(sys.argv[1]))
-    except SystemExit as exc:
-        rc = exc.code
-print(json.dumps({"rc": rc, "err": buf.getvalue()}))
+
+runs = []
+for argv in argvs:
+    buf = io.StringIO()
+    with contextlib.redirect_stderr(buf):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:
+            rc = exc.code
+        except BaseException as exc:
+            rc, buf = None, io.StringIO("Traceback: " + type(exc).__name__ + ": " + str(exc))
+    runs.append([rc, buf.getvalue()])
+print(json.dumps({"skip": None, "runs": runs}))
 """
+"""A fresh process (one thread: it may enter a mount namespace of its own) mounts a read-only tmpfs on a folder and
+runs the commands in it; root does not bypass a read-only file system as it bypasses permission bits."""
 
 
-def _in_a_read_only_mount(folder: Path, argv: list[str]) -> tuple[int, str]:
-    """``main(argv)`` in a new process (``unshare --mount``: its own mount namespace) that has a read-only tmpfs on
-    ``folder`` (root does not bypass a read-only file system as it bypasses permission bits); (exit status, stderr).
-    A fresh process, not a fork of this one (a fork of a process with torch's threads can deadlock). Skips where
-    private mounts are not allowed."""
-    import shutil
+def test_an_output_on_a_read_only_file_system_is_refused(hostile):
     import subprocess
     import sys
 
-    if shutil.which("unshare") is None:
-        pytest.skip("no unshare command here")
-    probe = subprocess.run(["unshare", "--mount", "sh", "-c", 'mount -t tmpfs -o ro none "$1"', "sh", str(folder)],
-                           capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"no private read-only mount here: {probe.stderr.strip()}")
-    r = subprocess.run(["unshare", "--mount", "sh", "-c", 'mount -t tmpfs -o ro none "$1" && exec "$2" -c "$3" "$4"',
-                        "sh", str(folder), sys.executable, _CHILD, json.dumps(argv)],
-                       capture_output=True, text=True, timeout=120, cwd=os.getcwd())
-    assert r.returncode == 0, r.stderr[-2000:]
-    out = json.loads(r.stdout.strip().splitlines()[-1])
-    return out["rc"], out["err"]
-
-
-@pytest.mark.parametrize("command", OUTPUT_COMMANDS)
-def test_an_output_on_a_read_only_file_system_is_refused(hostile, command):
     ro = hostile / "ro"
     ro.mkdir()
-    for given in ("ro/out", "ro"):
-        argv = OUTPUT_COMMANDS[command](given if command != "sweep" else given + ("/a.nc" if given == "ro" else ".nc"))
-        rc, err = _in_a_read_only_mount(ro, argv)
+    argvs = [OUTPUT_COMMANDS[c](p) for c in OUTPUT_COMMANDS
+             for p in (("ro/out", "ro") if c != "sweep" else ("ro/out.nc", "ro/sub/a.nc"))]
+    done = subprocess.run([sys.executable, "-c", READ_ONLY_CHILD, str(ro), json.dumps(argvs)], cwd=hostile,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    if out["skip"]:
+        pytest.skip(out["skip"])
+    for argv, (rc, err) in zip(argvs, out["runs"]):
         lines = err.strip().splitlines()
-        assert rc == 2, lines
-        _check_line(lines, command, argv[-1], "read-only file system")
+        assert rc == 2, (argv, lines)
+        _check_line(lines, argv[0], argv[-1], "read-only file system")
     assert sorted(p.name for p in ro.iterdir()) == []
+    assert sorted(p.name for p in hostile.iterdir()) == ["adir", "dangling", "fifo", "file", "grid.toml", "loop", "ro"]
 
 
 def test_describe_os_error_names_the_users_path_and_the_reason_in_words():
@@ -224,17 +226,15 @@ def test_describe_os_error_names_the_users_path_and_the_reason_in_words():
 def test_an_os_error_reaching_main_is_one_line_without_internal_names(hostile, capsys, monkeypatch):
     """The last net: an OSError naming a staging folder, a lock file or a resolved path, and pathlib's
     RuntimeError for a link loop, become one line naming the path the user gave."""
-    import lenssim_cli.camera as cam
     import lenssim_cli.optics as optics
+    from lenssim.io.files import staged_output_dir
 
     stage = str(hostile / ".o.staging-abc123" / "sim.png")
-
-    def full(path, *a, **k):
-        raise OSError(errno.ENOSPC, "No space left on device", str(path))
-
-    monkeypatch.setattr(cam, "write_image", full)
-    refused_os(["simulate", "skimage:camera", *E, "--angles", "0", "--crop", "64", "--out", "o"], capsys, hostile,
-               "o", "no space left on the device")
+    with pytest.raises(OutputPathError) as info:  # a full disk under a file the run writes into its staging folder
+        with staged_output_dir("o") as staging:
+            raise OSError(errno.ENOSPC, "No space left on device", str(staging / "sim.png"))
+    assert str(info.value) == "output folder 'o' cannot be written: no space left on the device"
+    assert sorted(p.name for p in hostile.iterdir()) == ["adir", "dangling", "fifo", "file", "grid.toml", "loop"]
 
     def failing(exc):
         def designs(*a, **k):
