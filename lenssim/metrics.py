@@ -73,6 +73,15 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
         channel_cams = [Camera(camera.lens, camera.sensor, Spectrum(lam, w)) for w in channel_weights]
     sizes = sizes.reshape(-1).cpu()
     oversample = numerics.oversample
+
+    def otf_bytes(n: int) -> int:  # one PSF's OTF and its working copies, every channel
+        m = n * oversample
+        return C * 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
+
+    if sizes.numel():  # the largest size before any work (a raised --max-fft-size may ask for more than there is)
+        n_max = int(sizes.max())
+        check_memory(otf_bytes(n_max), f"one OTF of {n_max * oversample} x {n_max * oversample} samples",
+                     setting="max_fft_size")
     for n in torch.unique(sizes).tolist():
         idx = torch.nonzero(sizes == n).flatten().to(coeffs.device)
         m = n * oversample
@@ -86,8 +95,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
                                       channel_weights=channel_weights)
             for c in range(C):
                 caches[c]["dl"] = dl[:, c]
-        per_psf = C * 6 * max(n, m) * (max(n, m) // 2 + 1) * (2 * coeffs.element_size())
-        check_memory(per_psf, f"one OTF of {m} x {m} samples", setting="max_fft_size")
+        per_psf = otf_bytes(n)
         step = max(1, int(chunk_budget_bytes(coeffs.device, numerics.chunk_bytes) // per_psf))
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]

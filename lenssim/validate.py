@@ -132,5 +132,5 @@ def check_memory(nbytes: float, what: str, limit_bytes: float | None = None, set
     available memory), with a :class:`ResourceLimitError` naming the limit and ``setting``."""
     limit = MEMORY_FRACTION * available_memory_bytes() if limit_bytes is None else limit_bytes
     if nbytes > limit:
-        raise ResourceLimitError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory; the limit is "
-                                 f"{limit / 2**30:.1f} GiB ({setting})", setting)
+        raise ResourceLimitError(f"{what} needs about {nbytes / 2**30:.3g} GiB of memory; the limit is "
+                                 f"{limit / 2**30:.3g} GiB ({setting})", setting)

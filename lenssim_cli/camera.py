@@ -41,6 +41,8 @@ MIN_CROP_PX = 16
 PROGRESS_DELAY_S = 5.0
 """Work that runs longer than this (s) shows a progress bar with its rate and time left on stderr."""
 MIN_IMAGE_PX = 32
+DEFAULT_ISO = 100
+"""The ISO of ``simulate`` when neither ``--iso`` nor ``--full-well`` is given (the paper's lowest)."""
 
 
 def _check_common(args) -> None:
@@ -52,15 +54,12 @@ def _check_common(args) -> None:
     for a in getattr(args, "angles", None) or []:
         if not (math.isfinite(a) and a >= 0):
             raise ValueError(f"--angles {a:g} is not allowed: field angles are finite and >= 0 degrees")
-    tags = [f"{a:g}" for a in getattr(args, "angles", None) or []]
-    dup = sorted({t for t in tags if tags.count(t) > 1})
-    if dup:
-        raise ValueError(f"--angles holds {', '.join(dup)} deg more than once (as written in file names); give "
-                         "distinct angles")
     isos = getattr(args, "isos", None)
     for iso in isos or []:
         PAPER_CAMERA.sensor.full_well_for_iso(iso)
-    if getattr(args, "iso", None) is not None and getattr(args, "full_well", None) is None:
+    if getattr(args, "iso", None) is not None and getattr(args, "full_well", None) is not None:
+        raise ValueError(f"--iso {args.iso} and --full-well {args.full_well:g} both set the full well; give one")
+    if getattr(args, "iso", None) is not None:
         PAPER_CAMERA.sensor.full_well_for_iso(args.iso)
     select_device(args.device)
 
@@ -212,8 +211,9 @@ def cmd_simulate(args) -> int:
         tol = tolerances_from_args(args)
         built = AsBuiltPSF(camera, design, tol.sample(1, seed=args.as_built))
     if args.full_well is not None:
-        fwc, args.iso = check_full_well(args.full_well, "--full-well"), None
+        fwc = check_full_well(args.full_well, "--full-well")
     else:
+        args.iso = DEFAULT_ISO if args.iso is None else args.iso
         fwc = camera.sensor.full_well_for_iso(args.iso)
     scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows == "fitted")
     if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
@@ -565,8 +565,9 @@ def register(sub) -> None:
     p.add_argument("photo", nargs="?", help="image file (JPEG/PNG/TIFF/EXR) or skimage:NAME; default: generated scene")
     add_design_arguments(p)
     add_camera_arguments(p)
-    p.add_argument("--iso", type=int, default=100, help="one of " + ", ".join(
-        f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos))
+    p.add_argument("--iso", type=int, help="one of " + ", ".join(
+        f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos)
+        + f" (default {DEFAULT_ISO})")
     p.add_argument("--full-well", type=float, metavar="E", help="any full-well capacity (electrons) instead of --iso")
     p.add_argument("--scheme", type=int, nargs=3, default=[512, 32, 64], metavar=("WINDOW", "STRIDE", "CORE"),
                    help="local-convolution windows (px): window, stride, blended core (paper: 512 32 64); a window "

@@ -49,6 +49,18 @@ def check_arguments(args) -> None:
     m = getattr(args, "memory_limit", None)
     if m is not None and not (math.isfinite(m) and m > 0):
         raise ValueError(f"--memory-limit {m:g} is not allowed: a positive number of GiB")
+    for flag, name, what in (("--workers", "workers", "local worker processes"),
+                             ("--worker-threads", "worker_threads", "threads")):
+        v = getattr(args, name, None)
+        if v is not None and v < 1:
+            raise ValueError(f"{flag} {v} is not allowed: a number of {what} >= 1")
+    for flag, name in (("--isos", "isos"), ("--snr", "snr"), ("--angles", "angles")):
+        values = getattr(args, name, None)
+        if isinstance(values, (list, tuple)):
+            tags = [f"{v + 0.0:g}" for v in values]  # as written in tables and file names; -0 is 0
+            dup = sorted({t for t in tags if tags.count(t) > 1}, key=tags.index)
+            if dup:
+                raise ValueError(f"{flag} holds {', '.join(dup)} more than once; give each value once")
     w = getattr(args, "workers", None)
     most = WORKERS_PER_CPU * (os.cpu_count() or 1)
     if w is not None and w > most:

@@ -105,10 +105,6 @@ def cmd_sweep(args) -> int:
         cfg = dataclasses.replace(cfg, numerics=cfg.numerics.replace(max_fft_size=args.max_fft_size))  # validated again
     select_device(args.device)
     t0 = time.perf_counter()
-    if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers {args.workers} is not allowed: a number of local worker processes >= 1")
-    if args.worker_threads is not None and args.worker_threads < 1:
-        raise ValueError(f"--worker-threads {args.worker_threads} is not allowed: a number of threads >= 1")
     if args.scheduler is not None:
         from lenssim_studies.cluster import check_scheduler
 

@@ -42,8 +42,9 @@ def grid_count(start: float, stop: float, step: float) -> int:
     if stop < start:
         raise ValueError(f"stop={stop!r} is below start={start!r}")
     count = (stop - start) / step + 1e-9
-    if count >= MAX_GRID_VALUES:
-        raise ResourceLimitError(f"the grid [{start:g}, {stop:g}] in steps of {step:g} has {int(count) + 1} values; "
+    if not count < MAX_GRID_VALUES:  # also an overflow to inf, e.g. [-1e308, 0.5] or a step of 5e-324
+        size = f"{int(count) + 1}" if np.isfinite(count) else "more than 1e308"
+        raise ResourceLimitError(f"the grid [{start:g}, {stop:g}] in steps of {step:g} has {size} values; "
                                  f"at most {MAX_GRID_VALUES} per parameter", "grid")
     return int(np.floor(count)) + 1
 

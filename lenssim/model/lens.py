@@ -252,4 +252,21 @@ class Lens:
             if bool((arg < 1 - THIRD_ORDER_LIMIT).any()):
                 warn_model(f"surface {i + 1}: (1 + conic) c^2 y^2 exceeds {THIRD_ORDER_LIMIT:g} for some designs; the "
                            "third-order (Seidel) model is far outside its validated range there")
+        self._check_blur(design)
+
+    def _check_blur(self, design: Design) -> None:
+        """Raise :class:`LensError` if a design's third-order transverse blur at the largest field angle, bounded by
+        ``(|S_I| + |S_II| + |S_III| + |S_IV|) / u'`` (mm, ``u' = y / t`` the image-space marginal ray angle), is not
+        finite or reaches the focal length: no lens (a conic of -1e308 overflows the wavefront and its PSF)."""
+        alpha = torch.tensor(max(self.field_angles_deg), dtype=torch.float64)
+        sums = self.seidel_sums(design, alpha)
+        blur = sums.abs().sum(dim=-1) / (self.pupil_radius_mm / self.image_distance_mm)
+        bad = ~(blur < self.focal_length_mm)  # NaN and inf included
+        if bool(bad.any()):
+            j = int(torch.nonzero(bad.flatten())[0])
+            at = {k: torch.broadcast_to(v, blur.shape).flatten()[j].item() for k, v in design.values.items()}
+            where = ", ".join(f"{k}={v!r}" for k, v in at.items())
+            size = f"{blur.flatten()[j].item():.3g} mm" if torch.isfinite(blur.flatten()[j]) else "not finite"
+            raise LensError(f"{where} is not allowed at the field angle {float(alpha):g} deg: its third-order blur is "
+                            f"{size}, not smaller than the focal length {self.focal_length_mm:g} mm (no image forms)")
 

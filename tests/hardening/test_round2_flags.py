@@ -60,7 +60,7 @@ FLAGS = [
     (["psnr-table", "ok.png", "ok.png", "--out", "o"], "is given twice"),
     (["tolerance", *E, "--lenses", "10000000000", "--out", "o"], "use fewer --lenses"),
     (["tolerance", *E, "--angles", "-1", "--out", "o"], "field angle=-1.0 is not allowed"),
-    (["tolerance", *E, "--angles", "80", "--out", "o"], "a PSF needs an FFT of"),
+    (["tolerance", *E, "--angles", "80", "--out", "o"], "at the field angle 80 deg: its third-order blur is"),
     (["tolerance", *E, "--snr", "inf", "--out", "o"], "SNR [inf] dB is not allowed"),
     (["tolerance", *E, "--yield", "mse_r<0.04", "--out", "o"], "CRITERION<=VALUE"),
     (["tolerance", *E, "--wavefront", "exact", "--out", "o"], "the as-built model is third order"),
@@ -92,7 +92,8 @@ def test_check_arguments_accepts_or_refuses_in_one_line(memory, workers, fft, gl
     argv = ["sweep", "grid.toml", "--out", "a.nc"]
     args = build_parser().parse_args(argv)
     args.memory_limit, args.workers, args.max_fft_size = memory, workers, fft
-    ok = (memory is None or (math.isfinite(memory) and memory > 0)) and (fft is None or fft >= 16)
+    ok = (memory is None or (math.isfinite(memory) and memory > 0)) and (fft is None or fft >= 16) \
+        and (workers is None or workers >= 1)
     try:
         check_arguments(args)
     except ValueError as exc:

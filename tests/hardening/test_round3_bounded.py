@@ -67,7 +67,10 @@ def test_nice_fft_size_equals_counting_up_and_answers_any_size_at_once():
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["evaluate", "--design", "end_to_end_paper", "--Q_back", "-1e12"], "a PSF needs an FFT of"),
+    (["evaluate", "--design", "end_to_end_paper", "--Q_back", "-300"], "a PSF needs an FFT of"),
+    (["evaluate", "--design", "end_to_end_paper", "--Q_back", "-1e12"], "its third-order blur is 3.58e+10 mm, not "
+                                                                        "smaller than the focal length 25 mm"),
+    (["evaluate", "--design", "end_to_end_paper", "--Q_front", "-1e308"], "its third-order blur is 7.29e+303 mm"),
     (["evaluate", "--design", "end_to_end_paper", "--focus_shift_um", "1e9"], "|focus_shift_um| < 25000 um"),
     (["evaluate", "--design", "end_to_end_paper", "--focus_shift_um", "-25000"], "focus_shift_um=-25000.0 is not"),
 ])
@@ -225,3 +228,21 @@ def test_a_design_whose_psf_outgrows_the_frame_is_refused_before_any_work(tmp_pa
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "more than the 512 x 512 px frame" in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["simulate", "--iso", "0", "--full-well", "1000", "--out", "o"], "--iso 0 and --full-well 1000 both set the full"),
+    (["simulate", "--angles", "0", "-0", "--out", "o"], "--angles holds 0 more than once"),
+    (["psnr-table", "--isos", "100", "100", "--out", "o"], "--isos holds 100 more than once"),
+    (["evaluate", "--snr", "20", "20.0"], "--snr holds 20 more than once"),
+    (["tolerance", "--design", "end_to_end_paper", "--worker-threads", "0", "--out", "o"],
+     "--worker-threads 0 is not allowed: a number of threads >= 1"),
+    (["tolerance", "--design", "end_to_end_paper", "--workers", "-1", "--out", "o"],
+     "--workers -1 is not allowed: a number of local worker processes >= 1"),
+])
+def test_one_rule_for_repeated_values_counts_and_the_full_well(tmp_path, monkeypatch, capsys, argv, match):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0], err
+    assert list(tmp_path.iterdir()) == []

@@ -16,8 +16,8 @@ Anything else (a traceback, another status, a second line, a slow refusal, a lef
 The examples are derandomized (the same cases on every run) and not shrunk (a failure is reported at once, with
 its argv; shrinking would rerun slow cases many times). A few values are kept out of the strategies because they
 are accepted but slow (each exclusion says why). The defects the test found (issue 28) stay as the cases of
-:func:`test_defects_found_stay_fixed`; those not fixed yet are strict ``xfail`` there, and kept out of the strategy
-that found them (a comment says where: once it is fixed, the ``xfail`` fails; then drop the mark and the exclusion).
+:func:`test_defects_found_stay_fixed` (a defect found later and not fixed yet goes there as a strict ``xfail``,
+kept out of the strategy that found them, with a comment: once it is fixed, the ``xfail`` fails).
 The module prints the number of cases it ran.
 """
 
@@ -376,9 +376,6 @@ SCHEME_HOSTILE_TRIPLES = st.tuples(_one_of(ORDINARY_SCHEMES), _one_of(SCHEME_HOS
 # photo, at the angles that fit, in the paper's 512 px windows) take ~8 s a run
 SIMULATE_OPTIONS = {
     **DESIGN_OPTIONS,
-    # excluded, a defect (FOUND): --Q_front -1e308 gives a NaN PSF that simulate does not refuse (evaluate and
-    # tolerance do: "a wavefront slope is not finite"): a RuntimeError traceback from torch.poisson after 2.4 s
-    "--Q_front": (_num(-1, 1), _one_of(tuple(v for v in HOSTILE_FLOAT if v != "-1e308"))),
     "--crop": (_one_of(("16", "32", "48")), _one_of(HOSTILE_INT + ("15", "16", "97"))),
     "--angles": (_lists(ANGLES, 1, 2).filter(lambda a: len(set(a)) == len(a)),
                  st.one_of(_with_one(ANGLES, _one_of(ANGLES_HOSTILE)), st.just(("0", "0")), st.just(("0", "-0")),
@@ -528,23 +525,11 @@ def _sweep_config(draw):
     return _sweep_toml(**fields)
 
 
-def _grid_count_finite(config):
-    # excluded, a defect (FOUND): a grid whose (stop - start) / step overflows to inf, e.g. s = [-1e308, 0.0, 0.5],
-    # fails with an OverflowError traceback (lenssim_studies.config.grid_count's message takes int(inf))
-    for line in config.splitlines():
-        if line.startswith(("s = ", "Q = ")):
-            start, stop, step = (float(v) for v in line.split("=")[1].strip(" []").split(","))
-            if math.isfinite(start + stop + step) and step > 0 and stop >= start:
-                if not math.isfinite((stop - start) / step):
-                    return False
-    return True
-
-
 def test_sweep_config_numbers_refuse_in_one_line_or_write_finite_netcdf(folder):
     cli = Cli(folder, "sweep-config")
 
     @settings(FUZZ, max_examples=14)
-    @given(config=_sweep_config().filter(_grid_count_finite))
+    @given(config=_sweep_config())
     def case(config):
         (folder / "fuzz.toml").write_text(config)
         try:
@@ -582,17 +567,13 @@ FOUND = [  # each with what it did before its fix (issue 28)
     pytest.param(["tolerance", *DESIGN, "--lenses", "1", "--angles", "0", "--snr", "27.6", "--quiet",
                   "--sensitivity-lenses", "9223372036854775808", "--out", "{out}"],
                  id="tolerance-sensitivity-lenses-2**63"),
-    # not fixed yet: --Q_front -1e308 passes simulate's checks, its PSF is NaN (evaluate and tolerance refuse it:
-    # "a wavefront slope is not finite") and torch.poisson raises "invalid Poisson rate" after the blur: a traceback
+    # --Q_front -1e308 passed simulate's checks, its PSF was NaN and torch.poisson raised "invalid Poisson rate" after
+    # the blur: a traceback (now: the design's third-order blur is refused, Lens.check_design)
     pytest.param(["simulate", PHOTO, *DESIGN, "--Q_front", "-1e308", "--crop", "16", "--angles", "0", "--scheme", "128",
-                  "32", "64", "--out", "{out}"], id="simulate-nan-psf",
-                 marks=pytest.mark.xfail(strict=True, reason="a NaN PSF is not refused by simulate: a RuntimeError "
-                                         "traceback from torch.poisson (pipeline.noise.expose)")),
-    # not fixed yet: a sweep grid whose (stop - start) / step overflows to inf fails with an OverflowError traceback
-    # ("cannot convert float infinity to integer": grid_count's ResourceLimitError message takes int(inf))
-    pytest.param(["sweep", "overflow.toml", "--quiet", "--out", "{out}.nc"], id="sweep-grid-count-overflow",
-                 marks=pytest.mark.xfail(strict=True, reason="grid_count's message takes int(inf): an OverflowError "
-                                         "traceback (lenssim_studies.config)")),
+                  "32", "64", "--out", "{out}"], id="simulate-nan-psf"),
+    # a sweep grid whose (stop - start) / step overflows to inf: an OverflowError traceback (grid_count's message took
+    # int(inf))
+    pytest.param(["sweep", "overflow.toml", "--quiet", "--out", "{out}.nc"], id="sweep-grid-count-overflow"),
 ]
 
 

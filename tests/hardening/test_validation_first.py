@@ -40,7 +40,7 @@ def _args(tmp_path, *extra, photo=None):
     (["--rl", "-1"], "--rl -1 is not allowed"),
     (["--rl", "0"], "--rl 0 is not allowed"),
     (["--seed", "-3"], "--seed -3"),
-    (["--angles", "1", "1.0"], "--angles holds 1 deg more than once"),
+    (["--angles", "1", "1.0"], "--angles holds 1 more than once"),
     (["--angles", "-5"], "--angles -5 is not allowed"),
     (["--angles", "45"], "field angle=45.0 is not allowed"),
     (["--full-well", "inf"], "--full-well=inf is not allowed"),
