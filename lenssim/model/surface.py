@@ -24,7 +24,7 @@ class Surface:
     industrial cost (:mod:`lenssim.optics.cost`); semi_aperture_mm : the clear radius over which the surface is
     used (and made: the cost's aperture); None: the system's pupil radius; decentre_mm : ``(dx, dy)`` mm of the
     vertex off the axis and tilt_deg : ``(tx, ty)`` degrees about the vertex (x axis, then y axis): a displaced
-    surface, which only the exact ray trace (:mod:`lenssim.optics.raytrace`) reads.
+    surface, which only the exact ray trace (:mod:`lenssim.optics.raytrace`) reads; aspheric_coefficients: see below.
     """
 
     curvature: float | torch.Tensor
@@ -36,3 +36,6 @@ class Surface:
     semi_aperture_mm: float | None = None
     decentre_mm: tuple[float, float] = (0.0, 0.0)
     tilt_deg: tuple[float, float] = (0.0, 0.0)
+    aspheric_coefficients: tuple = ()
+    """``(A4, A6, ...)``: even-asphere coefficients of ``r^4, r^6, ...`` (mm^-3, mm^-5, ...) added to the conic's sag;
+    the Seidel sums read ``A4`` (its fourth-order term is that of a conic ``8 A4 / c^3``), the exact trace all."""

@@ -15,7 +15,8 @@ invariants ``A = n (h c + u)`` and ``Abar = n (hbar c + ubar)``, Lagrange invari
     S_IV  = -H^2 c D(1/n)
     S_V   = (Abar/A)(S_III + S_IV)   (spherical part; plus the conic's (n'-n) kappa c^3 h hbar^3)
 
-with ``D(x) = x' - x`` across the surface and ``kappa`` the conic constant.
+with ``D(x) = x' - x`` across the surface and ``kappa`` the conic constant; an even asphere's ``A4 r^4`` enters as
+``kappa c^3 -> kappa c^3 + 8 A4`` (the conic's fourth-order sag is ``kappa c^3 r^4 / 8``; Welford sec. 8.3).
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def seidel_surface_sums(surfaces, h, u, hbar, ubar, n_object: float = 1.0) -> to
         u2 = (n * u - h * c * (n2 - n)) / n2
         ub2 = (n * ubar - hbar * c * (n2 - n)) / n2
         d_un = u2 / n2 - u / n
-        asph = (n2 - n) * kap * c**3
+        a4 = surf.aspheric_coefficients[0] if surf.aspheric_coefficients else 0.0
+        asph = (n2 - n) * (kap * c**3 + 8 * a4) if a4 else (n2 - n) * kap * c**3  # A4 r^4 = the conic's (8 A4) c^3 r^4/8
         S1 = -A**2 * h * d_un + asph * h**4
         S2 = -A * Ab * h * d_un + asph * h**3 * hbar
         S3 = -Ab**2 * h * d_un + asph * h**2 * hbar**2

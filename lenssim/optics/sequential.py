@@ -1,0 +1,554 @@
+"""Any centred sequential lens from a prescription: paraxial data, Seidel sums, real rays and the exact wavefront.
+
+:class:`SequentialLens` reads a :class:`lenssim.model.prescription.Prescription` (surfaces numbered as in the file,
+object = 0) and answers, at any wavelength of the prescription:
+
+* paraxial data with the stop anywhere (:meth:`SequentialLens.paraxial`): focal length, back focal distance, entrance
+  and exit pupils, F-number (focal length / entrance-pupil diameter), working F-number, paraxial image heights, by the
+  ``y-nu`` trace of Welford ch. 7 (``n'u' = n u - h c (n' - n)``, ``h' = h + d u'``);
+* Seidel sums surface by surface (:meth:`SequentialLens.seidel_surfaces`, :func:`lenssim.optics.paraxial.seidel_surface_sums`
+  with the chief ray through the stop's centre; an even asphere's ``A4`` included) and the chromatic sums
+  ``C_I = A h D(dn/n)``, ``C_II = Abar h D(dn/n)`` (Welford sec. 8.2);
+* real rays (:meth:`SequentialLens.trace`), batched in torch (float64), through conic + even-asphere surfaces
+  (the conic's closed-form intersection refined by Newton's method on the full sag), vignetted by every clear
+  semi-diameter, with optical path lengths; rays aimed at the stop (:meth:`SequentialLens.aim`): each pupil point
+  ``(px, py)`` of the unit disc is the ray that meets the stop surface at ``(px, py)`` times the stop's paraxial
+  radius, found by Newton iterations on real rays (``aim="real"``), or the ray through the paraxial entrance
+  pupil's plane at that point (``aim="paraxial"``, what the optical-design programs call ray aiming off);
+* the optical path difference (:meth:`SequentialLens.wavefront`) to the reference sphere centred on the chief ray's
+  point on the image plane and passing through the chief ray's point on the paraxial exit pupil's plane (the
+  convention of the optical-design programs), in waves, sign as :func:`lenssim.optics.raytrace.opd` (Welford's:
+  ``W = OPL(chief) - OPL(ray)``); RMS and peak-to-valley over the unvignetted pupil; spot diagrams.
+
+Conventions: the axis is ``z``, surface 1's vertex at ``z = 0``; fields lie along ``+y`` (a field angle ``a`` is the
+chief ray's direction ``(0, sin a, cos a)`` in object space; an object height ``h`` sits at ``y = -h``, so both image
+above the axis for a positive lens). Units: mm, um for wavelengths, waves for wavefronts.
+
+References
+----------
+.. [1] W. T. Welford, *Aberrations of Optical Systems* (Adam Hilger, 1986), ch. 4 (optical path, reference sphere),
+   ch. 7-8 (paraxial trace, Seidel and chromatic sums surface by surface).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..model.glass import as_glass
+from ..model.prescription import Prescription, PrescriptionError
+from ..model.surface import Surface
+from .paraxial import seidel_surface_sums
+
+__all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
+           "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError"]
+
+AIM_METHODS = ("real", "paraxial")
+AIM_ITERATIONS = 20
+"""Most Newton steps of the real-ray aiming (each a real trace of the bundle and two of its neighbours)."""
+AIM_TOLERANCE = 1e-9
+"""Aiming converged: every ray meets the stop within this fraction of the stop's radius of its target."""
+NEWTON_ITERATIONS = 12
+"""Newton steps refining an even asphere's intersection from its conic's (quadratic convergence: ample)."""
+INTERSECTION_TOLERANCE_MM = 1e-10
+"""A ray meets an aspheric surface if the sag equation holds to this (mm) after the Newton steps."""
+FD_STEP = 1e-7
+"""Relative step (of the entrance-pupil radius) of the aiming's finite-difference Jacobian."""
+
+
+class RayTraceError(ValueError):
+    """Rays that cannot be traced (a field whose chief ray misses, aiming that does not converge): the message names
+    the field and what failed."""
+
+
+@dataclass(frozen=True)
+class ParaxialData:
+    """First-order data at one wavelength (mm unless named). ``z`` positions are on the axis, surface 1's vertex at 0."""
+
+    wavelength_um: float
+    efl_mm: float
+    """Focal length ``-h_1 / u'_k`` of a ray parallel to the axis (the image-side focal length; in air, the EFL)."""
+    bfl_mm: float
+    """Back focal distance: last surface's vertex to the paraxial focus of a parallel beam."""
+    epd_mm: float
+    entrance_pupil_z_mm: float
+    exit_pupil_z_mm: float
+    exit_pupil_diameter_mm: float
+    stop_radius_mm: float
+    """The stop's radius that the entrance-pupil diameter implies (paraxial)."""
+    f_number: float
+    """``efl / epd`` (object at infinity's F-number)."""
+    working_f_number: float
+    """``1 / (2 n' |u'|)`` of the marginal ray in image space (paraxial)."""
+    image_z_mm: float
+    """The paraxial image of the object (the focus of a parallel beam for an object at infinity)."""
+    image_heights_mm: tuple[float, ...]
+    """Paraxial chief-ray height at the paraxial image, per field."""
+
+
+@dataclass
+class RayBundle:
+    """Rays after a trace: ``points (R, 3)`` and ``directions (R, 3)`` after the last surface, ``opl (R,)`` (mm, from
+    the object's wavefront), ``valid (R,)`` (False: vignetted by a semi-diameter, missed a surface, totally reflected),
+    ``clipped_at (R,)`` (the first surface number that stopped the ray, 0 if none)."""
+
+    points: torch.Tensor
+    directions: torch.Tensor
+    opl: torch.Tensor
+    valid: torch.Tensor
+    clipped_at: torch.Tensor
+
+
+@dataclass
+class WavefrontMap:
+    """The OPD over the pupil at one field and wavelength: pupil points ``px, py`` (unit disc of the entrance pupil),
+    ``opd_waves`` (NaN where vignetted), ``valid``, the chief ray's image point ``chief_mm (3,)``, the image-plane
+    points of the rays ``image_mm (R, 3)``, and the reference sphere's radius (mm)."""
+
+    px: torch.Tensor
+    py: torch.Tensor
+    opd_waves: torch.Tensor
+    valid: torch.Tensor
+    chief_mm: torch.Tensor
+    image_mm: torch.Tensor
+    reference_radius_mm: float
+
+    @property
+    def vignetted_fraction(self) -> float:
+        return float(1 - self.valid.to(torch.float64).mean())
+
+    def rms_waves(self) -> float:
+        """RMS of the OPD over the unvignetted pupil, piston removed, tilt kept (equal weight per sample)."""
+        w = self.opd_waves[self.valid]
+        return float(torch.sqrt(((w - w.mean()) ** 2).mean()))
+
+    def pv_waves(self) -> float:
+        w = self.opd_waves[self.valid]
+        return float(w.max() - w.min())
+
+    def rms_spot_mm(self) -> float:
+        """RMS radius (mm) of the rays' image points about their centroid."""
+        p = self.image_mm[self.valid][:, :2]
+        return float(torch.sqrt(((p - p.mean(dim=0)) ** 2).sum(-1).mean()))
+
+
+def _conic_sag(c, k, rho):
+    """Sag of the conic part at ``rho = r^2`` and ``d sag / d rho``."""
+    root = torch.sqrt(torch.clamp(1 - (1 + k) * c * c * rho, min=0.0))
+    z = c * rho / (1 + root)
+    dz = c / (2 * root.clamp(min=1e-300))
+    return z, dz
+
+
+def _sag(c, k, coeffs, rho):
+    z, dz = _conic_sag(c, k, rho)
+    for i, a in enumerate(coeffs):
+        p = i + 2  # A4 rho^2, A6 rho^3, ...
+        z = z + a * rho**p
+        dz = dz + p * a * rho ** (p - 1)
+    return z, dz
+
+
+class SequentialLens:
+    """A centred sequential lens (see the module docstring) built from a :class:`Prescription`.
+
+    ``image_shift_mm`` moves the image plane along the axis from where the prescription puts it (refocusing).
+    """
+
+    def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0):
+        self.prescription = prescription
+        self.image_shift_mm = float(image_shift_mm)
+        self._glasses = []
+        for i, s in enumerate(prescription.surfaces):
+            self._glasses.append(self._material(s.material, i + 1))
+        self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64)
+
+    # -- materials -------------------------------------------------------------------------------------------------
+    @staticmethod
+    def _material(mat, number: int):
+        if isinstance(mat, tuple):
+            from ..model.glass import ModelGlass
+
+            return None if mat == (1.0, 0.0) else ModelGlass(*mat)
+        if mat.lower() == "air":
+            return None
+        try:
+            return as_glass(mat)
+        except ValueError as exc:
+            raise PrescriptionError(f"surface {number}: {exc}") from None
+
+    def index_after(self, i: int, wavelength_um: float) -> float:
+        """Refractive index after surface ``i`` (0-based; air is 1)."""
+        g = self._glasses[i]
+        return 1.0 if g is None else float(g.index(wavelength_um))
+
+    @property
+    def primary_wavelength_um(self) -> float:
+        return self.prescription.primary_wavelength_um
+
+    @property
+    def image_z_mm(self) -> float:
+        """The image plane (mm on the axis): the prescription's, moved by ``image_shift_mm``."""
+        return self.prescription.image_z_mm + self.image_shift_mm
+
+    def surfaces(self, wavelength_um: float | None = None) -> list[Surface]:
+        """The model's :class:`lenssim.model.surface.Surface` list at ``wavelength_um`` (default the primary)."""
+        lam = self.primary_wavelength_um if wavelength_um is None else wavelength_um
+        out = []
+        for i, s in enumerate(self.prescription.surfaces):
+            out.append(Surface(s.curvature_per_mm, s.conic, self.index_after(i, lam), s.thickness_mm,
+                               aspheric=s.is_aspheric, semi_aperture_mm=s.semi_diameter_mm,
+                               aspheric_coefficients=s.aspheric_coefficients))
+        return out
+
+    # -- paraxial ----------------------------------------------------------------------------------------------------
+    def _ynu(self, h, u, lam, upto: int | None = None):
+        """Paraxial trace from surface 1 with height ``h`` and slope ``u`` in object space (air): heights at each
+        surface and the slope after each, as lists (floats)."""
+        n = 1.0
+        hs, us = [], []
+        surfs = self.prescription.surfaces
+        for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
+            n2 = self.index_after(i, lam)
+            u = (n * u - h * s.curvature_per_mm * (n2 - n)) / n2
+            hs.append(h)
+            us.append(u)
+            h = h + s.thickness_mm * u
+            n = n2
+        return hs, us
+
+    def _entrance_pupil_z(self, lam) -> float:
+        """The entrance pupil (mm on the axis): where a chief ray in object space, aimed at the stop's centre,
+        crosses the axis (linear in the ray's height at surface 1)."""
+        k = self.prescription.stop_index
+        if k == 0:
+            return 0.0
+        ubar = 1e-3
+        h_a = self._ynu(0.0, ubar, lam, k)[0][k]
+        h_b = self._ynu(1.0, ubar, lam, k)[0][k]
+        if h_b == h_a:
+            raise PrescriptionError(f"surface {k + 1}: the stop is imaged to infinity in object space (an object-space "
+                                    "telecentric lens); not supported")
+        h1 = -h_a / (h_b - h_a)  # the chief ray's height at surface 1
+        return -h1 / ubar
+
+    def paraxial(self, wavelength_um: float | None = None) -> ParaxialData:
+        """First-order data at ``wavelength_um`` (default the primary); see :class:`ParaxialData`."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        p = self.prescription
+        surfs = p.surfaces
+        n_img = self.index_after(len(surfs) - 1, lam)
+        hs, us = self._ynu(1.0, 0.0, lam)
+        u_last, h_last = us[-1], hs[-1]
+        if u_last == 0:
+            raise PrescriptionError("the lens is afocal (a parallel beam leaves it parallel): no focal length")
+        efl = -1.0 / u_last * n_img / n_img  # f' = -h1 / u'_k (image-space focal length f' = n' f; air: equal)
+        z_last = float(self._z[-1])
+        bfl = -h_last / u_last
+        z_ep = self._entrance_pupil_z(lam)
+        r_ep = p.entrance_pupil_diameter_mm / 2
+        k = p.stop_index
+        # the marginal ray from the axial object point through the rim of the entrance pupil
+        if p.object_at_infinity:
+            h0, u0 = r_ep, 0.0
+        else:
+            u0 = r_ep / (p.object_distance_mm + z_ep)
+            h0 = u0 * p.object_distance_mm
+        mh, mu = self._ynu(h0, u0, lam)
+        stop_r = abs(mh[k])
+        u_img = mu[-1]
+        image_z = z_last + (-mh[-1] / u_img if u_img != 0 else math.inf)
+        # the chief ray (unit slope in object space through the entrance pupil's centre) in image space
+        ch, cu = self._ynu(-z_ep * 1e-3, 1e-3, lam)
+        if cu[-1] == 0:
+            z_xp, d_xp = math.inf, math.inf
+        else:
+            z_xp = z_last - ch[-1] / cu[-1]
+            d_xp = 2 * abs(mh[-1] + mu[-1] * (z_xp - z_last))
+        heights = []
+        for f in p.fields:
+            if p.object_at_infinity:
+                t = math.tan(math.radians(f))
+                h1, u1 = -z_ep * t, t
+            else:
+                u1 = f / (p.object_distance_mm + z_ep)
+                h1 = -f + u1 * p.object_distance_mm
+            chh, chu = self._ynu(h1, u1, lam)
+            heights.append(chh[-1] + chu[-1] * (image_z - z_last))
+        return ParaxialData(lam, efl, bfl, p.entrance_pupil_diameter_mm, z_ep, z_xp, d_xp, stop_r,
+                            efl / p.entrance_pupil_diameter_mm,
+                            1 / (2 * n_img * abs(u_img)) if u_img != 0 else math.inf, image_z, tuple(heights))
+
+    def seidel_surfaces(self, field: float, wavelength_um: float | None = None) -> torch.Tensor:
+        """Seidel sums ``(S_I .. S_V)`` (mm) of each surface at ``field`` (deg or mm): ``(N, 5)``, float64; the marginal
+        ray at the entrance pupil's rim, the chief ray through the stop's centre; sum over the surfaces for the lens's."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        p = self.prescription
+        z_ep = self._entrance_pupil_z(lam)
+        r_ep = p.entrance_pupil_diameter_mm / 2
+        if p.object_at_infinity:
+            h, u = r_ep, 0.0
+            ubar = math.tan(math.radians(field))
+            hbar = -z_ep * ubar
+        else:
+            u = r_ep / (p.object_distance_mm + z_ep)
+            h = u * p.object_distance_mm
+            ubar = field / (p.object_distance_mm + z_ep)
+            hbar = -field + ubar * p.object_distance_mm
+        surfs = self.surfaces(lam)
+        rows = []
+        for i in range(len(surfs)):  # one surface at a time, each with the rays arriving at it
+            hs, us = self._ynu(h, u, lam, i)
+            hbs, ubs = self._ynu(hbar, ubar, lam, i)
+            n_before = 1.0 if i == 0 else surfs[i - 1].n_after
+            h_i, u_i = hs[i], (u if i == 0 else us[i - 1])
+            hb_i, ub_i = hbs[i], (ubar if i == 0 else ubs[i - 1])
+            t = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+            rows.append(seidel_surface_sums([surfs[i]], t(h_i), t(u_i), t(hb_i), t(ub_i), n_object=n_before))
+        return torch.stack(rows)
+
+    def chromatic_surfaces(self, short_um: float, long_um: float, wavelength_um: float | None = None) -> torch.Tensor:
+        """Chromatic sums ``(C_I, C_II)`` (mm) of each surface, ``(N, 2)``: ``C_I = A h D(dn/n)``, ``C_II = Abar h
+        D(dn/n)`` with ``dn = n(short) - n(long)`` (e.g. the F and C lines), rays at ``wavelength_um`` (default the
+        primary); ``C_II`` for a chief ray of unit slope in object space (``tan`` of the field angle = 1: multiply by
+        the field's tangent). Axial colour ``-sum C_I / (n' u'^2)`` (Welford 8.2)."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        p = self.prescription
+        z_ep = self._entrance_pupil_z(lam)
+        r_ep = p.entrance_pupil_diameter_mm / 2
+        h, u = (r_ep, 0.0) if p.object_at_infinity else (r_ep * p.object_distance_mm / (p.object_distance_mm + z_ep),
+                                                          r_ep / (p.object_distance_mm + z_ep))
+        ubar = 1e-3  # per unit field slope, scaled below by the caller's field if needed
+        hbar = -z_ep * ubar
+        hs, us = self._ynu(h, u, lam)
+        hbs, ubs = self._ynu(hbar, ubar, lam)
+        rows = []
+        n, dn = 1.0, 0.0
+        for i, s in enumerate(p.surfaces):
+            n2 = self.index_after(i, lam)
+            dn2 = self.index_after(i, short_um) - self.index_after(i, long_um)
+            u_in = u if i == 0 else us[i - 1]
+            ub_in = ubar if i == 0 else ubs[i - 1]
+            A = n * (hs[i] * s.curvature_per_mm + u_in)
+            Ab = n * (hbs[i] * s.curvature_per_mm + ub_in)
+            d = dn2 / n2 - dn / n
+            rows.append((A * hs[i] * d, Ab * hs[i] * d / ubar))
+            n, dn = n2, dn2
+        return torch.tensor(rows, dtype=torch.float64)
+
+    # -- real rays ---------------------------------------------------------------------------------------------------
+    def _intersect(self, P, d, s, z_v, valid):
+        """Intersection with surface ``s`` (vertex at ``z_v``): points, unit normals (towards -z), distances, and the
+        rays that meet it."""
+        c = s.curvature_per_mm
+        k = s.conic
+        Pl = P - torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
+        k1 = c * (1 + k)
+        A = c * (d[..., 0] ** 2 + d[..., 1] ** 2) + k1 * d[..., 2] ** 2
+        Bh = c * (Pl[..., 0] * d[..., 0] + Pl[..., 1] * d[..., 1]) + k1 * Pl[..., 2] * d[..., 2] - d[..., 2]
+        C = c * (Pl[..., 0] ** 2 + Pl[..., 1] ** 2) + k1 * Pl[..., 2] ** 2 - 2 * Pl[..., 2]
+        disc = Bh**2 - A * C
+        ok = valid & (disc >= 0)
+        disc = torch.where(ok, disc, torch.zeros_like(disc))
+        den = Bh + torch.where(Bh >= 0, 1.0, -1.0) * torch.sqrt(disc)
+        den = torch.where(den == 0, torch.ones_like(den), den)
+        t = -C / den
+        coeffs = s.aspheric_coefficients
+        if coeffs:
+            for _ in range(NEWTON_ITERATIONS):
+                X = Pl + t.unsqueeze(-1) * d
+                rho = X[..., 0] ** 2 + X[..., 1] ** 2
+                z, dz = _sag(c, k, coeffs, rho)
+                g = z - X[..., 2]
+                dg = dz * 2 * (X[..., 0] * d[..., 0] + X[..., 1] * d[..., 1]) - d[..., 2]
+                dg = torch.where(dg == 0, torch.ones_like(dg), dg)
+                t = t - torch.where(ok, g / dg, torch.zeros_like(g))
+            X = Pl + t.unsqueeze(-1) * d
+            rho = X[..., 0] ** 2 + X[..., 1] ** 2
+            z, _ = _sag(c, k, coeffs, rho)
+            ok = ok & ((z - X[..., 2]).abs() < INTERSECTION_TOLERANCE_MM) & torch.isfinite(t)
+            t = torch.where(ok, t, torch.zeros_like(t))
+        X = Pl + t.unsqueeze(-1) * d
+        rho = X[..., 0] ** 2 + X[..., 1] ** 2
+        _, dz = _sag(c, k, coeffs, rho)
+        if c != 0:  # the conic's sag slope diverges at its rim; the implicit form's normal does not
+            ok = ok & (1 - (1 + k) * c * c * rho > 0)
+        N = torch.stack([2 * X[..., 0] * dz, 2 * X[..., 1] * dz, -torch.ones_like(dz)], dim=-1)
+        N = N / torch.linalg.norm(N, dim=-1, keepdim=True)
+        X = X + torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
+        return X, N, t, ok, rho
+
+    @staticmethod
+    def _refract(d, N, n1, n2, valid):
+        cos_i = (d * N).sum(-1, keepdim=True)
+        N = torch.where(cos_i < 0, -N, N)
+        cos_i = cos_i.abs()
+        mu = n1 / n2
+        k = 1 - mu**2 * (1 - cos_i**2)
+        ok = valid & (k[..., 0] >= 0)
+        k = torch.where(ok.unsqueeze(-1), k, torch.ones_like(k))
+        return mu * d + (torch.sqrt(k) - mu * cos_i) * N, ok
+
+    def trace(self, starts: torch.Tensor, directions: torch.Tensor, wavelength_um: float | None = None, *,
+              upto: int | None = None, opl_start: torch.Tensor | None = None, vignette: bool = True) -> RayBundle:
+        """Trace rays from ``starts`` ``(R, 3)`` along ``directions`` ``(R, 3)`` (object space, air) through the
+        surfaces (up to index ``upto`` included, 0-based); OPL counted from ``opl_start`` (default: the plane through
+        the origin normal to each ray's direction, ``n (P . d)``). ``vignette``: clip by the semi-diameters."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        P = starts.to(torch.float64)
+        d = directions.to(torch.float64)
+        d = d / torch.linalg.norm(d, dim=-1, keepdim=True)
+        n = 1.0
+        opl = n * (P * d).sum(-1) if opl_start is None else opl_start.to(torch.float64)
+        valid = torch.isfinite(P).all(-1) & torch.isfinite(d).all(-1)
+        clipped = torch.zeros(P.shape[0], dtype=torch.int64, device=P.device)
+        surfs = self.prescription.surfaces
+        stop = self.prescription.stop_index
+        for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
+            X, N, t, ok, rho = self._intersect(P, d, s, float(self._z[i]), valid)
+            if vignette and s.semi_diameter_mm is not None and i != stop:
+                ok = ok & (rho <= s.semi_diameter_mm**2 * (1 + 1e-12))
+            n2 = self.index_after(i, lam)
+            d2, ok = self._refract(d, N, n, n2, ok)
+            clipped = torch.where(valid & ~ok & (clipped == 0), i + 1, clipped)
+            valid = ok
+            opl = opl + n * t
+            P, d, n = X, d2, n2
+        return RayBundle(P, d, opl, valid, clipped)
+
+    # -- aiming ------------------------------------------------------------------------------------------------------
+    def _beam(self, field: float, x, y, lam, z_start):
+        """Rays of a field, parametrised by ``(x, y)``: the point on the plane ``z_start`` (object at infinity) or the
+        point on the plane of surface 1's vertex the ray aims at (finite object). Returns starts, directions, OPL."""
+        p = self.prescription
+        if p.object_at_infinity:
+            a = math.radians(field)
+            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64).expand(x.shape[0], 3)
+            P = torch.stack([x, y, torch.full_like(x, z_start)], dim=-1)
+            return P, d, None
+        O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64)
+        target = torch.stack([x, y, torch.zeros_like(x)], dim=-1)
+        d = target - O
+        P = O.expand_as(d)
+        return P, d, torch.zeros_like(x)
+
+    def aim(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
+            method: str = "real"):
+        """Rays of ``field`` (deg or mm) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
+        opl_start)``. ``method``: ``"real"`` (each ray meets the stop surface at ``(px, py)`` times the stop's radius,
+        Newton on real rays) or ``"paraxial"`` (through the paraxial entrance pupil at ``(px, py)`` times its radius)."""
+        if method not in AIM_METHODS:
+            raise ValueError(f"ray aiming {method!r} is not known; one of {', '.join(AIM_METHODS)}")
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        p = self.prescription
+        par = self.paraxial(lam)
+        r_ep = p.entrance_pupil_diameter_mm / 2
+        px = px.to(torch.float64).reshape(-1)
+        py = py.to(torch.float64).reshape(-1)
+        z_ep = par.entrance_pupil_z_mm
+        if p.object_at_infinity:
+            z_start = min(0.0, z_ep) - r_ep  # a plane before the lens and the entrance pupil
+            t = math.tan(math.radians(field))
+            x0, y0 = px * r_ep, py * r_ep + (z_start - z_ep) * t
+        else:
+            z_start = 0.0
+            s = p.object_distance_mm / (p.object_distance_mm + z_ep)  # from the object through the pupil to z = 0
+            x0 = px * r_ep * s
+            y0 = -field + (py * r_ep + field) * s
+        x, y = x0.clone(), y0.clone()
+        if method == "paraxial":
+            return self._beam(field, x, y, lam, z_start)
+        k = p.stop_index
+        z_stop = float(self._z[k])
+        target = torch.stack([px, py], dim=-1) * par.stop_radius_mm
+
+        def at_stop(xv, yv):
+            P, d, o = self._beam(field, xv, yv, lam, z_start)
+            b = self.trace(P, d, lam, upto=k, opl_start=o, vignette=False)
+            return b.points[:, :2], b.valid
+
+        h = FD_STEP * r_ep
+        for _ in range(AIM_ITERATIONS):
+            s0, ok = at_stop(x, y)
+            r = s0 - target
+            if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * par.stop_radius_mm) | ~ok).all()):
+                break
+            sx, okx = at_stop(x + h, y)
+            sy, oky = at_stop(x, y + h)
+            J = torch.stack([(sx - s0) / h, (sy - s0) / h], dim=-1)  # (R, 2 [stop xy], 2 [x, y])
+            det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+            good = ok & okx & oky & (det.abs() > 0)
+            det = torch.where(good, det, torch.ones_like(det))
+            dx = (J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / det
+            dy = (-J[:, 1, 0] * r[:, 0] + J[:, 0, 0] * r[:, 1]) / det
+            x = x - torch.where(good, dx, torch.zeros_like(dx))
+            y = y - torch.where(good, dy, torch.zeros_like(dy))
+        else:
+            s0, ok = at_stop(x, y)
+            bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * par.stop_radius_mm)
+            if bool(bad.any()):
+                raise RayTraceError(f"field {field:g}: ray aiming at the stop (surface {k + 1}) did not converge in "
+                                    f"{AIM_ITERATIONS} steps for {int(bad.sum())} of {bad.numel()} pupil points")
+        return self._beam(field, x, y, lam, z_start)
+
+    # -- wavefront ---------------------------------------------------------------------------------------------------
+    def wavefront(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
+                  aim: str = "real") -> WavefrontMap:
+        """The OPD (waves at ``wavelength_um``, default the primary) at pupil points ``(px, py)`` of ``field`` against
+        the reference sphere centred on the chief ray's point on the image plane, through the chief ray's point on the
+        paraxial exit pupil's plane (a plane there if the exit pupil is at infinity)."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        par = self.paraxial(lam)
+        n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
+        zero = torch.zeros(1, dtype=torch.float64)
+        P0, d0, o0 = self.aim(field, zero, zero, lam, aim)
+        chief = self.trace(P0, d0, lam, opl_start=o0)
+        if not bool(chief.valid.all()):
+            where = int(chief.clipped_at[0])
+            raise RayTraceError(f"field {field:g}: the chief ray does not pass (stopped at surface {where}: its "
+                                "semi-diameter, a missed surface or total internal reflection)")
+        P, d, o = self.aim(field, px, py, lam, aim)
+        rays = self.trace(P, d, lam, opl_start=o)
+        z_img = self.image_z_mm
+        cp, cd = chief.points[0], chief.directions[0]
+        Q = cp + ((z_img - cp[2]) / cd[2]) * cd
+        z_xp = par.exit_pupil_z_mm
+        if math.isfinite(z_xp):
+            E = cp + ((z_xp - cp[2]) / cd[2]) * cd
+            R2 = ((Q - E) ** 2).sum()
+            rc = chief.opl[0] + n_img * ((E - cp) * cd).sum()  # the chief ray's path to the sphere (at E)
+            b = ((rays.points - Q) * rays.directions).sum(-1)
+            c = ((rays.points - Q) ** 2).sum(-1) - R2
+            root = torch.sqrt(torch.clamp(b * b - c, min=0.0))
+            s_plane = (z_xp - rays.points[:, 2]) / rays.directions[:, 2]
+            s1, s2 = -b - root, -b + root
+            s = torch.where((s1 - s_plane).abs() <= (s2 - s_plane).abs(), s1, s2)
+            valid = rays.valid & (b * b - c >= 0)
+            radius = float(torch.sqrt(R2))
+        else:  # image-space telecentric: the reference "sphere" is the plane through the chief ray normal to it
+            rc = chief.opl[0]
+            s = ((cp - rays.points) * cd).sum(-1) / (rays.directions * cd).sum(-1)
+            valid = rays.valid
+            radius = math.inf
+        W = (rc - (rays.opl + n_img * s)) / (lam * 1e-3)
+        img = rays.points + ((z_img - rays.points[:, 2]) / rays.directions[:, 2]).unsqueeze(-1) * rays.directions
+        W = torch.where(valid, W, torch.full_like(W, math.nan))
+        return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
+                            radius)
+
+    def paraxial_heights(self, fields, wavelength_um: float | None = None) -> list[float]:
+        """Paraxial chief-ray heights (mm) on the paraxial image plane at ``fields`` (deg or mm)."""
+        from dataclasses import replace
+
+        seq = SequentialLens(replace(self.prescription, fields=tuple(fields)), image_shift_mm=self.image_shift_mm)
+        return list(seq.paraxial(wavelength_um).image_heights_mm)
+
+
+def pupil_grid(n: int, dtype=torch.float64):
+    """Points of an ``n x n`` square grid inside the unit disc (equal area per point): ``(px, py)``."""
+    g = (torch.arange(n, dtype=dtype) + 0.5) / n * 2 - 1
+    Y, X = torch.meshgrid(g, g, indexing="ij")
+    inside = X**2 + Y**2 <= 1
+    return X[inside], Y[inside]

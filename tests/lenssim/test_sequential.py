@@ -1,0 +1,191 @@
+"""Any lens from a prescription (issue 29): paraxial data, Seidel sums, real rays and the exact wavefront, each against
+something independent: today's thin singlet (its closed-form Seidel sums and its own ray trace), Cartesian ovals
+(closed form: zero OPD), the third-order limit of the real OPD, the area a semi-diameter leaves, thin-lens optics."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from lenssim import Design
+from lenssim.model.prescription import Prescription, PrescriptionError
+from lenssim.model.prescription import PrescriptionSurface as S
+from lenssim.optics.raytrace import opd
+from lenssim.optics.sequential import RayTraceError, SequentialLens, pupil_grid
+from lenssim_studies.paper import PAPER_CAMERA
+
+N_GLASS = 1.5
+MODEL = (N_GLASS, 0.0)  # a model glass without dispersion
+
+
+def _paper_singlet(s=-0.775, q=-2.4):
+    lens = PAPER_CAMERA.lens
+    d = Design(s=s, Q_back=q).to(torch.float64)
+    s1, s2 = lens.surfaces(d)
+    surfs = (S(float(s1.curvature), 0.0, (lens.refractive_index, 0.0)),
+             S(float(s2.curvature), lens.image_distance_mm, "air", conic=float(s2.conic)))
+    lam = PAPER_CAMERA.spectrum.wavelengths_um[0]
+    p = Prescription(surfs, 1, 2 * lens.pupil_radius_mm, fields=lens.field_angles_deg, wavelengths_um=(lam,),
+                     primary_wavelength_um=lam)
+    return SequentialLens(p), lens, d, lam
+
+
+@pytest.mark.parametrize("alpha", [0.0, 7.0, 14.0])
+def test_the_thin_singlet_as_a_prescription_is_todays_lens(alpha):
+    seq, lens, d, lam = _paper_singlet()
+    par = seq.paraxial()
+    assert par.efl_mm == pytest.approx(lens.focal_length_mm, rel=1e-12)
+    assert par.bfl_mm == pytest.approx(lens.image_distance_mm, rel=1e-12)
+    assert par.entrance_pupil_z_mm == 0 and par.exit_pupil_z_mm == pytest.approx(0, abs=1e-12)
+    a = torch.tensor(alpha, dtype=torch.float64)
+    assert torch.allclose(seq.seidel_surfaces(alpha).sum(0)[:4], lens.seidel_sums(d, a), rtol=1e-10, atol=1e-15)
+    px, py = pupil_grid(12)
+    w = seq.wavefront(alpha, px, py, aim="paraxial")  # the same rays as the singlet's trace: its plane pupil
+    ref, _ = opd(lens, d, alpha, py, px, wavelength_um=lam)
+    assert torch.allclose(w.opd_waves, ref / (lam * 1e-3), atol=1e-9, rtol=0)
+    # real aiming puts the pupil on the (curved) stop surface: the same wavefront within a small fraction of it
+    real = seq.wavefront(alpha, px, py)
+    assert real.rms_waves() == pytest.approx(w.rms_waves(), rel=0.01, abs=1e-3)
+
+
+def test_a_plano_hyperbolic_singlet_focuses_a_collimated_beam_perfectly():
+    f = 50.0
+    c2 = -1 / ((N_GLASS - 1) * f)  # flat side to the object, back radius -(n - 1) f
+    p = Prescription((S(0.0, 5.0, MODEL), S(c2, f, "air", conic=-N_GLASS**2)), 1, 20.0)
+    seq = SequentialLens(p)
+    assert seq.paraxial().bfl_mm == pytest.approx(f, rel=1e-12)
+    px, py = pupil_grid(24)
+    w = seq.wavefront(0.0, px, py)
+    assert w.valid.all() and w.pv_waves() < 1e-6 and w.rms_spot_mm() < 1e-9
+    spherical = SequentialLens(Prescription((S(0.0, 5.0, MODEL), S(c2, f, "air")), 1, 20.0))
+    assert spherical.wavefront(0.0, px, py).pv_waves() > 10  # the conic does the work (F/2.5)
+
+
+def test_a_refracting_ellipsoid_focuses_inside_the_glass():
+    r = 20.0
+    image = N_GLASS * r / (N_GLASS - 1)  # the paraxial focus in the glass
+    p = Prescription((S(1 / r, image, MODEL, conic=-1 / N_GLASS**2),), 1, 16.0)
+    seq = SequentialLens(p)
+    assert seq.paraxial().image_z_mm == pytest.approx(image, rel=1e-12)
+    px, py = pupil_grid(24)
+    w = seq.wavefront(0.0, px, py)
+    assert w.pv_waves() < 1e-6
+    assert SequentialLens(Prescription((S(1 / r, image, MODEL),), 1, 16.0)).wavefront(0.0, px, py).pv_waves() > 1
+
+
+def _thick_singlet(epd, stop_gap=0.0, a4=0.0):
+    """A biconvex spherical singlet (n = 1.5, R = +-50 mm, 5 mm thick), its stop ``stop_gap`` mm before it (a flat
+    surface) or on its first surface, the image plane at the paraxial focus."""
+    lens = (S(1 / 50, 5.0, MODEL, aspheric_coefficients=(a4,)), S(-1 / 50, 1.0, "air"))
+    surfs = ((S(0.0, stop_gap, "air"),) if stop_gap else ()) + lens
+    p = Prescription(surfs, 1, epd, fields=(0.0, 0.5))
+    seq = SequentialLens(p)
+    return SequentialLens(p.with_image_distance(seq.paraxial().bfl_mm))
+
+
+@pytest.mark.parametrize("stop_gap, a4", [(0.0, 0.0), (15.0, 0.0), (15.0, 2e-6)])
+def test_the_real_wavefront_tends_to_the_seidel_sums(stop_gap, a4):
+    """At F/50 and half a degree: spherical aberration at the rim is S_I / 8, coma across the pupil S_II (Welford's
+    W = S_I/8 rho^4 + S_II/2 rho^3 cos + ...), the stop on the lens or 15 mm before it (stop shift), with an A4."""
+    seq = _thick_singlet(2.0, stop_gap, a4)
+    lam = seq.primary_wavelength_um
+    sums = seq.seidel_surfaces(0.5).sum(0) / (lam * 1e-3)  # waves
+    one = torch.tensor([1.0], dtype=torch.float64)
+    zero = torch.zeros(1, dtype=torch.float64)
+    w_axis = seq.wavefront(0.0, zero, one).opd_waves[0]
+    assert float(w_axis) == pytest.approx(float(sums[0]) / 8, rel=0.02)
+    up = seq.wavefront(0.5, zero, one).opd_waves[0]
+    down = seq.wavefront(0.5, zero, -one).opd_waves[0]
+    assert float(up - down) == pytest.approx(float(sums[1]), rel=0.05)
+
+
+def test_a_semi_diameter_vignettes_the_area_it_leaves():
+    clip = 0.5  # a flat aperture before the lens, half the beam's radius
+    surfs = (S(0.0, 2.0, "air", semi_diameter_mm=clip * 5.0), S(1 / 50, 5.0, MODEL), S(-1 / 50, 48.0, "air"))
+    seq = SequentialLens(Prescription(surfs, 2, 10.0))
+    px, py = pupil_grid(64)
+    w = seq.wavefront(0.0, px, py)
+    assert 1 - w.vignetted_fraction == pytest.approx(clip**2, abs=0.01)
+    assert torch.isnan(w.opd_waves[~w.valid]).all() and torch.isfinite(w.opd_waves[w.valid]).all()
+
+
+def test_ray_aiming_meets_the_stop_where_it_aims():
+    surfs = (S(1 / 40, 4.0, MODEL), S(-1 / 200, 8.0, "air"), S(0.0, 8.0, "air"), S(1 / 60, 4.0, MODEL),
+             S(-1 / 40, 40.0, "air"))
+    seq = SequentialLens(Prescription(surfs, 3, 10.0, fields=(0.0, 20.0)))
+    px, py = pupil_grid(8)
+    P, d, o = seq.aim(20.0, px, py)
+    at_stop = seq.trace(P, d, upto=2, opl_start=o, vignette=False).points[:, :2]
+    r = seq.paraxial().stop_radius_mm
+    assert torch.allclose(at_stop, torch.stack([px, py], -1) * r, atol=1e-8 * r, rtol=0)
+    P, d, o = seq.aim(20.0, px, py, method="paraxial")  # the paraxial pupil misses the target off axis
+    off = (seq.trace(P, d, upto=2, opl_start=o, vignette=False).points[:, :2] - torch.stack([px, py], -1) * r)
+    assert off.abs().max() > 1e-3 * r
+
+
+def test_a_finite_object_images_where_thin_lens_optics_says():
+    f, u = 50.0, 150.0  # a thin lens (zero thickness): 1/v = 1/f - 1/u
+    c = 1 / ((N_GLASS - 1) * 2 * f)
+    p = Prescription((S(c, 0.0, MODEL), S(-c, 60.0, "air")), 1, 5.0, fields=(0.0, 2.0), object_distance_mm=u)
+    par = SequentialLens(p).paraxial()
+    v = 1 / (1 / f - 1 / u)
+    assert par.image_z_mm == pytest.approx(v, rel=1e-12)
+    assert par.image_heights_mm[1] == pytest.approx(2.0 * v / u, rel=1e-12)  # magnification v/u (object at -y)
+
+
+def test_a_chief_ray_that_does_not_pass_is_reported_with_its_field():
+    surfs = (S(0.0, 20.0, "air"), S(1 / 50, 5.0, MODEL, semi_diameter_mm=3.0), S(-1 / 50, 48.0, "air"))
+    seq = SequentialLens(Prescription(surfs, 1, 4.0, fields=(0.0, 30.0)))
+    with pytest.raises(RayTraceError, match=r"field 30: the chief ray does not pass \(stopped at surface 2"):
+        seq.wavefront(30.0, *pupil_grid(4))
+
+
+def test_prescription_errors_name_the_surface():
+    with pytest.raises(PrescriptionError, match=r"surface 2: thickness \(mm\) = nan"):
+        Prescription((S(0.0, 1.0, "air"), S(0.0, float("nan"), "air")), 1, 4.0)
+    with pytest.raises(PrescriptionError, match="surface 1: thickness .* >= 0"):
+        Prescription((S(0.0, -1.0, "air"), S(0.0, 10.0, "air")), 1, 4.0)
+    with pytest.raises(PrescriptionError, match="stop surface 3 is not allowed: a surface number from 1 to 2"):
+        Prescription((S(0.0, 1.0, "air"), S(0.0, 10.0, "air")), 3, 4.0)
+    with pytest.raises(PrescriptionError, match="surface 1: the conic surface .* semi-diameter"):
+        Prescription((S(1 / 5, 1.0, MODEL, semi_diameter_mm=6.0), S(0.0, 10.0, "air")), 1, 4.0)
+
+
+def test_a_perfect_lens_has_strehl_one_and_the_diffraction_limited_mtf():
+    from lenssim.optics.lens_report import field_quality
+
+    f = 50.0
+    seq = SequentialLens(Prescription((S(0.0, 5.0, MODEL), S(-1 / ((N_GLASS - 1) * f), f, "air", conic=-N_GLASS**2)),
+                                      1, 10.0))
+    lam_mm = seq.primary_wavelength_um * 1e-3
+    cutoff = 1 / (lam_mm * seq.paraxial().working_f_number)
+    nus = [0.1 * cutoff, 0.3 * cutoff, 0.6 * cutoff]
+    q = field_quality(seq, 0.0, nus, grid=96)
+    assert q["strehl"] == pytest.approx(1.0, abs=1e-9) and q["rms_opd_waves"] < 1e-6
+    for nu, s_, t_ in zip(nus, q["mtf_sagittal"], q["mtf_tangential"]):
+        x = nu / cutoff
+        closed = 2 / math.pi * (math.acos(x) - x * math.sqrt(1 - x * x))  # a circular pupil's MTF
+        assert s_ == pytest.approx(closed, abs=0.01) and t_ == pytest.approx(closed, abs=0.01)
+
+
+def test_the_strehl_ratio_of_a_small_defocus_follows_marechal():
+    from lenssim.optics.lens_report import field_quality
+
+    f = 50.0
+    p = Prescription((S(0.0, 5.0, MODEL), S(-1 / ((N_GLASS - 1) * f), f, "air", conic=-N_GLASS**2)), 1, 10.0)
+    seq = SequentialLens(p, image_shift_mm=0.01)  # 10 um of defocus at F/5: about 0.05 wave RMS
+    q = field_quality(seq, 0.0, (10.0,), grid=96)
+    sigma = q["rms_opd_waves"]
+    assert 0.02 < sigma < 0.1
+    assert q["strehl"] == pytest.approx(math.exp(-(2 * math.pi * sigma) ** 2), abs=0.01)
+
+
+def test_surfaces_that_cross_within_their_semi_diameters_are_refused():
+    # a strong biconvex element 1 mm thick at the centre: its edge at 8 mm is negative (sags 1.34 mm and -1.34 mm)
+    surfs = (S(1 / 25, 1.0, MODEL, semi_diameter_mm=8.0), S(-1 / 25, 40.0, "air", semi_diameter_mm=8.0))
+    with pytest.raises(PrescriptionError, match=r"surface 2 crosses surface 1 within their semi-diameters: the gap "
+                                                r"between them is -1\.\d+ mm at a height of 8 mm"):
+        Prescription(surfs, 1, 4.0)
+    Prescription((surfs[0].__class__(1 / 25, 3.0, MODEL, semi_diameter_mm=8.0), surfs[1]), 1, 4.0)  # 3 mm: an edge
