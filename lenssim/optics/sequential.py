@@ -461,7 +461,6 @@ class SequentialLens:
         if method == "paraxial":
             return self._beam(field, x, y, lam, z_start)
         k = p.stop_index
-        z_stop = float(self._z[k])
         target = torch.stack([px, py], dim=-1) * par.stop_radius_mm
 
         def at_stop(xv, yv):
