@@ -129,8 +129,9 @@ def add_device_argument(p: argparse.ArgumentParser) -> None:
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     """``--glass NAME``, ``--spectrum NAME``, ``--illuminant NAME``, ``--wavelengths-per-channel N``."""
-    p.add_argument("--glass", help="a glass of the catalogue (configs/glasses.toml: paper, N-BK7, N-SF5, PMMA); "
-                                   "default: the paper's non-dispersive n = 1.5")
+    p.add_argument("--glass", help="a glass of the catalogue (configs/glasses.toml: paper, PMMA, and SCHOTT, OHARA, "
+                                   "HOYA, CDGM, HIKARI glasses such as N-BK7, N-SF5, S-BSL7; any case, optionally "
+                                   "CATALOGUE:NAME); default: the paper's non-dispersive n = 1.5")
     p.add_argument("--spectrum", default="paper",
                    help="paper (one wavelength, 0.5 um, every colour) or a camera's RGB sensitivities from "
                         "colour-science, e.g. \"Nikon 5100 (NPL)\" (one spectrum per colour channel)")

@@ -13,10 +13,10 @@ from lenssim import LensError, __version__
 from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
-from . import camera, optics, tolerance
+from . import camera, lens, optics, tolerance
 from .common import check_arguments
 
-COMMAND_MODULES = (optics, tolerance, camera)
+COMMAND_MODULES = (optics, tolerance, camera, lens)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
@@ -34,7 +34,8 @@ NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$|^-nan$
 DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the restored image.
 
 optics:  evaluate, sweep, optimum, reproduce, study, designs, demo, tolerance
-camera:  simulate, psnr-table, fig8        (lenssim COMMAND --help for each)"""
+camera:  simulate, psnr-table, fig8
+lens:    inspect                           (lenssim COMMAND --help for each)"""
 
 
 class OneLineParser(argparse.ArgumentParser):

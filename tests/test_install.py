@@ -47,7 +47,7 @@ def _run(site: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess:
 def test_the_wheel_carries_the_configs_and_the_command(installed):
     wheel, _ = installed
     names = zipfile.ZipFile(wheel).namelist()
-    for cfg in ("paper_grid", "paper_grid_fast", "small_grid", "designs"):
+    for cfg in ("paper_grid", "paper_grid_fast", "small_grid", "designs", "lenses/cooke_triplet"):
         assert f"lenssim/configs/{cfg}.toml" in names
     entry = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "lenssim = lenssim_cli.main:entry" in entry
@@ -68,6 +68,8 @@ def test_the_installed_command_runs_outside_the_repository(installed, tmp_path):
     # the pinned value, to the tolerance of every criterion from the float32 OTF bank (F32_OTF in
     # test_regression_pins.py: float32 FFTs round differently on another CPU, up to 3.1e-7 measured)
     assert json.loads(r.stdout)["mse_r"][0] == pytest.approx(0.03945622863932807, rel=2e-6)
+    r = _run(site, tmp_path, "inspect", "paper_singlet", "--json", "--angles", "0")  # a shipped lens, installed
+    assert r.returncode == 0 and json.loads(r.stdout)["efl_mm"] == pytest.approx(25.0), r.stderr
 
 
 def test_import_layers_hold():

@@ -53,7 +53,8 @@ def test_no_import_runs_back_up_the_layers_inside_lenssim(graph):
     contract = _lenssim_contract()
     layers = [_layer(spec) for spec in contract["layers"]]
     placed = {f"lenssim.{tail}" for layer in layers for tail in layer.module_tails}
-    missing = sorted(graph.find_children("lenssim") - placed)
+    ignored = {f"lenssim.{m}" for m in contract.get("exhaustive_ignores", [])}
+    missing = sorted(graph.find_children("lenssim") - placed - ignored)
     assert not missing, f"modules of lenssim in no layer of the contract: {missing}"
     illegal = graph.find_illegal_dependencies_for_layers(layers, containers={"lenssim"})
     routes = sorted(" -> ".join(("|".join(sorted(r.heads)), *r.middle, "|".join(sorted(r.tails))))

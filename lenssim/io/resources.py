@@ -2,7 +2,8 @@
 
 In the repository they live in ``configs/`` (the place to read and copy them from); an install
 carries them as the package data ``lenssim.configs``. A config is named by a path, or by the
-name of a built-in one (``paper_grid``, ``paper_grid_fast``, ``small_grid``, ...).
+name of a built-in one (``paper_grid``, ``paper_grid_fast``, ``small_grid``, ...). The shipped lens
+prescriptions are in ``configs/lenses/`` (:func:`lenses_dir`, :func:`lens_path`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["builtin_configs", "config_path", "designs_file", "glasses_file"]
+__all__ = ["builtin_configs", "config_path", "designs_file", "glasses_file", "lenses_dir", "lens_path"]
 
 _PACKAGE = "lenssim.configs"
 
@@ -60,3 +61,24 @@ def designs_file() -> Path:
 def glasses_file() -> Path:
     """The built-in glass catalogue (``configs/glasses.toml``)."""
     return _root() / "glasses.toml"
+
+
+def lenses_dir() -> Path:
+    """The folder of the shipped lens prescriptions (``configs/lenses/``, one ``NAME.toml`` each)."""
+    return _root() / "lenses"
+
+
+def _lens_names() -> list[str]:
+    return sorted(p.stem for p in lenses_dir().glob("*.toml"))
+
+
+def lens_path(spec: str) -> Path:
+    """The shipped lens ``spec`` (a bare name, ``.toml`` optional: ``double_gauss``); ``FileNotFoundError`` in one
+    line listing the shipped names otherwise."""
+    name = str(spec)
+    name = name[:-5] if name.endswith(".toml") else name
+    names = _lens_names()
+    if name not in names:
+        raise FileNotFoundError(f"lens {str(spec)!r} is not a shipped lens; shipped lenses: {', '.join(names) or 'none'} "
+                                "(or give a .toml or .zmx file)")
+    return lenses_dir() / f"{name}.toml"

@@ -1,0 +1,52 @@
+"""``lenssim inspect LENS`` (issue 29): the JSON keys the issue names, their meaning checked against the library,
+refusals in one line."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from lenssim.io.prescription_file import read_lens
+from lenssim.optics.sequential import SequentialLens
+from lenssim_cli.main import main
+
+
+def test_inspect_json_has_the_issues_keys_and_they_mean_what_they_say(capsys):
+    assert main(["inspect", "cooke_triplet", "--json", "--angles", "0", "10"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    for key in ("efl_mm", "bfl_mm", "epd_mm", "f_number", "field_angles_deg", "rms_opd_waves", "pv_opd_waves",
+                "rms_spot_um", "strehl", "mtf_sagittal", "mtf_tangential"):
+        assert key in rep, key
+    par = SequentialLens(read_lens("cooke_triplet")).paraxial()
+    assert rep["efl_mm"] == pytest.approx(par.efl_mm) and rep["f_number"] == pytest.approx(par.efl_mm / rep["epd_mm"])
+    assert rep["field_angles_deg"] == [0.0, 10.0] and len(rep["rms_opd_waves"]) == 2
+    assert all(math.isfinite(v) and v >= 0 for v in rep["rms_opd_waves"] + rep["rms_spot_um"])
+    assert all(p >= r for p, r in zip(rep["pv_opd_waves"], rep["rms_opd_waves"]))
+
+
+def test_refocusing_at_the_best_focus_lowers_the_mean_wavefront_error(capsys):
+    main(["inspect", "cooke_triplet", "--json", "--angles", "0"])
+    at_file = json.loads(capsys.readouterr().out)
+    main(["inspect", "cooke_triplet", "--json", "--angles", "0", "--refocus", "best"])
+    best = json.loads(capsys.readouterr().out)
+    assert best["rms_opd_waves"][0] < 0.8 * at_file["rms_opd_waves"][0]
+    assert best["image_shift_mm"] != 0
+
+
+def test_inspect_prints_the_surfaces_numbered_as_in_the_file(capsys):
+    assert main(["inspect", "aspheric_singlet"]) == 0
+    out = capsys.readouterr().out
+    assert "1 (stop)" in out and "EFL" in out and "RMS OPD waves" in out
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["inspect", "no_such_lens"], "no_such_lens"),
+    (["inspect", "cooke_triplet", "--angles", "95"], "fields: 95 is not allowed"),
+    (["inspect", "cooke_triplet", "--mtf", "0"], "--mtf 0 is not allowed"),
+])
+def test_inspect_refuses_in_one_line(capsys, argv, match):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0], err
