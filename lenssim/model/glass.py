@@ -67,8 +67,25 @@ class ConstantGlass:
         return False
 
 
+class _DispersiveGlass:
+    """What the dispersive catalogue glasses share: the index at their ``reference_um`` and the Abbe number."""
+
+    @property
+    def refractive_index(self) -> float:
+        return self.index(self.reference_um)
+
+    @property
+    def abbe_number(self) -> float:
+        """``V_d = (n_d - 1) / (n_F - n_C)``."""
+        return _abbe_number(self)
+
+    @property
+    def dispersive(self) -> bool:
+        return True
+
+
 @dataclass(frozen=True)
-class SellmeierGlass:
+class SellmeierGlass(_DispersiveGlass):
     """A dispersive glass: ``n^2 - 1 = sum B_i lambda^2 / (lambda^2 - C_i)`` (``lambda`` in um, ``C_i`` in um^2;
     a vendor's fit may have a ``C_i < 0``, a term without a resonance).
 
@@ -105,22 +122,10 @@ class SellmeierGlass:
             raise ValueError(f"glass {self.name!r}: {wavelength_um} um is at a resonance of its Sellmeier formula")
         return math.sqrt(n2)
 
-    @property
-    def refractive_index(self) -> float:
-        return self.index(self.reference_um)
-
-    @property
-    def abbe_number(self) -> float:
-        """``V_d = (n_d - 1) / (n_F - n_C)``."""
-        return _abbe_number(self)
-
-    @property
-    def dispersive(self) -> bool:
-        return True
 
 
 @dataclass(frozen=True)
-class SchottGlass:
+class SchottGlass(_DispersiveGlass):
     """A dispersive glass by the Schott power series ``n^2 = A0 + A1 lambda^2 + A2 lambda^-2 + A3 lambda^-4 +
     A4 lambda^-6 + A5 lambda^-8 (+ A6 lambda^-10 + A7 lambda^-12)`` (``lambda`` in um; the powers are
     :data:`SCHOTT_POWERS`), as HOYA, CDGM and HIKARI publish some glasses.
@@ -156,18 +161,6 @@ class SchottGlass:
             raise ValueError(f"glass {self.name!r}: {wavelength_um} um is outside its Schott formula (n^2 = {n2:g})")
         return math.sqrt(n2)
 
-    @property
-    def refractive_index(self) -> float:
-        return self.index(self.reference_um)
-
-    @property
-    def abbe_number(self) -> float:
-        """``V_d = (n_d - 1) / (n_F - n_C)``."""
-        return _abbe_number(self)
-
-    @property
-    def dispersive(self) -> bool:
-        return True
 
 
 @dataclass(frozen=True)
