@@ -32,6 +32,7 @@ from pipeline.denoise import DENOISE_STRENGTH_RANGE
 from pipeline.photo import PHOTO_KEEP_BYTES, Photo
 from pipeline.simulate import MAP_TILE_PX
 
+from .lens import add_lens_arguments, check_lens_arguments, lens_psf_from_args
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
                      camera_from_args, design_from_args, designs, tolerances_from_args)
 
@@ -199,9 +200,14 @@ def cmd_simulate(args) -> int:
     # the photo's header, every argument and the output folder are checked before any work, then the photo's pixels
     header = _header(args.photo)
     _check_common(args)
-    design = design_from_args(args)
-    camera = camera_from_args(args)
-    psf = LensPSF(camera, design, wavefront=args.wavefront)
+    lens_file = check_lens_arguments(args)
+    if lens_file is None:
+        design = design_from_args(args)
+        camera = camera_from_args(args)
+        psf = LensPSF(camera, design, wavefront=args.wavefront)
+    else:  # any lens: its PSFs depend on the frame's size (the photo spans the lens's field), known from the header
+        design = camera = None
+        psf = None if header is None else lens_psf_from_args(args, header.shape)
     built = None
     if args.as_built is not None:
         if args.as_built < 0:
@@ -214,7 +220,7 @@ def cmd_simulate(args) -> int:
         fwc = check_full_well(args.full_well, "--full-well")
     else:
         args.iso = DEFAULT_ISO if args.iso is None else args.iso
-        fwc = camera.sensor.full_well_for_iso(args.iso)
+        fwc = PAPER_CAMERA.sensor.full_well_for_iso(args.iso) if camera is None else camera.sensor.full_well_for_iso(args.iso)
     scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows == "fitted")
     if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
         raise ValueError(f"--rl {args.rl} is not allowed: a number of Richardson-Lucy iterations from 1 to "
@@ -236,10 +242,14 @@ def cmd_simulate(args) -> int:
     # the whole frame (checked against the memory limit above) is decoded once; crops of a photo too large to keep
     # read only the rows or tiles they reach
     ideal, source = _load(args.photo, select_device(args.device), math.inf if whole else None)
+    if psf is None:
+        psf = lens_psf_from_args(args, ideal.shape)
     _check_photo_shape(args, ideal.shape, source, psf)
     size = _crop_size(args, ideal, source)
-    angles = _angles(args, ideal, size, camera.geometry, DEFAULT_ANGLES_DEG, source)
-    boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
+    geometry = psf.geometry
+    angles = _angles(args, ideal, size, geometry, DEFAULT_ANGLES_DEG if lens_file is None else
+                     _lens_angles(psf), source)
+    boxes = [crop_at_field_angle(ideal.shape, a, size, geometry) for a in angles]
     if args.denoise:
         from pipeline import gentle_denoise
 
@@ -247,18 +257,24 @@ def cmd_simulate(args) -> int:
         ideal = Photo.of(gentle_denoise(ideal.load(), args.denoise), source)
     if args.full_frame:
         ideal = ideal.load()
-    params = design.complete().floats()
-    report = {"source": source, "design": design.name or "custom", "parameters": params, **params,
-              "glass": camera.lens.glass.name, "wavefront": args.wavefront,
-              "spectrum": [c.name for c in camera.channels] if camera.channels else camera.spectrum.name,
-              "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
+    report = {"source": source, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
               "blur_windows": args.blur_windows,
               "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0]}
-    # what the figures' titles say of the optics: the design, and the glass and colour channels where not the paper's
-    report["optics"] = ", ".join([design.label()] + ([camera.lens.glass.name] if camera.lens.glass != PAPER_CAMERA.lens.glass
-                                                     or camera.channels else [])
-                                 + ([f"{args.spectrum} RGB"] if camera.channels else []))
+    if lens_file is None:
+        params = design.complete().floats()
+        report.update({"design": design.name or "custom", "parameters": params, **params,
+                       "glass": camera.lens.glass.name, "wavefront": args.wavefront,
+                       "spectrum": [c.name for c in camera.channels] if camera.channels else camera.spectrum.name})
+        # what the figures' titles say of the optics: the design, and the glass and colour channels where not the
+        # paper's
+        report["optics"] = ", ".join([design.label()] + ([camera.lens.glass.name] if camera.lens.glass !=
+                                                         PAPER_CAMERA.lens.glass or camera.channels else [])
+                                     + ([f"{args.spectrum} RGB"] if camera.channels else []))
+    else:
+        report.update(_lens_report(args, psf))
+        report["optics"] = ", ".join([report["lens"]["name"]] + ([f"{args.spectrum} RGB"] if psf.colour_channels
+                                                                  else []))
     with staged_output_dir(out) as stage:
         if args.full_frame:
             results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0], built)
@@ -270,7 +286,7 @@ def cmd_simulate(args) -> int:
         else:
             with _window_bar("blur + restore crops") as bar:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
-                                         sensor=camera.sensor, progress=bar.update)
+                                         sensor=_sensor(psf), progress=bar.update)
         report["crops"] = []
         for a, r in zip(angles, results):
             tag = f"crop_{a:g}deg"
@@ -361,6 +377,40 @@ def _file_kind(kind: str) -> str:
                                                                         else f"restored_{kind}")
 
 
+def _sensor(psf):
+    """The sensor a provider's PSFs are sampled on (the paper's camera's, or any lens's own)."""
+    return psf.sensor if hasattr(psf, "sensor") else psf.camera.sensor
+
+
+def _lens_angles(psf) -> tuple[float, ...]:
+    """``simulate --lens``'s crop angles: the axis and three more up to 90% of the frame corner's field angle."""
+    top = 0.9 * psf.max_field_deg
+    return tuple(round(top * k / 3, 2) for k in range(4))
+
+
+def _lens_report(args, psf) -> dict:
+    """``metrics.json``'s description of ``--lens``: the lens, its focus, the sensor it is sampled on, the light, and
+    the wavefront table's nodes and interpolation error."""
+    seq = psf.lens
+    p = seq.prescription
+    par = seq.paraxial()
+    table = psf.table(progress=None)
+    lams, weights = psf.spectrum()
+    return {"lens": {"name": p.name or str(args.lens), "file": str(args.lens), "source": p.source,
+                     "efl_mm": par.efl_mm, "f_number": par.f_number, "working_f_number": par.working_f_number,
+                     "refocus": args.refocus or "file", "image_shift_mm": seq.image_shift_mm,
+                     "image_scale_mm": psf.image_scale_mm, "pixel_pitch_um": psf.sensor.pixel_pitch_um,
+                     "pixel_pitch_from": "--pixel-pitch" if args.pixel_pitch is not None else
+                     "the photo spanning the lens's largest field at its corners",
+                     "corner_field_deg": psf.max_field_deg, "psf_sampling": psf.sampling,
+                     "samples_per_pixel": psf.oversample(),
+                     "wavefront_table_angles_deg": [round(float(a), 6) for a in table.angles_deg],
+                     "wavefront_table_error_waves": table.interpolation_error_waves},
+            "wavefront": "real rays (sequential ray trace)",
+            "spectrum": [c.name for c in psf.colour_channels] if psf.colour_channels else psf.light.name,
+            "wavelengths_um": list(lams), "wavelength_weights": list(weights)}
+
+
 def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, method, built=None):
     """``simulate --full-frame``: the whole frame (resumable from ``out/.checkpoint``), whole-frame metrics,
     crops cut from it; files go to ``stage``. With ``built`` (``--as-built``): blurred once by that lens, the same
@@ -380,7 +430,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     passes = 1 + (1 if restorers is None else len(restorers))
     with tqdm(total=passes * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
         frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
-                               checkpoint=checkpoint, sensor=psf.camera.sensor, method=method, restoration_psf=restorers)
+                               checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     def write(kind, enc, img):  # each image is sRGB-encoded once, for its PNG and for all its scores
@@ -565,6 +615,7 @@ def register(sub) -> None:
     p.add_argument("photo", nargs="?", help="image file (JPEG/PNG/TIFF/EXR) or skimage:NAME; default: generated scene")
     add_design_arguments(p)
     add_camera_arguments(p)
+    add_lens_arguments(p)
     p.add_argument("--iso", type=int, help="one of " + ", ".join(
         f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos)
         + f" (default {DEFAULT_ISO})")

@@ -8,7 +8,8 @@ import math
 
 from .common import table
 
-__all__ = ["register", "cmd_inspect", "REFOCUS_CHOICES"]
+__all__ = ["register", "cmd_inspect", "REFOCUS_CHOICES", "refocused_lens", "add_lens_arguments", "lens_psf_from_args",
+           "check_lens_arguments"]
 
 REFOCUS_CHOICES = ("file", "paraxial", "best")
 """Where the image plane goes: where the file puts it, the paraxial focus, or the focus of least field-averaged RMS
@@ -31,12 +32,27 @@ def _best_focus_shift(seq_cls, prescription, fields, start_mm: float, half_range
     return float(res.x)
 
 
+def refocused_lens(p, refocus: str):
+    """The :class:`lenssim.optics.sequential.SequentialLens` of prescription ``p`` with its image plane where
+    ``refocus`` (:data:`REFOCUS_CHOICES`) puts it, and the shift (mm) from the file's plane."""
+    from lenssim.optics.sequential import SequentialLens
+
+    seq = SequentialLens(p)
+    shift = 0.0
+    if refocus == "paraxial":
+        shift = seq.paraxial().image_z_mm - p.image_z_mm
+    elif refocus == "best":
+        par = seq.paraxial()
+        depth = 40 * (seq.primary_wavelength_um * 1e-3) * par.working_f_number**2  # +-10 focal depths (4 lambda N^2)
+        shift = _best_focus_shift(SequentialLens, p, p.fields, par.image_z_mm - p.image_z_mm, depth)
+    return SequentialLens(p, image_shift_mm=shift), shift
+
+
 def cmd_inspect(args) -> int:
     from dataclasses import replace
 
     from lenssim.io.prescription_file import read_lens
     from lenssim.optics.lens_report import DEFAULT_MTF_FREQUENCIES_CPMM, lens_report
-    from lenssim.optics.sequential import SequentialLens
 
     freqs = tuple(args.mtf) if args.mtf else DEFAULT_MTF_FREQUENCIES_CPMM
     for v in freqs:
@@ -45,15 +61,7 @@ def cmd_inspect(args) -> int:
     p = read_lens(args.lens)
     if args.angles:
         p = replace(p, fields=tuple(args.angles))  # checked by the prescription (0 to below 90 deg, or heights >= 0)
-    seq = SequentialLens(p)
-    shift = 0.0
-    if args.refocus == "paraxial":
-        shift = seq.paraxial().image_z_mm - p.image_z_mm
-    elif args.refocus == "best":
-        par = seq.paraxial()
-        depth = 40 * (seq.primary_wavelength_um * 1e-3) * par.working_f_number**2  # +-10 focal depths (4 lambda N^2)
-        shift = _best_focus_shift(SequentialLens, p, p.fields, par.image_z_mm - p.image_z_mm, depth)
-    seq = SequentialLens(p, image_shift_mm=shift)
+    seq, shift = refocused_lens(p, args.refocus)
     rep = lens_report(seq, p.fields, freqs)
     rep["refocus"] = args.refocus
     rep["image_shift_mm"] = shift
@@ -87,6 +95,90 @@ def cmd_inspect(args) -> int:
     print(table(rows, [f"field {unit}", "image height mm", "RMS OPD waves", "PV OPD waves", "RMS spot um", "Strehl",
                        "vignetted %", "MTF sag,tan at " + ", ".join(f"{v:g}" for v in freqs) + " c/mm"]))
     return 0
+
+
+def add_lens_arguments(p) -> None:
+    """``--lens LENS``, ``--refocus``, ``--pixel-pitch UM`` of the camera commands."""
+    p.add_argument("--lens", metavar="LENS",
+                   help="any lens instead of the paper's singlet: a .zmx or .toml prescription, or a shipped lens's "
+                        "name (see docs/any-lens.md); by default the photo spans the lens's largest field at its "
+                        "corners")
+    p.add_argument("--refocus", choices=REFOCUS_CHOICES, default=None,
+                   help="--lens: the image plane where the file puts it (default), at the paraxial focus, or at the "
+                        "best focus (least RMS wavefront averaged over the file's fields)")
+    p.add_argument("--pixel-pitch", type=float, metavar="UM",
+                   help="--lens: the sensor's pixel pitch (um) instead of the photo spanning the lens's field")
+
+
+PAPER_ONLY_FLAGS = (("--design", "design"), ("--glass", "glass"), ("--as-built", "as_built"),
+                    ("--designs-file", "designs_file"), ("--designs", "designs"))
+"""Flags that describe the paper's singlet (its design, glass, manufactured samples): refused beside ``--lens``."""
+
+
+def check_lens_arguments(args):
+    """``--lens`` and the flags that go with it, before any work (one-line ``ValueError``); the prescription read
+    (None without ``--lens``)."""
+    lens = getattr(args, "lens", None)
+    if lens is None:
+        for flag, name in (("--refocus", "refocus"), ("--pixel-pitch", "pixel_pitch")):
+            if getattr(args, name, None) is not None:
+                raise ValueError(f"{flag} applies to --lens LENS (any lens); the paper's singlet has its own focus "
+                                 "and sensor")
+        return
+    given = [f for f, k in PAPER_ONLY_FLAGS if getattr(args, k, None) not in (None, False)]
+    given += [f"--{k[len('param_'):]}" for k, v in vars(args).items() if k.startswith("param_") and v is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)} describe(s) the paper's singlet; --lens {lens} brings its own surfaces "
+                         "and glasses: leave them out")
+    if getattr(args, "wavefront", "third_order") not in (None, "third_order"):
+        raise ValueError("--wavefront applies to the paper's singlet; --lens always uses the real rays' wavefront")
+    pitch = getattr(args, "pixel_pitch", None)
+    if pitch is not None and not (math.isfinite(pitch) and pitch > 0):
+        raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
+    from lenssim.io.prescription_file import read_lens
+
+    p = read_lens(lens)
+    if not p.object_at_infinity:
+        raise ValueError(f"--lens {lens}: the object is at {p.object_distance_mm:g} mm; the camera commands take a "
+                         "lens focused on a distant scene (object at infinity)")
+    return p
+
+
+def lens_psf_from_args(args, shape, *, progress=None):
+    """The :class:`lenssim.optics.sequential_psf.SequentialPSF` of ``--lens`` for a frame of ``shape`` ``(..., H, W)``:
+    the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
+    and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
+    field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
+    from dataclasses import replace
+
+    from lenssim.model.spectrum import Spectrum, channel_spectra
+    from lenssim.optics.sequential_psf import SequentialPSF, image_scale_mm
+    from lenssim_studies.paper import PAPER_CAMERA
+
+    from .common import DEFAULT_ILLUMINANT
+
+    p = check_lens_arguments(args)
+    seq, _ = refocused_lens(p, args.refocus or "file")
+    H, W = shape[-2:]
+    corner_px = math.hypot(H - 1, W - 1) / 2
+    scale = image_scale_mm(seq)
+    amax = max(p.fields)
+    if args.pixel_pitch is None:
+        if amax <= 0:
+            raise ValueError(f"--lens {args.lens} has only the axial field: give --pixel-pitch UM for the sensor")
+        pitch = scale * math.tan(math.radians(amax)) / corner_px * 1e3
+    else:
+        pitch = float(args.pixel_pitch)
+    # the blur's windows reach past the frame's edges by up to half a core (px) on each axis: their PSFs too
+    reach_px = corner_px + (args.scheme[2] if getattr(args, "scheme", None) else 0)
+    amax = math.degrees(math.atan(reach_px * pitch * 1e-3 / scale))
+    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch, width_px=int(W), height_px=int(H))
+    spec = getattr(args, "spectrum", "paper") or "paper"
+    light = Spectrum(p.wavelengths_um, (1.0,) * len(p.wavelengths_um), name=f"the lens's {len(p.wavelengths_um)} "
+                     "wavelength(s)")
+    chans = () if spec == "paper" else channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
+                                                       args.wavelengths_per_channel)
+    return SequentialPSF(seq, sensor, light, chans, max_field_deg=amax)
 
 
 def register(sub) -> None:

@@ -92,19 +92,26 @@ class ParaxialData:
 class RayBundle:
     """Rays after a trace: ``points (R, 3)`` and ``directions (R, 3)`` after the last surface, ``opl (R,)`` (mm, from
     the object's wavefront), ``valid (R,)`` (False: vignetted by a semi-diameter, missed a surface, totally reflected),
-    ``clipped_at (R,)`` (the first surface number that stopped the ray, 0 if none)."""
+    ``clipped_at (R,)`` (the first surface number that stopped the ray, or whose semi-diameter it crossed, 0 if
+    none), ``passed (R,)`` (True: traced and within every semi-diameter; with ``vignette=False`` ``valid`` holds the
+    rays traced through the surfaces extended beyond their semi-diameters, and ``passed`` those a real lens lets
+    through), ``aperture_ratio (R,)`` (the largest of the ray's height over the semi-diameter at the surfaces that have
+    one, the stop aside: <= 1 where the ray passes; a smooth function of the ray, whose level 1 is the vignetting's
+    edge)."""
 
     points: torch.Tensor
     directions: torch.Tensor
     opl: torch.Tensor
     valid: torch.Tensor
     clipped_at: torch.Tensor
+    passed: torch.Tensor
+    aperture_ratio: torch.Tensor
 
 
 @dataclass
 class WavefrontMap:
     """The OPD over the pupil at one field and wavelength: pupil points ``px, py`` (unit disc of the entrance pupil),
-    ``opd_waves`` (NaN where vignetted), ``valid``, the chief ray's image point ``chief_mm (3,)``, the image-plane
+    ``opd_waves`` (NaN where vignetted; with ``vignette=False`` NaN only where a ray cannot be traced), ``valid``, the chief ray's image point ``chief_mm (3,)``, the image-plane
     points of the rays ``image_mm (R, 3)``, and the reference sphere's radius (mm)."""
 
     px: torch.Tensor
@@ -114,6 +121,8 @@ class WavefrontMap:
     chief_mm: torch.Tensor
     image_mm: torch.Tensor
     reference_radius_mm: float
+    aperture_ratio: torch.Tensor | None = None
+    """Per ray, its largest height over a surface's semi-diameter (:attr:`RayBundle.aperture_ratio`)."""
 
     @property
     def vignetted_fraction(self) -> float:
@@ -404,19 +413,26 @@ class SequentialLens:
         opl = n * (P * d).sum(-1) if opl_start is None else opl_start.to(torch.float64)
         valid = torch.isfinite(P).all(-1) & torch.isfinite(d).all(-1)
         clipped = torch.zeros(P.shape[0], dtype=torch.int64, device=P.device)
+        inside = torch.ones_like(valid)
+        ratio = torch.zeros(P.shape[0], dtype=torch.float64, device=P.device)
         surfs = self.prescription.surfaces
         stop = self.prescription.stop_index
         for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
             X, N, t, ok, rho = self._intersect(P, d, s, float(self._z[i]), valid)
-            if vignette and s.semi_diameter_mm is not None and i != stop:
-                ok = ok & (rho <= s.semi_diameter_mm**2 * (1 + 1e-12))
+            if s.semi_diameter_mm is not None and i != stop:
+                within = rho <= s.semi_diameter_mm**2 * (1 + 1e-12)
+                ratio = torch.maximum(ratio, torch.sqrt(rho.clamp(min=0)) / s.semi_diameter_mm)
+                clipped = torch.where(ok & inside & ~within & (clipped == 0), i + 1, clipped)
+                inside = inside & within
+                if vignette:
+                    ok = ok & within
             n2 = self.index_after(i, lam)
             d2, ok = self._refract(d, N, n, n2, ok)
             clipped = torch.where(valid & ~ok & (clipped == 0), i + 1, clipped)
             valid = ok
             opl = opl + n * t
             P, d, n = X, d2, n2
-        return RayBundle(P, d, opl, valid, clipped)
+        return RayBundle(P, d, opl, valid, clipped, valid & inside, ratio)
 
     # -- aiming ------------------------------------------------------------------------------------------------------
     def _beam(self, field: float, x, y, lam, z_start):
@@ -494,10 +510,15 @@ class SequentialLens:
 
     # -- wavefront ---------------------------------------------------------------------------------------------------
     def wavefront(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
-                  aim: str = "real") -> WavefrontMap:
+                  aim: str = "real", reference_mm: tuple[float, float] | None = None,
+                  vignette: bool = True) -> WavefrontMap:
         """The OPD (waves at ``wavelength_um``, default the primary) at pupil points ``(px, py)`` of ``field`` against
-        the reference sphere centred on the chief ray's point on the image plane, through the chief ray's point on the
-        paraxial exit pupil's plane (a plane there if the exit pupil is at infinity)."""
+        the reference sphere centred on the chief ray's point on the image plane (or on the image-plane point
+        ``reference_mm = (x, y)`` mm: the OPD then holds the tilt that moves the image from there to where the rays
+        go), through the chief ray's point on the paraxial exit pupil's plane (a plane there if the exit pupil is at
+        infinity: then the chief ray's point is the reference). ``vignette=False``: the OPD also where a ray crosses
+        a semi-diameter (the surfaces extended), ``valid`` still False there (the smooth continuation of the wavefront
+        beyond the vignetting's edge)."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         par = self.paraxial(lam)
         n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
@@ -509,11 +530,16 @@ class SequentialLens:
             raise RayTraceError(f"field {field:g}: the chief ray does not pass (stopped at surface {where}: its "
                                 "semi-diameter, a missed surface or total internal reflection)")
         P, d, o = self.aim(field, px, py, lam, aim)
-        rays = self.trace(P, d, lam, opl_start=o)
+        rays = self.trace(P, d, lam, opl_start=o, vignette=vignette)
         z_img = self.image_z_mm
         cp, cd = chief.points[0], chief.directions[0]
         Q = cp + ((z_img - cp[2]) / cd[2]) * cd
         z_xp = par.exit_pupil_z_mm
+        if reference_mm is not None:
+            if not math.isfinite(z_xp):
+                raise ValueError("reference_mm needs an exit pupil at a finite distance (this lens is telecentric in "
+                                 "image space)")
+            Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64)
         if math.isfinite(z_xp):
             E = cp + ((z_xp - cp[2]) / cd[2]) * cd
             R2 = ((Q - E) ** 2).sum()
@@ -533,9 +559,10 @@ class SequentialLens:
             radius = math.inf
         W = (rc - (rays.opl + n_img * s)) / (lam * 1e-3)
         img = rays.points + ((z_img - rays.points[:, 2]) / rays.directions[:, 2]).unsqueeze(-1) * rays.directions
-        W = torch.where(valid, W, torch.full_like(W, math.nan))
+        W = torch.where(valid, W, torch.full_like(W, math.nan))  # traced (through extended surfaces if not vignette)
+        valid = valid & rays.passed
         return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
-                            radius)
+                            radius, rays.aperture_ratio)
 
     def paraxial_heights(self, fields, wavelength_um: float | None = None) -> list[float]:
         """Paraxial chief-ray heights (mm) on the paraxial image plane at ``fields`` (deg or mm)."""

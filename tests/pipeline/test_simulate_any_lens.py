@@ -1,0 +1,118 @@
+"""``lenssim simulate --lens LENS`` (issue 29): any lens through the camera pipeline. The photo spans the lens's field
+(its largest field angle at the frame's corners) unless ``--pixel-pitch`` says otherwise; what metrics.json says of
+the lens is what the library computes; flags of the paper's singlet are refused beside ``--lens``."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from lenssim.io.prescription_file import read_lens
+from lenssim.optics.sequential import SequentialLens
+from lenssim_cli.main import main
+
+# a small F/8 plano-convex singlet (N-BK7), 3 degrees of field, one wavelength: a quick wavefront table, small PSFs
+SINGLET = """
+name = "Test plano-convex singlet"
+source = "tests: a plano-convex N-BK7 singlet, f about 50 mm"
+stop_surface = 1
+
+[aperture]
+entrance_pupil_diameter_mm = 6.25
+
+[object]
+distance_mm = "inf"
+
+[fields]
+angles_deg = [0.0, 3.0]
+
+[wavelengths]
+um = [0.55]
+primary_um = 0.55
+
+[[surfaces]]
+curvature_per_mm = 0.0387
+thickness_mm = 4.0
+material = "N-BK7"
+semi_diameter_mm = 8.0
+
+[[surfaces]]
+curvature_per_mm = 0.0
+thickness_mm = 47.2
+material = "air"
+semi_diameter_mm = 8.0
+"""
+
+
+@pytest.fixture(scope="module")
+def lens_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("lens") / "singlet.toml"
+    path.write_text(SINGLET)
+    return path
+
+
+def test_simulate_any_lens_spans_its_field_and_reports_it(lens_file, tmp_path, capsys):
+    out = tmp_path / "sim"
+    assert main(["simulate", "skimage:camera", "--lens", str(lens_file), "--crop", "64", "--angles", "0", "2.5",
+                 "--out", str(out)]) == 0
+    rep = json.loads((out / "metrics.json").read_text())
+    lens = rep["lens"]
+    seq = SequentialLens(read_lens(str(lens_file)))
+    par = seq.paraxial()
+    assert lens["efl_mm"] == pytest.approx(par.efl_mm) and lens["f_number"] == pytest.approx(par.f_number)
+    # skimage's camera is 512 x 512: the corner pixel's centre lies at the lens's largest field, 3 degrees
+    corner_px = math.hypot(511, 511) / 2
+    assert lens["pixel_pitch_um"] == pytest.approx(lens["image_scale_mm"] * math.tan(math.radians(3.0)) / corner_px * 1e3)
+    assert lens["image_scale_mm"] == pytest.approx(par.efl_mm, rel=1e-3)  # focused near infinity: the scale is f
+    assert lens["corner_field_deg"] > 3.0  # the table reaches past the corner, where the blur's windows reach
+    assert lens["wavefront_table_error_waves"] <= 0.01
+    assert rep["wavelengths_um"] == [0.55]
+    crops = rep["crops"]
+    assert [c["requested_deg"] for c in crops] == [0.0, 2.5]
+    for c in crops:
+        assert math.isfinite(c["psnr_sensor_db"]) and math.isfinite(c["psnr_restored_db"])
+    assert crops[0]["psnr_restored_db"] > crops[0]["psnr_sensor_db"]  # on the detailed centre, restoration helps
+    for f in ("mosaic.png", "index.html", "crop_0deg_sensor.png"):
+        assert (out / f).exists(), f
+    assert rep["optics"].startswith("Test plano-convex singlet")
+
+
+def test_a_finer_pixel_pitch_blurs_more_pixels(lens_file, tmp_path):
+    """The same lens on a sensor of finer pixels: the PSF covers more pixels, so the sensor image of the same scene
+    crop loses more detail (lower PSNR) - the pitch is used, not ignored."""
+    runs = {}
+    for pitch in ("4", "1"):
+        out = tmp_path / pitch
+        assert main(["simulate", "skimage:camera", "--lens", str(lens_file), "--pixel-pitch", pitch, "--crop", "64",
+                     "--angles", "0", "--iso", "100", "--out", str(out)]) == 0
+        runs[pitch] = json.loads((out / "metrics.json").read_text())
+    assert runs["1"]["lens"]["pixel_pitch_um"] == 1.0 and runs["1"]["lens"]["pixel_pitch_from"] == "--pixel-pitch"
+    assert runs["1"]["crops"][0]["psnr_sensor_db"] < runs["4"]["crops"][0]["psnr_sensor_db"]
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--design", "end_to_end_paper"], "--design describe"),
+    (["--s", "0.5"], "--s describe"),
+    (["--glass", "N-BK7"], "--glass describe"),
+    (["--wavefront", "exact"], "--wavefront applies to the paper"),
+    (["--pixel-pitch", "0"], "--pixel-pitch 0 is not allowed"),
+])
+def test_paper_flags_beside_any_lens_are_refused_in_one_line(lens_file, tmp_path, capsys, extra, match):
+    assert main(["simulate", "skimage:camera", "--lens", str(lens_file), *extra, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0]
+    assert not (tmp_path / "x").exists()
+
+
+def test_lens_only_flags_need_a_lens(tmp_path, capsys):
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--refocus", "best",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "--refocus applies to --lens" in capsys.readouterr().err
+
+
+def test_an_unknown_lens_is_refused_before_the_photo_is_read(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "missing.png"), "--lens", "no_such_lens", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_lens" in err or "missing.png" in err
