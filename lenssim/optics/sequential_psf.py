@@ -455,16 +455,34 @@ class SequentialPSF(PSFProvider):
             raise ValueError(f"field angle {float(alpha.max()):.4g} deg is beyond the {self.max_field_deg:.4g} deg "
                              "this lens's PSFs were set up for (max_field_deg)")
 
-    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
-        """PSFs ``(P, n, n)`` (one channel) or ``(P, C, n, n)`` at pixel positions, unit sum each."""
-        x, y = self.geometry.offsets_mm(torch.as_tensor(rows).cpu(), torch.as_tensor(cols).cpu(), optical_center)
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None,
+                      pedestal: bool = True):
+        """PSFs ``(P, n, n)`` (one channel) or ``(P, C, n, n)`` at pixel positions, unit sum each.
+
+        Each PSF is computed on the support it needs (the largest of the positions' :meth:`extents_px`, at most ``n``)
+        and laid in the middle of the ``n x n`` grid (a blur's window may be far larger than the PSF). The light the
+        FFT puts beyond that support (the far wings of diffraction and aberration) is spread evenly over the whole
+        ``n x n`` grid, a uniform pedestal as in today's model (:meth:`PSFProvider.pedestal_fractions`), so no light
+        is lost or moved into the core; ``pedestal=False`` renormalises the support to unit sum instead."""
+        r = torch.as_tensor(rows).cpu()
+        c = torch.as_tensor(cols).cpu()
+        x, y = self.geometry.offsets_mm(r, c, optical_center)
         x, y = x.reshape(-1), y.reshape(-1)
         alpha = self.geometry.field_angle_deg(x, y)
         self._check_angles(alpha)
         phi = torch.atan2(y, x)
-        out = psfs_from_table(self.table(), self.quadrature()[1], alpha, phi, n, self.oversample(),
-                              self.fft_size(n), self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
-                              complex_dtype=torch.complex128 if dtype == torch.float64 else torch.complex64)
+        k = min(n, int(self.extents_px(r, c, optical_center).max())) if alpha.numel() else n
+        k = min(n, k + (n - k) % 2)  # the parity of n: the support's samples lie symmetrically about the grid's centre
+        small, captured = psfs_from_table(
+            self.table(), self.quadrature()[1], alpha, phi, k, self.oversample(), self.fft_size(k),
+            self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
+            complex_dtype=torch.complex128 if dtype == torch.float64 else torch.complex64)
+        out = torch.zeros(*small.shape[:-2], n, n, dtype=small.dtype)
+        o = n // 2 - k // 2
+        if pedestal:
+            out += ((1 - captured) / (n * n))[..., None, None]
+            small = small * captured[..., None, None]
+        out[..., o:o + k, o:o + k] += small
         if not self.colour_channels:
             out = out[:, 0]
         out = out.to(dtype=dtype or torch.float32, device=device)
@@ -501,11 +519,13 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
                     complex_dtype=torch.complex64) -> torch.Tensor:
     """PSFs ``(P, C, n, n)`` (unit sum) at field angles ``alpha_deg`` and image-plane azimuths ``phi_rad`` ``(P,)``
     from ``table``, with each channel's weights ``(C, K)`` at the table's wavelengths; ``s`` samples per pixel, an
-    ``N``-point FFT (see the module docstring)."""
+    ``N``-point FFT (see the module docstring). Returns them and the fraction of each one's light the ``n x n``
+    window holds, ``(P, C)``."""
     P = alpha_deg.numel()
     C = len(channel_weights)
     real = torch.float64 if complex_dtype == torch.complex128 else torch.float32
     out = torch.zeros(P, C, n, n, dtype=torch.float64)
+    held = torch.zeros(P, C, dtype=torch.float64)
     fine = pitch_um / s
     half = N // 2
     per = max(1, CHUNK_BYTES // (N * N * (16 if complex_dtype == torch.complex128 else 8) * 3))
@@ -534,13 +554,14 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
             # the distortion as a tilt: with PHASE_SIGN -1, W = -delta rho_y / (2 lambda N_w) moves the PSF by +delta
             W = W - (dist_um / (2 * lam * working_f_number))[:, None, None] * my
             amp = ((gx**2 + gy**2 <= 1)[None] & (V <= 1)).to(real)
-            # the pupil's patch at the FFT's corner: a shifted pupil changes the field's phase only, not |FFT|^2
-            pupil = torch.zeros(m, N, N, dtype=complex_dtype)
-            pupil[:, :2 * h + 1, :2 * h + 1] = torch.polar(amp, (PHASE_SIGN * 2 * math.pi) * W.to(real))
-            spec = torch.fft.fft2(pupil)
-            total = (spec.real**2 + spec.imag**2).sum(dim=(-2, -1), keepdim=True)
-            win = spec[:, rows][:, :, rows]  # the n s x n s samples about the centre (frequency 0)
-            win = win.real**2 + win.imag**2
+            # the pupil's patch at the FFT's corner (a shifted pupil changes the field's phase only, not |FFT|^2); the
+            # 2-D FFT one axis at a time, keeping only the window's columns, then its rows: the pupil's 2h + 1 rows
+            # are all that is nonzero before the first pass
+            field_ = torch.polar(amp, (PHASE_SIGN * 2 * math.pi) * W.to(real)).to(complex_dtype)
+            spec = torch.fft.fft(field_, n=N, dim=-1).index_select(-1, rows)
+            spec = torch.fft.fft(spec, n=N, dim=-2).index_select(-2, rows)
+            win = spec.real**2 + spec.imag**2
+            total = (N * N) * amp.sum(dim=(-2, -1), keepdim=True)  # Parseval: the light of the whole FFT grid
             if sampling == "area":
                 pix = win.reshape(m, n, s, n, s).sum(dim=(2, 4))
             else:
@@ -549,5 +570,8 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
             for c, w in enumerate(wk):
                 if w:
                     acc[:, c] += w * pix
-        out[i0:i0 + m] = acc / acc.sum(dim=(-2, -1), keepdim=True)
-    return out
+        wsum = torch.tensor([sum(row) for row in channel_weights], dtype=torch.float64)
+        inside = acc.sum(dim=(-2, -1))
+        held[i0:i0 + m] = inside / wsum
+        out[i0:i0 + m] = acc / inside[..., None, None]
+    return out, held
