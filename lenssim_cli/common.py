@@ -123,6 +123,14 @@ def table(rows: list[list[str]], header: list[str]) -> str:
     return "\n".join([line(header), line(["-" * w for w in widths])] + [line(r) for r in rows])
 
 
+def numerics_from_args(args, base=None):
+    """``base`` (default :data:`lenssim.DEFAULT_NUMERICS`) with ``--max-fft-size`` where given."""
+    from lenssim import DEFAULT_NUMERICS
+
+    base = DEFAULT_NUMERICS if base is None else base
+    return base.replace(max_fft_size=args.max_fft_size) if getattr(args, "max_fft_size", None) else base
+
+
 def add_device_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", help=DEVICE_CHOICES)
 

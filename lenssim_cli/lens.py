@@ -97,7 +97,8 @@ def cmd_inspect(args) -> int:
     return 0
 
 
-def add_lens_arguments(p) -> None:
+def add_lens_arguments(p, *, pitch_help: str = "--lens: the sensor's pixel pitch (um) instead of the photo spanning the "
+                                                "lens's field") -> None:
     """``--lens LENS``, ``--refocus``, ``--pixel-pitch UM`` of the camera commands."""
     p.add_argument("--lens", metavar="LENS",
                    help="any lens instead of the paper's singlet: a .zmx or .toml prescription, or a shipped lens's "
@@ -106,8 +107,7 @@ def add_lens_arguments(p) -> None:
     p.add_argument("--refocus", choices=REFOCUS_CHOICES, default=None,
                    help="--lens: the image plane where the file puts it (default), at the paraxial focus, or at the "
                         "best focus (least RMS wavefront averaged over the file's fields)")
-    p.add_argument("--pixel-pitch", type=float, metavar="UM",
-                   help="--lens: the sensor's pixel pitch (um) instead of the photo spanning the lens's field")
+    p.add_argument("--pixel-pitch", type=float, metavar="UM", help=pitch_help)
 
 
 PAPER_ONLY_FLAGS = (("--design", "design"), ("--glass", "glass"), ("--as-built", "as_built"),
@@ -149,13 +149,7 @@ def lens_psf_from_args(args, shape, *, progress=None):
     the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
     and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
     field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
-    from dataclasses import replace
-
-    from lenssim.model.spectrum import Spectrum, channel_spectra
-    from lenssim.optics.sequential_psf import SequentialPSF, image_scale_mm
-    from lenssim_studies.paper import PAPER_CAMERA
-
-    from .common import DEFAULT_ILLUMINANT
+    from lenssim.optics.sequential_psf import image_scale_mm
 
     p = check_lens_arguments(args)
     seq, _ = refocused_lens(p, args.refocus or "file")
@@ -172,13 +166,95 @@ def lens_psf_from_args(args, shape, *, progress=None):
     # the blur's windows reach past the frame's edges by up to half a core (px) on each axis: their PSFs too
     reach_px = corner_px + (args.scheme[2] if getattr(args, "scheme", None) else 0)
     amax = math.degrees(math.atan(reach_px * pitch * 1e-3 / scale))
-    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch, width_px=int(W), height_px=int(H))
+    return lens_provider(args, p, seq, pitch_um=pitch, width_px=int(W), height_px=int(H), max_field_deg=amax)
+
+
+def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: int, max_field_deg: float,
+                  sampling: str = "area"):
+    """The :class:`lenssim.optics.sequential_psf.SequentialPSF` of the lens ``seq`` (prescription ``p``) on the paper's
+    sensor (its noise and full wells) with pixels of ``pitch_um``, in the lens's own wavelengths (equal weights) or the
+    colour channels of ``--spectrum``, traced out to ``max_field_deg``."""
+    from dataclasses import replace
+
+    from lenssim.model.spectrum import Spectrum, channel_spectra
+    from lenssim.optics.sequential_psf import SequentialPSF
+    from lenssim_studies.paper import PAPER_CAMERA
+
+    from .common import DEFAULT_ILLUMINANT
+
+    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch_um, width_px=width_px, height_px=height_px)
     spec = getattr(args, "spectrum", "paper") or "paper"
     light = Spectrum(p.wavelengths_um, (1.0,) * len(p.wavelengths_um), name=f"the lens's {len(p.wavelengths_um)} "
                      "wavelength(s)")
     chans = () if spec == "paper" else channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
                                                        args.wavelengths_per_channel)
-    return SequentialPSF(seq, sensor, light, chans, max_field_deg=amax)
+    return SequentialPSF(seq, sensor, light, chans, max_field_deg=max_field_deg, sampling=sampling)
+
+
+def cmd_evaluate_lens(args) -> int:
+    """``lenssim evaluate --lens LENS``: every criterion of any lens (:func:`lenssim.sequential_metrics.evaluate_sequential`)
+    over its field, on a sensor of ``--pixel-pitch`` (default: the Nyquist pitch ``lambda N_w / 2`` at the primary
+    wavelength, point samples, as the paper's camera)."""
+    import time
+
+    from lenssim import select_device
+    from lenssim.criteria import CRITERIA
+    from lenssim.io.files import json_text
+    from lenssim.sequential_metrics import EVALUATION_FIELDS, evaluate_sequential
+    from lenssim_studies.paper import PAPER_RHO0
+
+    from .common import numerics_from_args, table
+
+    if getattr(args, "best_focus", None):
+        raise ValueError("--best-focus applies to the paper's singlet; with --lens use --refocus best")
+    select_device(args.device)
+    p = check_lens_arguments(args)
+    t0 = time.perf_counter()
+    seq, shift = refocused_lens(p, args.refocus or "file")
+    par = seq.paraxial()
+    amax = max(p.fields)
+    nyquist = seq.primary_wavelength_um * par.working_f_number / 2
+    pitch = nyquist if args.pixel_pitch is None else float(args.pixel_pitch)
+    sampling = args.sampling or ("point" if args.pixel_pitch is None else "area")
+    numerics = numerics_from_args(args)
+    psf = lens_provider(args, p, seq, pitch_um=pitch, width_px=1, height_px=1, max_field_deg=amax, sampling=sampling)
+    r = evaluate_sequential(psf, args.snr, rho0=PAPER_RHO0, numerics=numerics)
+    names = [k for k in CRITERIA if k in r]
+    out = {"lens": p.name or str(args.lens), "file": str(args.lens), "source": p.source, "refocus": args.refocus or "file",
+           "image_shift_mm": shift, "efl_mm": par.efl_mm, "working_f_number": par.working_f_number,
+           "pixel_pitch_um": pitch, "sampling": sampling, "spectrum": psf.light.name if not psf.colour_channels
+           else [c.name for c in psf.colour_channels], "snr_db": [float(v) for v in r["snr_db"]],
+           "alpha_deg": [float(v) for v in r["alpha_deg"]], "psf_grid_px": int(r["psf_grid_px"])}
+    for name in names:
+        v = r[name]
+        out[name] = [float(x) for x in v] if CRITERIA[name].per_snr else float(v)
+        out[f"{name}_alpha"] = r[f"{name}_alpha"].tolist()
+        if f"{name}_per_channel" in r:
+            out[f"{name}_per_channel"] = r[f"{name}_per_channel"].tolist()
+    out["rms_w_piston_removed_waves"] = float(r["rms_w_piston_removed"])
+    out["units"] = {name: CRITERIA[name].units for name in names}
+    out["about"] = ("field averages over " + (f"{EVALUATION_FIELDS} field angles" if amax > 0 else "the axis")
+                    + f" from 0 to {amax:g} deg; each PSF about its chief ray's image point (distortion is the lens's "
+                    "mapping, not blur); Strehl against the same vignetted pupil without aberration")
+    if args.json:
+        print(json_text(out))
+        return 0
+    print(f"{out['lens']}" + (f"  ({p.source})" if p.source else ""))
+    print(f"EFL {par.efl_mm:.4f} mm, working F/{par.working_f_number:.3f}, image plane {args.refocus or 'file'} "
+          f"(shift {shift:+.4g} mm); pixels {pitch:.4g} um ({sampling} samples), spectrum "
+          + (psf.light.name if not psf.colour_channels else "; ".join(c.name for c in psf.colour_channels)))
+    header, row = [], []
+    for name in names:
+        c = CRITERIA[name]
+        if c.per_snr:
+            header += [f"{c.label}@{v:g}dB" for v in out["snr_db"]]
+            row += [f"{v:.5f}" for v in out[name]]
+        else:
+            header.append(f"{c.label} [{c.units.split()[0]}]")
+            row.append(f"{out[name]:.4g}")
+    print(table([row], header))
+    print(f"\n{out['about']}; PSFs on {out['psf_grid_px']} px grids ({time.perf_counter() - t0:.1f} s)")
+    return 0
 
 
 def register(sub) -> None:

@@ -15,16 +15,15 @@ from lenssim.io.files import json_text
 from lenssim.io.resources import builtin_configs, config_path
 
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
-                     design_from_args, designs, table)
+                     design_from_args, designs, numerics_from_args, table)
 from lenssim_studies.paper import PAPER_RHO0
+from lenssim.optics.sequential_psf import SAMPLINGS
+
+from .lens import add_lens_arguments
 
 DEMO_DESIGNS = tuple(PAPER_DESIGNS)
 DEMO_CONFIG = "small_grid"
 REPRODUCE_CONFIG = "paper_grid_fast"
-
-
-def _numerics(args, base=DEFAULT_NUMERICS):
-    return base.replace(max_fft_size=args.max_fft_size) if getattr(args, "max_fft_size", None) else base
 
 
 def evaluate_design(design: Design, snr, device: str = "auto", numerics=DEFAULT_NUMERICS, camera=PAPER_CAMERA,
@@ -69,6 +68,13 @@ def design_table(results: list[tuple[str, dict]]) -> str:
 
 
 def cmd_evaluate(args) -> int:
+    if args.lens is not None:
+        from .lens import cmd_evaluate_lens
+
+        return cmd_evaluate_lens(args)
+    if args.sampling is not None:
+        raise ValueError("--sampling applies to --lens LENS (any lens); the paper's singlet samples its PSFs at the "
+                         "pixel centres")
     design = design_from_args(args)
     select_device(args.device)
     t0 = time.perf_counter()
@@ -77,13 +83,13 @@ def cmd_evaluate(args) -> int:
         from lenssim.focus import best_focus
 
         crit = args.best_focus
-        fr = best_focus(camera, design, crit, args.snr[len(args.snr) // 2], numerics=_numerics(args), rho0=PAPER_RHO0)
+        fr = best_focus(camera, design, crit, args.snr[len(args.snr) // 2], numerics=numerics_from_args(args), rho0=PAPER_RHO0)
         print(f"best focus for {crit} at {args.snr[len(args.snr) // 2]:g} dB: focus_shift_um = {fr.focus_shift_um:.1f} "
               f"({fr.evaluations} evaluations)", file=sys.stderr)
         design = design.replace(focus_shift_um=round(fr.focus_shift_um, 2))
     if args.wavefront == "exact" and (camera.channels or len(camera.spectrum) != 1):
         raise ValueError("--wavefront exact takes a one-wavelength spectrum (--spectrum paper)")
-    r = evaluate_design(design, args.snr, args.device, _numerics(args), camera, wavefront=args.wavefront)
+    r = evaluate_design(design, args.snr, args.device, numerics_from_args(args), camera, wavefront=args.wavefront)
     if args.json:
         print(json_text({"design": design.name or "custom", **r}))
     else:
@@ -318,9 +324,14 @@ def register(sub) -> None:
     from lenssim_studies.paper import REFERENCE_SNR_DB
 
     configs = ", ".join(builtin_configs())
-    e = sub.add_parser("evaluate", help="criteria of one design")
+    e = sub.add_parser("evaluate", help="criteria of one design, or of any lens (--lens)")
     add_design_arguments(e)
     add_camera_arguments(e)
+    add_lens_arguments(e, pitch_help="--lens: the sensor's pixel pitch (um); default the Nyquist pitch lambda N_w / 2 "
+                                     "at the primary wavelength, as the paper's camera")
+    e.add_argument("--sampling", choices=SAMPLINGS, help="--lens: PSFs integrated over each pixel's area or sampled at "
+                   "the pixel centres (default: point at the default Nyquist pitch, as the paper; area with "
+                   "--pixel-pitch)")
     e.add_argument("--best-focus", metavar="CRITERION", help="first move the image plane (focus_shift_um) to the "
                    "position that minimises CRITERION (e.g. mse_r) at the middle --snr")
     e.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),

@@ -456,14 +456,15 @@ class SequentialPSF(PSFProvider):
                              "this lens's PSFs were set up for (max_field_deg)")
 
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None,
-                      pedestal: bool = True):
+                      pedestal: bool = True, distortion: bool = True):
         """PSFs ``(P, n, n)`` (one channel) or ``(P, C, n, n)`` at pixel positions, unit sum each.
 
         Each PSF is computed on the support it needs (the largest of the positions' :meth:`extents_px`, at most ``n``)
         and laid in the middle of the ``n x n`` grid (a blur's window may be far larger than the PSF). The light the
         FFT puts beyond that support (the far wings of diffraction and aberration) is spread evenly over the whole
         ``n x n`` grid, a uniform pedestal as in today's model (:meth:`PSFProvider.pedestal_fractions`), so no light
-        is lost or moved into the core; ``pedestal=False`` renormalises the support to unit sum instead."""
+        is lost or moved into the core; ``pedestal=False`` renormalises the support to unit sum instead.
+        ``distortion=False``: each PSF about its chief ray's point, not the pixel (:func:`psfs_from_table`)."""
         r = torch.as_tensor(rows).cpu()
         c = torch.as_tensor(cols).cpu()
         x, y = self.geometry.offsets_mm(r, c, optical_center)
@@ -471,22 +472,34 @@ class SequentialPSF(PSFProvider):
         alpha = self.geometry.field_angle_deg(x, y)
         self._check_angles(alpha)
         phi = torch.atan2(y, x)
-        k = min(n, int(self.extents_px(r, c, optical_center).max())) if alpha.numel() else n
-        k = min(n, k + (n - k) % 2)  # the parity of n: the support's samples lie symmetrically about the grid's centre
+        k = int(self.extents_px(r, c, optical_center).max()) if alpha.numel() else n
+        out = self.psfs_at_angles(alpha, phi, n, k, pedestal=pedestal, distortion=distortion,
+                                  complex_dtype=torch.complex128 if dtype == torch.float64 else torch.complex64)
+        if not self.colour_channels:
+            out = out[:, 0]
+        out = out.to(dtype=dtype or torch.float32, device=device)
+        return out if centered else torch.fft.ifftshift(out, dim=(-2, -1))
+
+    def psfs_at_angles(self, alpha_deg, phi_rad, n: int, support_px: int, *, table: WavefrontTable | None = None,
+                       pedestal: bool = True, distortion: bool = True, complex_dtype=torch.complex64) -> torch.Tensor:
+        """PSFs ``(P, C, n, n)`` float64 (unit sum) at field angles ``alpha_deg`` and image-plane azimuths ``phi_rad``
+        ``(P,)``, centred at ``[n//2, n//2]``, computed on ``support_px`` pixels (at most ``n``; given ``n``'s parity,
+        so the support lies symmetrically about the grid's centre) and laid in the middle of the grid, the light
+        beyond the support spread evenly over it (``pedestal``) or the support renormalised; ``table``: another
+        wavefront table on this one's wavelengths (default :meth:`table`; e.g. the aberration-free pupil)."""
+        k = min(n, int(support_px))
+        k = min(n, k + (n - k) % 2)
         small, captured = psfs_from_table(
-            self.table(), self.quadrature()[1], alpha, phi, k, self.oversample(), self.fft_size(k),
-            self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
-            complex_dtype=torch.complex128 if dtype == torch.float64 else torch.complex64)
+            self.table() if table is None else table, self.quadrature()[1], alpha_deg, phi_rad, k, self.oversample(),
+            self.fft_size(k), self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
+            complex_dtype=complex_dtype, distortion=distortion)
         out = torch.zeros(*small.shape[:-2], n, n, dtype=small.dtype)
         o = n // 2 - k // 2
         if pedestal:
             out += ((1 - captured) / (n * n))[..., None, None]
             small = small * captured[..., None, None]
         out[..., o:o + k, o:o + k] += small
-        if not self.colour_channels:
-            out = out[:, 0]
-        out = out.to(dtype=dtype or torch.float32, device=device)
-        return out if centered else torch.fft.ifftshift(out, dim=(-2, -1))
+        return out
 
     def fingerprint(self) -> str:
         """A stable description of these PSFs (lens, image plane, sensor, spectrum, sampling, numerics)."""
@@ -516,11 +529,12 @@ def image_scale_mm(seq: SequentialLens) -> float:
 
 def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, n: int, s: int, N: int,
                     pitch_um: float, working_f_number: float, sampling: str,
-                    complex_dtype=torch.complex64) -> torch.Tensor:
+                    complex_dtype=torch.complex64, distortion: bool = True) -> torch.Tensor:
     """PSFs ``(P, C, n, n)`` (unit sum) at field angles ``alpha_deg`` and image-plane azimuths ``phi_rad`` ``(P,)``
     from ``table``, with each channel's weights ``(C, K)`` at the table's wavelengths; ``s`` samples per pixel, an
     ``N``-point FFT (see the module docstring). Returns them and the fraction of each one's light the ``n x n``
-    window holds, ``(P, C)``."""
+    window holds, ``(P, C)``. ``distortion=False``: each PSF about the primary wavelength's chief-ray point instead of
+    the paraxial point (the image registered, as for a criterion that scores blur, not the geometric mapping)."""
     P = alpha_deg.numel()
     C = len(channel_weights)
     real = torch.float64 if complex_dtype == torch.complex128 else torch.float32
@@ -537,7 +551,7 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
         a = alpha_deg[i0:i0 + per].to(torch.float64)
         ph = phi_rad[i0:i0 + per].to(torch.float64)
         m = a.numel()
-        dist_um = table.distortion_at(a) * 1e3
+        dist_um = table.distortion_at(a) * 1e3 if distortion else torch.zeros_like(a)
         acc = torch.zeros(m, C, n, n, dtype=torch.float64)
         for k, lam in enumerate(table.wavelengths_um):
             wk = [row[k] for row in channel_weights]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -13,44 +14,13 @@ from lenssim.io.prescription_file import read_lens
 from lenssim.optics.sequential import SequentialLens
 from lenssim_cli.main import main
 
-# a small F/8 plano-convex singlet (N-BK7), 3 degrees of field, one wavelength: a quick wavefront table, small PSFs
-SINGLET = """
-name = "Test plano-convex singlet"
-source = "tests: a plano-convex N-BK7 singlet, f about 50 mm"
-stop_surface = 1
-
-[aperture]
-entrance_pupil_diameter_mm = 6.25
-
-[object]
-distance_mm = "inf"
-
-[fields]
-angles_deg = [0.0, 3.0]
-
-[wavelengths]
-um = [0.55]
-primary_um = 0.55
-
-[[surfaces]]
-curvature_per_mm = 0.0387
-thickness_mm = 4.0
-material = "N-BK7"
-semi_diameter_mm = 8.0
-
-[[surfaces]]
-curvature_per_mm = 0.0
-thickness_mm = 47.2
-material = "air"
-semi_diameter_mm = 8.0
-"""
+LENS_FILE = Path(__file__).parents[1] / "data" / "lenses" / "test_singlet.toml"
+"""A small F/8 plano-convex singlet (N-BK7), 3 degrees of field, one wavelength: a quick wavefront table, small PSFs."""
 
 
 @pytest.fixture(scope="module")
-def lens_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("lens") / "singlet.toml"
-    path.write_text(SINGLET)
-    return path
+def lens_file():
+    return LENS_FILE
 
 
 def test_simulate_any_lens_spans_its_field_and_reports_it(lens_file, tmp_path, capsys):

@@ -1,0 +1,190 @@
+"""The paper's design criteria for any sequential lens on a sensor: real-ray wavefronts instead of third order.
+
+:func:`evaluate_sequential` computes, for a :class:`lenssim.optics.sequential_psf.SequentialPSF` (a lens from a
+prescription, object at infinity, on a sensor's pixels, in one spectrum or colour channels), what
+:func:`lenssim.metrics.evaluate` computes for the paper's singlet (Sections 2.2-2.3 of the paper):
+
+* per field angle (:data:`EVALUATION_FIELDS` angles from the axis to the provider's largest, evenly, as the paper's
+  0..14 deg), the pixel-sampled PSF by Fourier optics of the real-ray OPD (vignetted pupil, every wavelength of the
+  spectrum), its OTF ``H`` on an ``n x n`` pixel grid (``n`` at least ``numerics.min_size`` and the PSF's support),
+  and every registered OTF criterion of one lens (``mse_s``, ``mse_r`` per SNR, ``strehl``, ``mtf50``, ...) from the
+  same :class:`lenssim.criteria.OTFContext` the singlet's evaluation builds: the image model ``P_x`` and the
+  frequency integrals on an ``oversample`` x finer grid (the PSF zero-padded), averaged over the field angles;
+* ``rms_w``: the root of the field-average of the mean square OPD over the unvignetted pupil (uniform weight per
+  pupil area), in waves of the primary wavelength, weighted over the spectrum, referred to the chief ray (the OPD is
+  0 at the pupil's centre: the paper's "no piston removal"); ``rms_w_piston_removed`` likewise about the mean.
+
+Each PSF is taken about its chief ray's image point, not the paraxial point: distortion is the lens's geometric
+mapping (a camera corrects it, or a simulated photo renders it, :mod:`lenssim.optics.sequential_psf`), not blur, and
+a pixel-wise MSE against the undistorted scene would score a shift of whole pixels as error. The Strehl ratio is
+therefore at the chief ray's point, against the aberration-free PSF of the same (vignetted) pupil.
+
+The PSFs along one radius of a rotationally symmetric lens are mirror-symmetric about it, so ``Re H`` and ``|H|^2``
+are even in both frequency axes and the quarter plane carries the integrals, as for the singlet.
+
+References
+----------
+.. [1] Optics Express 31(10), 16897 (2023), Sections 2.1-2.3, Eqs. (2)-(6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import torch
+
+from .criteria import CRITERIA, OTFContext, lens_criteria, otf_criteria, quarter_weights
+from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .optics.image_model import image_psd_quarter, noise_variance
+from .optics.sequential_psf import SequentialPSF
+from .validate import ResourceLimitError, check_memory
+
+__all__ = ["evaluate_sequential", "evaluation_angles", "sequential_criteria", "EVALUATION_FIELDS", "RMS_PUPIL_GRID"]
+
+EVALUATION_FIELDS = 15
+"""Field angles of the field averages, from the axis to the largest evenly (the paper's 15, 0..14 deg)."""
+RMS_PUPIL_GRID = 64
+"""Pupil samples across the diameter of the grid the RMS wavefront is averaged on (equal area per sample)."""
+
+
+def evaluation_angles(max_field_deg: float, count: int = EVALUATION_FIELDS) -> tuple[float, ...]:
+    """``count`` field angles (deg) from 0 to ``max_field_deg``, evenly (the axis alone if ``max_field_deg`` is 0)."""
+    if max_field_deg <= 0:
+        return (0.0,)
+    return tuple(float(v) for v in torch.linspace(0.0, float(max_field_deg), count, dtype=torch.float64))
+
+
+@dataclasses.dataclass(frozen=True)
+class _SensorView:
+    """What an :class:`lenssim.criteria.OTFContext` reads of a camera besides the OTFs: the sensor (pixel pitch)."""
+
+    sensor: object
+
+
+def _grid_size(psf: SequentialPSF, support_px: int, numerics: Numerics) -> int:
+    """The PSF grid ``n`` (even, px): the support, at least ``numerics.min_size``; refused beyond ``max_fft_size``."""
+    n = max(int(support_px), numerics.min_size)
+    n += n % 2
+    if n > numerics.max_fft_size:
+        raise ResourceLimitError(f"the PSF needs a {n} x {n} pixel grid at {psf.sensor.pixel_pitch_um:g} um per pixel, "
+                                 f"more than the largest allowed ({numerics.max_fft_size}; raise max_fft_size or use "
+                                 "larger pixels)")
+    return n
+
+
+def _otf_quarter(psf_centered: torch.Tensor, m: int) -> torch.Tensor:
+    """Quarter-plane OTF ``(..., m/2+1, m/2+1)`` of PSFs ``(..., n, n)`` centred at ``[n//2, n//2]`` (unit sum),
+    zero-padded to ``m x m`` about their centre (frequency sample ``k`` at ``k/m`` cycles/pixel)."""
+    n = psf_centered.shape[-1]
+    o = m // 2 - n // 2
+    pad = torch.zeros(*psf_centered.shape[:-2], m, m, dtype=psf_centered.dtype)
+    pad[..., o:o + n, o:o + n] = psf_centered
+    H = torch.fft.fft2(torch.fft.ifftshift(pad, dim=(-2, -1)))
+    return H[..., : m // 2 + 1, : m // 2 + 1]
+
+
+def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per field angle ``(A,)``: the RMS OPD (waves of the primary wavelength) over the unvignetted pupil, referred to
+    the chief ray and about the mean, mean square weighted over the spectrum; against the sphere centred on the
+    primary chief ray's image point (``registered``) or on the paraxial image point (the distortion's tilt kept)."""
+    table = psf.table()
+    lams, weights = psf.spectrum()
+    g = (torch.arange(RMS_PUPIL_GRID, dtype=torch.float64) + 0.5) / RMS_PUPIL_GRID * 2 - 1
+    Y, X = torch.meshgrid(g, g, indexing="ij")
+    disc = X**2 + Y**2 <= 1
+    px, py = X[disc], Y[disc]
+    A = angles.numel()
+    ref = psf.lens.primary_wavelength_um
+    ms = torch.zeros(A, dtype=torch.float64)
+    ms_p = torch.zeros(A, dtype=torch.float64)
+    wsum = sum(weights)
+    dist_um = torch.zeros_like(angles) if registered else table.distortion_at(angles) * 1e3
+    N_w = psf.working_f_number
+    for k, (lam, w) in enumerate(zip(lams, weights)):
+        if not w:
+            continue
+        W, V = table.sample(k, angles, px.expand(A, -1)[:, None, :], py.expand(A, -1)[:, None, :])
+        W = W[:, 0] - (dist_um / (2 * lam * N_w))[:, None] * py  # the tilt that moves the image to the paraxial point
+        W, ok = W * (lam / ref), (V[:, 0] <= 1).to(torch.float64)
+        cnt = ok.sum(-1).clamp_min(1)
+        mean = (W * ok).sum(-1) / cnt
+        ms += w / wsum * (W.square() * ok).sum(-1) / cnt
+        ms_p += w / wsum * ((W - mean[:, None]).square() * ok).sum(-1) / cnt
+    return ms.sqrt(), ms_p.sqrt()
+
+
+def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=None, psd_model: str = "discrete",
+                        numerics: Numerics = DEFAULT_NUMERICS, criteria=None, registered: bool = True,
+                        progress: Callable[[int], None] | None = None) -> dict:
+    """Every criterion of one lens (:func:`lenssim.criteria.lens_criteria` computed from the OTF, and ``rms_w``) for
+    ``psf`` (see the module docstring) at the SNRs ``snr_db`` (dB) with the image model's correlation ``rho0``.
+
+    Returns ``{name: field average}`` (``(S,)`` per SNR or a scalar; with colour channels their mean and
+    ``NAME_per_channel`` ``(C, ...)``), ``NAME_alpha`` per field angle ``(A, S)`` / ``(A,)`` (channel mean),
+    ``rms_w`` and ``rms_w_piston_removed`` (waves), ``rms_w_alpha``, ``alpha_deg``, ``snr_db`` and ``psf_grid_px``
+    (the pixel grid ``n`` of the OTFs). ``registered=False``: every PSF and wavefront about the paraxial image point
+    (distortion scored as error, as the paper's singlet's Gaussian image point). ``progress(k)`` is called with the
+    number of field angles done."""
+    names = otf_criteria() if criteria is None else tuple(c for c in criteria if CRITERIA[c].from_otf is not None)
+    alpha = torch.tensor(evaluation_angles(psf.max_field_deg) if angles_deg is None else
+                         [float(a) for a in angles_deg], dtype=torch.float64)
+    for a in alpha.tolist():
+        if not (math.isfinite(a) and 0 <= a <= psf.max_field_deg * (1 + 1e-12)):
+            raise ValueError(f"field angle {a:g} deg is not allowed: 0 to the {psf.max_field_deg:g} deg the PSFs were "
+                             "set up for")
+    sigma2 = noise_variance(snr_db).reshape(-1).to(torch.float64)
+    S, A, C = sigma2.numel(), alpha.numel(), psf.channels
+    geo = psf.geometry
+    rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
+    cols = torch.zeros_like(rows)
+    support = psf.extents_px(rows, cols, (0.0, 0.0))
+    n = _grid_size(psf, int(support.max()), numerics)
+    m = n * numerics.oversample
+    check_memory(C * 8 * m * m * 16, f"the OTFs of one field angle on {m} x {m} frequency samples",
+                 setting="max_fft_size")
+    psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=torch.float64)
+    weights = quarter_weights(m, torch.float64, None)
+    pw = psd_q * weights
+    # the aberration-free PSF of the same (vignetted) pupil, centred on its image point: the Strehl ratio's reference
+    perfect = dataclasses.replace(psf.table(), opd_waves=torch.zeros_like(psf.table().opd_waves),
+                                  distortion_mm=torch.zeros_like(psf.table().distortion_mm))
+    view = _SensorView(psf.sensor)
+    per = {c: torch.empty((C, A, S) if CRITERIA[c].per_snr else (C, A), dtype=torch.float64) for c in names}
+    half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)  # the field along +y: the rows
+    for i in range(A if names else 0):
+        a = alpha[i:i + 1]
+        k = n  # the PSF on the whole grid: the diffraction wings beyond its support matter to the MSEs at the 1% level
+        H_all = _otf_quarter(psf.psfs_at_angles(a, half_pi, n, k, distortion=not registered,
+                                                complex_dtype=torch.complex128)[0], m)  # (C, q, q)
+        H0_all = _otf_quarter(psf.psfs_at_angles(a, half_pi, n, k, table=perfect, distortion=False,
+                                                 complex_dtype=torch.complex128)[0], m)
+        for c in range(C):
+            H = H_all[c:c + 1]
+            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd_q, weights, pw, sigma2, n, view, numerics,
+                             _cache={"dl": H0_all[c:c + 1]})
+            for name in names:
+                per[name][c, i] = CRITERIA[name].from_otf(ctx)[0]
+        if progress is not None:
+            progress(1)
+    out: dict = {"alpha_deg": alpha, "snr_db": torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1),
+                 "psf_grid_px": n}
+    for name in names:
+        v = per[name]
+        out[f"{name}_alpha"] = v.mean(dim=0)
+        field_mean = v.mean(dim=1)  # (C, S) or (C,)
+        out[name] = field_mean.mean(dim=0)
+        if C > 1:
+            out[f"{name}_per_channel"] = field_mean
+    if criteria is None or "rms_w" in criteria:
+        rms, rms_p = _rms_wavefront(psf, alpha, registered)
+        out["rms_w_alpha"] = rms
+        out["rms_w"] = torch.sqrt((rms**2).mean())
+        out["rms_w_piston_removed"] = torch.sqrt((rms_p**2).mean())
+    return out
+
+
+def sequential_criteria() -> tuple[str, ...]:
+    """The criteria :func:`evaluate_sequential` computes: every OTF criterion of one lens and ``rms_w``."""
+    return tuple(k for k in lens_criteria() if k in otf_criteria() or k == "rms_w")
