@@ -9,7 +9,7 @@ import math
 from .common import table
 
 __all__ = ["register", "cmd_inspect", "REFOCUS_CHOICES", "refocused_lens", "add_lens_arguments", "lens_psf_from_args",
-           "check_lens_arguments"]
+           "check_lens_arguments", "each_lens", "lens_label", "lens_provider", "cmd_evaluate_lens"]
 
 REFOCUS_CHOICES = ("file", "paraxial", "best")
 """Where the image plane goes: where the file puts it, the paraxial focus, or the focus of least field-averaged RMS
@@ -98,11 +98,13 @@ def cmd_inspect(args) -> int:
 
 
 def add_lens_arguments(p, *, pitch_help: str = "--lens: the sensor's pixel pitch (um) instead of the photo spanning the "
-                                                "lens's field") -> None:
-    """``--lens LENS``, ``--refocus``, ``--pixel-pitch UM`` of the camera commands."""
-    p.add_argument("--lens", metavar="LENS",
-                   help="any lens instead of the paper's singlet: a .zmx or .toml prescription, or a shipped lens's "
-                        "name (see docs/any-lens.md); by default the photo spans the lens's largest field at its "
+                                                "lens's field", many: bool = False) -> None:
+    """``--lens LENS`` (``many``: ``--lens LENS [LENS ...]``), ``--refocus``, ``--pixel-pitch UM`` of the camera
+    commands."""
+    p.add_argument("--lens", metavar="LENS", nargs="+" if many else None,
+                   help=("lenses besides (or instead of) the paper's designs: " if many else
+                         "any lens instead of the paper's singlet: ") + "a .zmx or .toml prescription, or a shipped "
+                        "lens's name (see docs/any-lens.md); by default the photo spans the lens's largest field at its "
                         "corners")
     p.add_argument("--refocus", choices=REFOCUS_CHOICES, default=None,
                    help="--lens: the image plane where the file puts it (default), at the paraxial focus, or at the "
@@ -142,6 +144,34 @@ def check_lens_arguments(args):
         raise ValueError(f"--lens {lens}: the object is at {p.object_distance_mm:g} mm; the camera commands take a "
                          "lens focused on a distant scene (object at infinity)")
     return p
+
+
+def each_lens(args, *, beside=("designs", "designs_file")):
+    """For ``--lens LENS [LENS ...]``: one namespace per lens (``args`` with ``lens`` set to it and the flags
+    ``beside``, which may go with lenses in this command, cleared), each lens checked by :func:`check_lens_arguments`
+    before any work (a lens given twice is refused)."""
+    import argparse
+
+    lenses = list(args.lens or ())
+    for v in lenses:
+        if lenses.count(v) > 1:
+            raise ValueError(f"--lens {v} is given twice; each lens once")
+    if not lenses:
+        check_lens_arguments(args)  # --refocus and --pixel-pitch without a lens
+        return []
+    out = []
+    for v in lenses:
+        ns = argparse.Namespace(**{**vars(args), "lens": v, **{k: None for k in beside}})
+        check_lens_arguments(ns)
+        out.append(ns)
+    return out
+
+
+def lens_label(ns) -> str:
+    """How a table names a lens of ``--lens``: its shipped name, or its file's name."""
+    from pathlib import Path
+
+    return f"lens {Path(ns.lens).name}"
 
 
 def lens_psf_from_args(args, shape, *, progress=None):

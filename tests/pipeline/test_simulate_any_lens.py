@@ -86,3 +86,37 @@ def test_an_unknown_lens_is_refused_before_the_photo_is_read(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "missing.png"), "--lens", "no_such_lens", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "no_such_lens" in err or "missing.png" in err
+
+
+def test_psnr_table_takes_lenses_and_agrees_with_simulate(lens_file, tmp_path, capsys):
+    """``psnr-table --lens``: a row per lens and ISO (no paper design unless asked for), each the mean over the crops
+    of what ``simulate --lens`` reports for the same photo, crops, ISO and seed."""
+    import csv
+
+    common = ["--crop", "64", "--angles", "0", "2", "--seed", "3"]
+    assert main(["psnr-table", "skimage:camera", "--lens", str(lens_file), "--isos", "100", "25", *common,
+                 "--out", str(tmp_path / "t")]) == 0
+    rows = list(csv.DictReader((tmp_path / "t" / "psnr_table.csv").read_text().splitlines()))
+    assert [(r["design"], r["iso"]) for r in rows] == [("lens test_singlet.toml", "100"), ("lens test_singlet.toml", "25")]
+    assert main(["simulate", "skimage:camera", "--lens", str(lens_file), "--iso", "100", *common,
+                 "--out", str(tmp_path / "s")]) == 0
+    crops = json.loads((tmp_path / "s" / "metrics.json").read_text())["crops"]
+    for key in ("psnr_sensor_db", "psnr_restored_db"):
+        assert float(rows[0][key]) == pytest.approx(sum(c[key] for c in crops) / len(crops), abs=1e-6)
+    assert float(rows[1]["psnr_restored_db"]) > float(rows[0]["psnr_restored_db"])  # ISO 25: less noise
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--as-built", "1"], "--as-built describe"),
+    (["--lens", "cooke_triplet", "cooke_triplet"], "--lens cooke_triplet is given twice"),
+    (["--lens", "no_such_lens"], "no_such_lens"),
+    (["--pixel-pitch", "3"], "--pixel-pitch applies to --lens"),
+])
+def test_psnr_table_lens_refusals(tmp_path, capsys, extra, match):
+    argv = ["psnr-table", "skimage:camera", "--isos", "100", "--out", str(tmp_path / "t"), *extra]
+    if "--lens" not in extra and "--pixel-pitch" not in extra:
+        argv += ["--lens", "cooke_triplet"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert match in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "t").exists()
