@@ -605,25 +605,37 @@ def cmd_psnr_table(args) -> int:
 
 def cmd_fig8(args) -> int:
     from lenssim.io.files import check_output_dir, staged_output_dir
-    from lenssim_studies.figure8 import figure8
+    from lenssim_studies.figure8 import figure8, lens_mosaic
 
     from pipeline.restoration import parse_restoration
 
     _header(args.photo)
     _check_common(args)
+    lens_file = check_lens_arguments(args)
     spec = parse_restoration(args.restore)
     spec.check(PAPER_SCHEME)  # the windows fig8 restores in
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
     size = _crop_size(args, ideal, source)
-    angles = _angles(args, ideal, size, PAPER_CAMERA.geometry, PAPER_FIG8_ANGLES_DEG, source)
+    psf = None
+    if lens_file is None:
+        geometry, preferred = PAPER_CAMERA.geometry, PAPER_FIG8_ANGLES_DEG
+    else:  # any lens: the photo spans its field (or --pixel-pitch), its own crop angles
+        args.scheme = (PAPER_SCHEME.window, PAPER_SCHEME.stride, PAPER_SCHEME.core)
+        psf = lens_psf_from_args(args, ideal.shape)
+        geometry, preferred = psf.geometry, _lens_angles(psf)
+    angles = _angles(args, ideal, size, geometry, preferred, source)
     for a in angles:  # every crop fits the image, before any work
         from pipeline import crop_at_field_angle
 
-        crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry)
+        crop_at_field_angle(ideal.shape, a, size, geometry)
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
-        png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec)
+        if psf is None:
+            png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec)
+        else:
+            png, tiles = lens_mosaic(ideal, stage, psf, lens_file.name or lens_label(args), angles=angles, crop=size,
+                                     seed=args.seed, method=spec)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
     return 0
@@ -680,7 +692,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=cmd_simulate)
 
-    f = sub.add_parser("fig8", help="Fig. 8-style mosaic: two designs x three ISOs at crops across the field")
+    f = sub.add_parser("fig8", help="Fig. 8-style mosaic: two designs x three ISOs at crops across the field (with "
+                       "--lens: any lens's sensor image and restorations, lens_mosaic.png)")
     f.add_argument("photo", nargs="?", help="image file or skimage:NAME; default: the generated scene")
     f.add_argument("--angles", type=float, nargs="+", default=None,
                    help="crop field angles (deg); default the paper's Fig. 8 angles that fit the photo")
@@ -688,6 +701,7 @@ def register(sub) -> None:
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration method and its options ({methods}; default: wiener)")
+    add_lens_arguments(f)
     add_device_argument(f)
     f.add_argument("--out", required=True)
     f.set_defaults(func=cmd_fig8)

@@ -22,7 +22,7 @@ from pipeline.figures import tile_label
 from pipeline.restoration import Restoration
 from pipeline.simulate import crop_at_field_angle, simulate_crops
 
-__all__ = ["PAPER_FIG8_ANGLES", "figure8"]
+__all__ = ["PAPER_FIG8_ANGLES", "figure8", "lens_mosaic"]
 
 PAPER_FIG8_ANGLES = PAPER_FIG8_ANGLES_DEG
 
@@ -33,11 +33,6 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
     """The mosaic for ``camera`` with a conventional (``rms_w``) and an end-to-end (``e2e``) design,
     restored with ``method`` (a name, ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`);
     writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     spec = Restoration.of(method)
     method = spec.name
     boxes = [crop_at_field_angle(ideal.shape, a, crop, camera.geometry) for a in angles]
@@ -55,11 +50,49 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             (f"RMS_W: restored, ISO {low_noise}", img(("rms_w", low_noise), method), ("rms_w", low_noise)),
             ("end-to-end: sensor (no noise)", img(("e2e", low_noise), "blurred"), None)]
     cols += [(f"end-to-end: restored, ISO {iso}", img(("e2e", iso), method), ("e2e", iso)) for iso in isos]
-    fig, axes = plt.subplots(len(boxes), len(cols), figsize=(2.0 * len(cols), 2.05 * len(boxes) + 0.6),
+    title = (f"Fig. 8: RMS_W design ({rms_w.label()}) vs end-to-end design ({e2e.label()}); restoration: "
+             f"{spec.method.label}; PSNR / SSIM in sRGB against the ideal image")
+    return _mosaic(runs, cols, runs[("e2e", low_noise)], title, method, out_dir, "fig8_mosaic")
+
+
+def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: int = 128, seed: int = 0,
+                method="wiener", isos=None, sensor=None) -> tuple[Path, list[dict]]:
+    """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
+    :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
+    restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
+    default the provider's), one row per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).
+    Writes ``lens_mosaic.png`` and ``.svg`` in ``out_dir``; returns the PNG's path and a row per restored tile."""
+    spec = Restoration.of(method)
+    method = spec.name
+    sensor = psf.sensor if sensor is None else sensor
+    boxes = [crop_at_field_angle(ideal.shape, a, crop, psf.geometry) for a in angles]
+    isos = tuple(ISO_FOR_SNR.values()) if isos is None else tuple(isos)
+    per_iso = simulate_crops(ideal, psf, [sensor.full_well_for_iso(i) for i in isos], boxes, seed=seed,  # one blur
+                             methods=(spec,), sensor=sensor)
+    runs = {(label, iso): res for iso, res in zip(isos, per_iso)}
+    first = runs[(label, isos[0])]
+    img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
+    cols = [("ideal", img((label, isos[0]), "ideal"), None),
+            ("sensor (no noise)", img((label, isos[0]), "blurred"), None)]
+    cols += [(f"restored, ISO {iso}", img((label, iso), method), (label, iso)) for iso in isos]
+    title = (f"{label}\nthe sensor image and its restoration ({spec.method.label}) at ISO "
+             f"{', '.join(str(i) for i in isos)}; PSNR / SSIM in sRGB against the ideal image")
+    return _mosaic(runs, cols, first, title, method, out_dir, "lens_mosaic")
+
+
+def _mosaic(runs: dict, cols: list, first: list, title: str, method: str, out_dir, stem: str) -> tuple[Path, list[dict]]:
+    """Draw the tiles ``cols`` (``(title, image of row i, key of runs for its scores or None)``), a row per crop of
+    ``first`` (its field angles label the rows); write ``STEM.png`` and ``.svg``; the restored tiles' scores."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(first), len(cols), figsize=(2.0 * len(cols), 2.05 * len(first) + 0.6),
                              squeeze=False, constrained_layout=True)
     table = []
-    for i, a in enumerate(angles):
-        for j, (title, get, key) in enumerate(cols):
+    for i in range(len(first)):
+        for j, (head, get, key) in enumerate(cols):
             ax = axes[i, j]
             img = linear_to_srgb(get(i).clamp(0, 1))[0]
             ax.imshow(img.permute(1, 2, 0).squeeze(-1).cpu().numpy(), cmap="gray" if img.shape[0] == 1 else None,
@@ -67,21 +100,20 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             ax.set_xticks([])
             ax.set_yticks([])
             if i == 0:
-                ax.set_title(title, fontsize=7)
+                ax.set_title(head, fontsize=7)
             if j == 0:
-                ax.set_ylabel(f"field {runs[('e2e', low_noise)][i].field_deg:.1f} deg", fontsize=8)
+                ax.set_ylabel(f"field {first[i].field_deg:.1f} deg", fontsize=8)
             if key is not None:
                 sc = runs[key][i].scores[method]
                 ax.text(0.02, 0.03, tile_label(sc), transform=ax.transAxes, color="yellow", fontsize=6,
                         backgroundcolor=(0, 0, 0, 0.55))
                 table.append({"field_deg": runs[key][i].field_deg, "design": key[0], "iso": key[1],
                               "psnr_restored_db": sc["psnr_db"], "ssim_restored": sc["ssim"]})
-    fig.suptitle(f"Fig. 8: RMS_W design ({rms_w.label()}) vs end-to-end design ({e2e.label()}); restoration: "
-                 f"{spec.method.label}; PSNR / SSIM in sRGB against the ideal image", fontsize=8)
+    fig.suptitle(title, fontsize=8)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    png = out / "fig8_mosaic.png"
-    for path in (png, out / "fig8_mosaic.svg"):
+    png = out / f"{stem}.png"
+    for path in (png, out / f"{stem}.svg"):
         atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=150))
     plt.close(fig)
     return png, table
