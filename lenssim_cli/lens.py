@@ -61,6 +61,9 @@ def cmd_inspect(args) -> int:
     p = read_lens(args.lens)
     if args.angles:
         p = replace(p, fields=tuple(args.angles))  # checked by the prescription (0 to below 90 deg, or heights >= 0)
+    from lenssim.optics.sequential import SequentialLens
+
+    SequentialLens(p).check_aperture()
     seq, shift = refocused_lens(p, args.refocus)
     rep = lens_report(seq, p.fields, freqs)
     rep["refocus"] = args.refocus
@@ -140,6 +143,9 @@ def check_lens_arguments(args):
     from lenssim.io.prescription_file import read_lens
 
     p = read_lens(lens)
+    from lenssim.optics.sequential import SequentialLens
+
+    SequentialLens(p).check_aperture()
     if not p.object_at_infinity:
         raise ValueError(f"--lens {lens}: the object is at {p.object_distance_mm:g} mm; the camera commands take a "
                          "lens focused on a distant scene (object at infinity)")

@@ -32,7 +32,7 @@ from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import SweepConfig, design_dims
 from lenssim_studies.paper import PAPER_LENS
 
-__all__ = ["PAPER_COST_LEVELS", "iso_cost_curve", "criteria_of", "tradeoff", "min_cost_for_quality", "TradeoffPoint",
+__all__ = ["PAPER_COST_LEVELS", "iso_cost_curve", "iso_cost_curves", "criteria_of", "tradeoff", "min_cost_for_quality", "TradeoffPoint",
            "find_optimum"]
 
 
@@ -45,31 +45,63 @@ def iso_cost_curve(lens: Lens, level: float, s_values, Q_range=(-10.0, 1.2), *, 
     ``Q > 0``. For ``level = 0`` the curve is ``Q = 0`` (and the line ``s = 1``, which is returned
     as the ``s`` values equal to 1 with ``Q`` over the range).
     """
+    s = np.asarray(s_values, dtype=np.float64).reshape(-1)
+    return iso_cost_curves(lens, [level], s, Q_range, cost_points=cost_points, iterations=iterations, dims=dims)[0]
+
+
+def iso_cost_curves(lens: Lens, levels, s_values, Q_range=(-10.0, 1.2), *, cost_points: int = DEFAULT_COST_POINTS,
+                    iterations: int = 60, dims: tuple[str, str] = ("s", "Q_back"), pairs: bool = False) -> list:
+    """:func:`iso_cost_curve` for every level of ``levels`` (a list of its results, one per level), solved together:
+    each bisection step evaluates the cost of every level's points in one batch (each point's arithmetic is its own,
+    so the result is the same as one level at a time). ``pairs``: ``s_values[i]`` belongs to ``levels[i]`` alone
+    (one point per level) instead of every level running along all of ``s_values``."""
     cost = lambda a, b: slope_departure_cost(lens, Design({dims[0]: a, dims[1]: b}), cost_points)  # noqa: E731
-    s = torch.as_tensor(np.asarray(s_values, dtype=np.float64))
-    out_s, out_q, out_b = [], [], []
-    if level <= 0:
-        return s.numpy(), np.zeros(len(s)), np.zeros(len(s), dtype=int)
+    s_in = torch.as_tensor(np.asarray(s_values, dtype=np.float64)).reshape(-1)
+    lv_in = np.asarray(levels, dtype=np.float64).reshape(-1)
+    if pairs:
+        if len(lv_in) != len(s_in):
+            raise ValueError(f"pairs: {len(lv_in)} levels for {len(s_in)} points")
+        s, lv, owner = s_in, torch.as_tensor(lv_in), torch.arange(len(lv_in))
+    else:
+        s = s_in.repeat(len(lv_in))
+        lv = torch.as_tensor(lv_in).repeat_interleave(len(s_in))
+        owner = torch.arange(len(lv_in)).repeat_interleave(len(s_in))
+    found = {}  # (branch) -> (mask over the points, Q)
+    live = lv > 0
     for branch, q_end in ((-1, Q_range[0]), (1, Q_range[1])):
-        if branch * q_end <= 0:
+        if branch * q_end <= 0 or not bool(live.any()):
             continue
-        c_end = cost(s, torch.full_like(s, q_end))
-        ok = c_end >= level
-        if not ok.any():
+        idx = torch.nonzero(live).flatten()
+        c_end = cost(s[idx], torch.full_like(s[idx], q_end))
+        ok = c_end >= lv[idx]
+        idx = idx[ok]
+        if not idx.numel():
             continue
-        lo = torch.zeros_like(s[ok])
+        lo = torch.zeros_like(s[idx])
         hi = torch.full_like(lo, q_end)
         for _ in range(iterations):  # bisection on |Q|: cost(lo) < level <= cost(hi)
             mid = 0.5 * (lo + hi)
-            above = cost(s[ok], mid) >= level
+            above = cost(s[idx], mid) >= lv[idx]
             hi = torch.where(above, mid, hi)
             lo = torch.where(above, lo, mid)
-        out_s.append(s[ok].numpy())
-        out_q.append((0.5 * (lo + hi)).numpy())
-        out_b.append(np.full(int(ok.sum()), branch))
-    if not out_s:
-        return np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)
-    return np.concatenate(out_s), np.concatenate(out_q), np.concatenate(out_b)
+        found[branch] = (idx, 0.5 * (lo + hi))
+    out = []
+    for j, level in enumerate(lv_in):
+        mine = torch.nonzero(owner == j).flatten()
+        if level <= 0:
+            out.append((s[mine].numpy(), np.zeros(len(mine)), np.zeros(len(mine), dtype=int)))
+            continue
+        out_s, out_q, out_b = [], [], []
+        for branch, (idx, q) in found.items():
+            sel = owner[idx] == j
+            out_s.append(s[idx[sel]].numpy())
+            out_q.append(q[sel].numpy())
+            out_b.append(np.full(int(sel.sum()), branch))
+        if not out_s or not sum(len(v) for v in out_s):
+            out.append((np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)))
+        else:
+            out.append((np.concatenate(out_s), np.concatenate(out_q), np.concatenate(out_b)))
+    return out
 
 
 def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
@@ -150,9 +182,11 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
     ref_key = f"{reference}_ref"
     names = list(crits)
     res = {k: np.full((len(names), len(levels)), np.nan) for k in dims + ("value", "cost", ref_key)}
+    curves = iso_cost_curves(lens, [float(v) for v in levels], s_fine, (q_grid[0], q_grid[-1]), cost_points=cost_points,
+                             dims=dims)
+    refine = []  # (i, j, s_try, q_opt, sign, s_opt, q_opt, v_opt): solved together below
     for j, level in enumerate(levels):
-        cs, cq, cb = iso_cost_curve(lens, float(level), s_fine, (q_grid[0], q_grid[-1]), cost_points=cost_points,
-                                    dims=dims)
+        cs, cq, cb = curves[j]
         if level <= 0:  # zero cost: Q = 0 line, plus the flat-back line s = 1 if on the grid
             cs, cq = np.concatenate([cs, np.full(len(q_grid), 1.0)]), np.concatenate([cq, q_grid])
             inside = cs <= s_grid[-1] + 1e-12
@@ -174,16 +208,26 @@ def tradeoff(ds: xr.Dataset, lens: Lens | None = None, levels=PAPER_COST_LEVELS,
                 if den > 0:
                     t = 0.5 * (y0 - y2) / den  # in units of the s step, within (-1, 1)
                     s_try = cs[i1] + t * (cs[i2] - cs[i1] if t > 0 else cs[i1] - cs[i0])
-                    ts, tq, _ = iso_cost_curve(lens, float(level), [s_try], (q_grid[0], q_grid[-1]),
-                                               cost_points=cost_points, dims=dims)
-                    if len(ts):
-                        q_try = tq[np.argmin(np.abs(tq - q_opt))]
-                        v_try = sign * float(splines[name].ev(s_try, q_try))
-                        if v_try <= v_opt:
-                            s_opt, q_opt, v_opt = float(s_try), float(q_try), v_try
+                    refine.append((i, j, float(s_try), float(level)))
             res[dims[0]][i, j], res[dims[1]][i, j], res["value"][i, j] = s_opt, q_opt, sign * v_opt
-            res["cost"][i, j] = float(slope_departure_cost(lens, Design({dims[0]: s_opt, dims[1]: q_opt}), cost_points))
-            res[ref_key][i, j] = float(ref.ev(s_opt, q_opt))
+    if refine:  # each refined point's iso-cost Q, every one in one batch
+        tried = iso_cost_curves(lens, [r[3] for r in refine], [r[2] for r in refine], (q_grid[0], q_grid[-1]),
+                                cost_points=cost_points, dims=dims, pairs=True)
+        for (i, j, s_try, _), (ts, tq, _) in zip(refine, tried):
+            if len(ts):
+                name, sign = names[i], _sense(names[i])
+                q_opt, v_opt = res[dims[1]][i, j], sign * res["value"][i, j]
+                q_try = tq[np.argmin(np.abs(tq - q_opt))]
+                v_try = sign * float(splines[name].ev(s_try, q_try))
+                if v_try <= v_opt:
+                    res[dims[0]][i, j], res[dims[1]][i, j], res["value"][i, j] = s_try, float(q_try), sign * v_try
+    done = np.isfinite(res["value"])
+    if done.any():  # the cost recomputed at every optimum, in one batch
+        ii, jj = np.nonzero(done)
+        res["cost"][ii, jj] = slope_departure_cost(lens, Design({dims[0]: torch.as_tensor(res[dims[0]][ii, jj]),
+                                                                 dims[1]: torch.as_tensor(res[dims[1]][ii, jj])}),
+                                                   cost_points).numpy()
+        res[ref_key][ii, jj] = ref.ev(res[dims[0]][ii, jj], res[dims[1]][ii, jj])
     out = xr.Dataset({k: (("criterion", "level"), v) for k, v in res.items()},
                      coords={"criterion": names, "level": np.asarray(levels, dtype=np.float64)})
     out["level"].attrs = {"long_name": "iso-cost level C_a", "units": "1 (slope)"}

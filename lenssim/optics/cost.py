@@ -73,17 +73,38 @@ def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_PO
         ssr = (res * res).sum(-1)
         jac = r / q**1.5  # d(sphere slope)/dk
         step = (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(c.dtype).tiny)
-        t = torch.ones_like(k)
-        for _ in range(60):  # backtracking: full steps everywhere but close to the conic's limit
-            cand = k + t * step
-            ok = cand.abs() < k_max
-            res_c, _ = residual(torch.where(ok, cand, k))
-            ok = ok & ((res_c * res_c).sum(-1) <= ssr)
-            if bool(ok.all()):
-                break
-            t = torch.where(ok, t, 0.5 * t)
-        k = torch.where(ok, k + t * step, k)
+        ok, t = _backtrack(k.detach(), step.detach(), ssr.detach(), target.detach(), r, k_max)
+        k_next = torch.where(ok, k + t * step, k)
+        if not k_next.requires_grad and torch.equal(k_next, k):
+            break  # a fixed point: every further iteration would compute the same (the result is bit for bit the same)
+        k = k_next
     return k
+
+
+def _backtrack(k, step, ssr, target, r, k_max, halvings: int = 60):
+    """The step lengths ``t`` (halved from 1, at most ``halvings`` times) at which each Gauss-Newton step ``k + t step``
+    stays in the sphere's domain and does not increase the residual, and whether one was found (``ok``): each element
+    is tried on its own (a residual for the elements still searching only), so an element's result does not depend
+    on the others'."""
+    shape = k.shape
+    k, step, ssr = k.reshape(-1), step.reshape(-1), ssr.reshape(-1)
+    target = target.reshape(-1, target.shape[-1])
+    t = torch.ones_like(k)
+    ok = torch.zeros(k.shape, dtype=torch.bool, device=k.device)
+    todo = torch.arange(k.numel(), device=k.device)
+    for _ in range(halvings):  # backtracking: full steps everywhere but close to the conic's limit
+        kt = k[todo]
+        cand = kt + t[todo] * step[todo]
+        good = cand.abs() < k_max
+        kk = torch.where(good, cand, kt)[:, None]
+        res_c = target[todo] - kk * r / torch.sqrt(1 - kk**2 * r**2)
+        good = good & ((res_c * res_c).sum(-1) <= ssr[todo])
+        ok[todo] = good
+        todo = todo[~good]
+        if not todo.numel():
+            break
+        t[todo] = 0.5 * t[todo]
+    return ok.reshape(shape), t.reshape(shape)
 
 
 def surface_cost(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:

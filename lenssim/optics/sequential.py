@@ -54,6 +54,11 @@ NEWTON_ITERATIONS = 12
 """Newton steps refining an even asphere's intersection from its conic's (quadratic convergence: ample)."""
 INTERSECTION_TOLERANCE_MM = 1e-10
 """A ray meets an aspheric surface if the sag equation holds to this (mm) after the Newton steps."""
+AXIAL_RIM_RAYS = 64
+"""Rays around the axial beam's rim that :meth:`SequentialLens.check_aperture` traces."""
+APERTURE_SLACK = 0.01
+"""The stop radius the entrance pupil implies may exceed the stop's semi-diameter by this fraction (published
+semi-diameters are rounded to 0.1 mm)."""
 FD_STEP = 1e-7
 """Relative step (of the entrance-pupil radius) of the aiming's finite-difference Jacobian."""
 
@@ -106,6 +111,8 @@ class RayBundle:
     clipped_at: torch.Tensor
     passed: torch.Tensor
     aperture_ratio: torch.Tensor
+    reflected_at: torch.Tensor | None = None
+    """``(R,)``: the surface number where the ray was totally internally reflected, 0 if it was not."""
 
 
 @dataclass
@@ -413,6 +420,7 @@ class SequentialLens:
         opl = n * (P * d).sum(-1) if opl_start is None else opl_start.to(torch.float64)
         valid = torch.isfinite(P).all(-1) & torch.isfinite(d).all(-1)
         clipped = torch.zeros(P.shape[0], dtype=torch.int64, device=P.device)
+        reflected = torch.zeros_like(clipped)
         inside = torch.ones_like(valid)
         ratio = torch.zeros(P.shape[0], dtype=torch.float64, device=P.device)
         surfs = self.prescription.surfaces
@@ -427,12 +435,14 @@ class SequentialLens:
                 if vignette:
                     ok = ok & within
             n2 = self.index_after(i, lam)
+            met = ok
             d2, ok = self._refract(d, N, n, n2, ok)
+            reflected = torch.where(met & ~ok & (reflected == 0), i + 1, reflected)
             clipped = torch.where(valid & ~ok & (clipped == 0), i + 1, clipped)
             valid = ok
             opl = opl + n * t
             P, d, n = X, d2, n2
-        return RayBundle(P, d, opl, valid, clipped, valid & inside, ratio)
+        return RayBundle(P, d, opl, valid, clipped, valid & inside, ratio, reflected)
 
     # -- aiming ------------------------------------------------------------------------------------------------------
     def _beam(self, field: float, x, y, lam, z_start):
@@ -563,6 +573,37 @@ class SequentialLens:
         valid = valid & rays.passed
         return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
                             radius, rays.aperture_ratio)
+
+    def check_aperture(self) -> None:
+        """Refuse, in one line naming the surface and the quantity, a lens whose axial beam (the entrance-pupil
+        diameter the prescription gives, at every wavelength, through the surfaces extended beyond their
+        semi-diameters) does not pass: a surface it misses or where it is totally internally reflected; or whose stop
+        is smaller than the entrance pupil says (its semi-diameter below the stop radius the entrance-pupil diameter
+        implies at the primary wavelength, beyond :data:`APERTURE_SLACK`). A surface whose semi-diameter clips part of
+        a beam is vignetting, reported per field (:attr:`WavefrontMap.vignetted_fraction`), not refused: a fast lens's
+        real beam differs from the paraxial one (pupil aberration)."""
+        p = self.prescription
+        k = p.stop_index
+        t = torch.linspace(0, 2 * math.pi, AXIAL_RIM_RAYS + 1, dtype=torch.float64)[:-1]
+        px, py = torch.cos(t), torch.sin(t)
+        sd = p.surfaces[k].semi_diameter_mm
+        par = self.paraxial()
+        if sd is not None and par.stop_radius_mm > sd * (1 + APERTURE_SLACK):  # at the primary wavelength, as the
+            lam = self.primary_wavelength_um  # optical-design programs size the stop from the entrance pupil
+            raise PrescriptionError(f"surface {k + 1} (the stop): the entrance-pupil diameter "
+                                    f"{p.entrance_pupil_diameter_mm:g} mm needs a stop radius of "
+                                    f"{par.stop_radius_mm:.4g} mm at {lam:g} um, larger than its semi-diameter "
+                                    f"{sd:g} mm")
+        for lam in p.wavelengths_um:
+            field = 0.0
+            P, d, o = self.aim(field, px, py, lam, method="paraxial")
+            b = self.trace(P, d, lam, opl_start=o, vignette=False)
+            if not bool(b.valid.all()):
+                j = int(torch.nonzero(~b.valid)[0])
+                n = int(b.clipped_at[j])
+                how = "is totally internally reflected" if int(b.reflected_at[j]) == n else "misses the surface"
+                raise PrescriptionError(f"surface {n}: the axial beam's rim (entrance-pupil diameter "
+                                        f"{p.entrance_pupil_diameter_mm:g} mm, {lam:g} um) {how}")
 
     def paraxial_heights(self, fields, wavelength_um: float | None = None) -> list[float]:
         """Paraxial chief-ray heights (mm) on the paraxial image plane at ``fields`` (deg or mm)."""

@@ -50,3 +50,15 @@ def test_inspect_refuses_in_one_line(capsys, argv, match):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and match in err[0], err
+
+
+def test_inspect_refuses_a_lens_whose_axial_beam_is_totally_reflected(tmp_path, capsys):
+    path = tmp_path / "tir.toml"
+    path.write_text('stop_surface = 1\n[aperture]\nentrance_pupil_diameter_mm = 5.0\n[object]\ndistance_mm = "inf"\n'
+                    '[fields]\nangles_deg = [0.0]\n[wavelengths]\num = [0.55]\nprimary_um = 0.55\n'
+                    '[[surfaces]]\ncurvature_per_mm = 0.0\nthickness_mm = 3.0\nmaterial = [1.5, 0.0]\n'
+                    '[[surfaces]]\nradius_mm = -3.0\nthickness_mm = 20.0\nmaterial = "air"\n')
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "surface 2: the axial beam's rim" in err and "totally internally reflected" in err
+    assert len(err.strip().splitlines()) == 1

@@ -189,3 +189,29 @@ def test_surfaces_that_cross_within_their_semi_diameters_are_refused():
                                                 r"between them is -1\.\d+ mm at a height of 8 mm"):
         Prescription(surfs, 1, 4.0)
     Prescription((surfs[0].__class__(1 / 25, 3.0, MODEL, semi_diameter_mm=8.0), surfs[1]), 1, 4.0)  # 3 mm: an edge
+
+
+def test_an_axial_beam_that_cannot_pass_is_refused_naming_the_surface():
+    """check_aperture: the axial beam's rim at the entrance-pupil diameter. A ray from glass (n = 1.5) meeting a sphere
+    of radius 3 mm at 2.5 mm height is incident at asin(2.5/3) = 56 deg, beyond the critical angle asin(1/1.5) = 42
+    deg: total internal reflection at surface 2; a sphere of radius 2 mm cannot be met at 2.5 mm; a stop of
+    semi-diameter 2 mm cannot pass a 5 mm entrance pupil on it."""
+    def lens(r2, epd=5.0, stop_sd=None):
+        return SequentialLens(Prescription((S(0.0, 3.0, MODEL, semi_diameter_mm=stop_sd), S(-1 / r2, 20.0, "air")),
+                                           1, epd))
+
+    with pytest.raises(PrescriptionError, match=r"^surface 2: the axial beam's rim .* is totally internally reflected$"):
+        lens(3.0).check_aperture()
+    lens(3.0, epd=3.5).check_aperture()  # asin(1.75 / 3) = 36 deg: it passes
+    with pytest.raises(PrescriptionError, match=r"^surface 2: the axial beam's rim .* misses the surface$"):
+        lens(2.0).check_aperture()
+    with pytest.raises(PrescriptionError, match=r"^surface 1 \(the stop\): .* stop radius of 2.5 mm .* semi-diameter 2 mm"):
+        lens(30.0, stop_sd=2.0).check_aperture()
+    lens(30.0, stop_sd=2.5).check_aperture()
+
+
+@pytest.mark.parametrize("name", ["paper_singlet", "cooke_triplet", "double_gauss", "aspheric_singlet"])
+def test_the_shipped_lenses_pass_their_axial_beam(name):
+    from lenssim.io.prescription_file import read_lens
+
+    SequentialLens(read_lens(name)).check_aperture()
