@@ -12,7 +12,9 @@ prescription, object at infinity, on a sensor's pixels, in one spectrum or colou
   frequency integrals on an ``oversample`` x finer grid (the PSF zero-padded), averaged over the field angles;
 * ``rms_w``: the root of the field-average of the mean square OPD over the unvignetted pupil (uniform weight per
   pupil area), in waves of the primary wavelength, weighted over the spectrum, referred to the chief ray (the OPD is
-  0 at the pupil's centre: the paper's "no piston removal"); ``rms_w_piston_removed`` likewise about the mean.
+  0 at the pupil's centre: the paper's "no piston removal"); ``rms_w_piston_removed`` likewise about the mean;
+* ``cost``: ``C_a``, the sum over the lens's aspheric surfaces of their RMS slope departure from the best-fitting
+  sphere (:func:`lenssim.optics.cost.prescription_costs`; ``cost_per_surface`` by surface number).
 
 Each PSF is taken about its chief ray's image point, not the paraxial point: distortion is the lens's geometric
 mapping (a camera corrects it, or a simulated photo renders it, :mod:`lenssim.optics.sequential_psf`), not blur, and
@@ -37,6 +39,7 @@ import torch
 
 from .criteria import CRITERIA, OTFContext, lens_criteria, otf_criteria, quarter_weights
 from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .optics.cost import prescription_costs
 from .optics.image_model import image_psd_quarter, noise_variance
 from .optics.sequential_psf import SequentialPSF
 from .validate import ResourceLimitError, check_memory
@@ -177,6 +180,10 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
         out[name] = field_mean.mean(dim=0)
         if C > 1:
             out[f"{name}_per_channel"] = field_mean
+    if criteria is None or "cost" in criteria:  # C_a: the lens's aspheres, each over its clear aperture
+        per = prescription_costs(psf.lens.prescription, numerics.cost_points)
+        out["cost"] = torch.tensor(sum(v["cost"] for v in per.values()), dtype=torch.float64)
+        out["cost_per_surface"] = per
     if criteria is None or "rms_w" in criteria:
         rms, rms_p = _rms_wavefront(psf, alpha, registered)
         out["rms_w_alpha"] = rms
@@ -186,5 +193,5 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
 
 
 def sequential_criteria() -> tuple[str, ...]:
-    """The criteria :func:`evaluate_sequential` computes: every OTF criterion of one lens and ``rms_w``."""
-    return tuple(k for k in lens_criteria() if k in otf_criteria() or k == "rms_w")
+    """The criteria :func:`evaluate_sequential` computes: every OTF criterion of one lens, ``rms_w`` and ``cost``."""
+    return tuple(k for k in lens_criteria() if k in otf_criteria() or k in ("rms_w", "cost"))

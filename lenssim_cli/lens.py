@@ -52,6 +52,7 @@ def cmd_inspect(args) -> int:
     from dataclasses import replace
 
     from lenssim.io.prescription_file import read_lens
+    from lenssim.optics.cost import prescription_costs
     from lenssim.optics.lens_report import DEFAULT_MTF_FREQUENCIES_CPMM, lens_report
 
     freqs = tuple(args.mtf) if args.mtf else DEFAULT_MTF_FREQUENCIES_CPMM
@@ -68,6 +69,9 @@ def cmd_inspect(args) -> int:
     rep = lens_report(seq, p.fields, freqs)
     rep["refocus"] = args.refocus
     rep["image_shift_mm"] = shift
+    costs = prescription_costs(p)
+    rep["asphere_cost"] = {str(k): v for k, v in costs.items()}
+    rep["cost"] = sum(v["cost"] for v in costs.values())
     if args.json:
         print(json.dumps(rep, allow_nan=False))
         return 0
@@ -84,6 +88,12 @@ def cmd_inspect(args) -> int:
           f"pupil at z = {rep['entrance_pupil_z_mm']:.4f} mm, exit pupil at z = {rep['exit_pupil_z_mm']:.4f} mm "
           f"(diameter {rep['exit_pupil_diameter_mm']:.4f} mm); image plane at z = {rep['image_z_mm']:.4f} mm "
           f"({args.refocus}; paraxial focus {rep['paraxial_image_z_mm']:.4f} mm)")
+    if costs:
+        print("asphere cost C_a (RMS slope departure from the best-fitting sphere, slope units): "
+              + ", ".join(f"surface {k} {v['cost']:.4g} over {v['radius_mm']:g} mm" for k, v in costs.items())
+              + (f"; total {rep['cost']:.4g}" if len(costs) > 1 else ""))
+    else:
+        print("asphere cost C_a: 0 (no aspheric surface)")
     s = rep["seidel_sums_mm"]
     print(f"Seidel sums at {s['field']:g} {unit} (mm): " + ", ".join(f"{k} {s[k]:.5g}" for k in
                                                                        ("S_I", "S_II", "S_III", "S_IV", "S_V")))
@@ -264,10 +274,12 @@ def cmd_evaluate_lens(args) -> int:
     for name in names:
         v = r[name]
         out[name] = [float(x) for x in v] if CRITERIA[name].per_snr else float(v)
-        out[f"{name}_alpha"] = r[f"{name}_alpha"].tolist()
+        if f"{name}_alpha" in r:  # per field angle (not the cost: a property of the surfaces)
+            out[f"{name}_alpha"] = r[f"{name}_alpha"].tolist()
         if f"{name}_per_channel" in r:
             out[f"{name}_per_channel"] = r[f"{name}_per_channel"].tolist()
     out["rms_w_piston_removed_waves"] = float(r["rms_w_piston_removed"])
+    out["cost_per_surface"] = {str(k): v for k, v in r["cost_per_surface"].items()}
     out["units"] = {name: CRITERIA[name].units for name in names}
     out["about"] = ("field averages over " + (f"{EVALUATION_FIELDS} field angles" if amax > 0 else "the axis")
                     + f" from 0 to {amax:g} deg; each PSF about its chief ray's image point (distortion is the lens's "

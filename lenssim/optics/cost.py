@@ -20,6 +20,8 @@ Sensitivity to ``n`` (paper's lens, s = -0.775, Q = -2.4): see ``docs/reproducti
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..model.design import Design
@@ -28,7 +30,8 @@ from ..model.numerics import DEFAULT_NUMERICS
 from ..torch_utils import as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
-           "slope_departure_cost", "slope_departure_cost_third_order"]
+           "slope_departure_cost", "slope_departure_cost_third_order", "even_asphere_slope", "even_asphere_cost",
+           "prescription_costs"]
 
 DEFAULT_COST_POINTS = DEFAULT_NUMERICS.cost_points
 
@@ -60,6 +63,12 @@ def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_PO
     c, Q = torch.broadcast_tensors(as_tensor(c), as_tensor(Q, like=as_tensor(c)))
     r = _radii(y_mm, n_points, c)
     target = conic_slope(r, c[..., None], Q[..., None])
+    return _fit_sphere(target, r, c + 0.3 * Q * c**3 * y_mm**2, y_mm, iterations)
+
+
+def _fit_sphere(target, r, k0, y_mm: float, iterations: int):
+    """The sphere curvature ``(*)`` of least RMS departure from the slopes ``target`` ``(*, n)`` at radii ``r``
+    ``(n,)``, by Gauss-Newton from ``k0`` (see :func:`best_fit_sphere_curvature`)."""
     k_max = (1 - 1e-12) / y_mm
 
     def residual(k):
@@ -67,18 +76,46 @@ def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_PO
         q = 1 - kk**2 * r**2
         return target - kk * r / torch.sqrt(q), q
 
-    k = (c + 0.3 * Q * c**3 * y_mm**2).clamp(-k_max, k_max)
+    k = k0.clamp(-k_max, k_max)
     for _ in range(iterations):
         res, q = residual(k)
         ssr = (res * res).sum(-1)
         jac = r / q**1.5  # d(sphere slope)/dk
-        step = (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(c.dtype).tiny)
+        step = (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(target.dtype).tiny)
         ok, t = _backtrack(k.detach(), step.detach(), ssr.detach(), target.detach(), r, k_max)
         k_next = torch.where(ok, k + t * step, k)
         if not k_next.requires_grad and torch.equal(k_next, k):
             break  # a fixed point: every further iteration would compute the same (the result is bit for bit the same)
         k = k_next
     return k
+
+
+def even_asphere_slope(r_mm, c, Q, coefficients):
+    """Slope ``dz/dr`` of an even asphere: the conic ``(c, Q)`` plus ``A4 r^4 + A6 r^6 + ...`` (``coefficients``
+    ``A4, A6, ...`` in mm^(1-2j)) at radius ``r`` (mm)."""
+    out = conic_slope(r_mm, c, Q)
+    for j, a in enumerate(coefficients):
+        p = 2 * j + 4
+        out = out + p * a * r_mm ** (p - 1)
+    return out
+
+
+def even_asphere_cost(c: float, Q: float, coefficients, y_mm: float, n_points: int = DEFAULT_COST_POINTS,
+                      iterations: int = 12) -> float:
+    """``C_a`` (slope units) of one even-asphere surface (curvature ``c`` 1/mm, conic ``Q``, ``A4, A6, ...``) over the
+    radius ``y_mm``: the paper's Eq. (3) with the even asphere's exact slope (:func:`even_asphere_slope`) at the ``n``
+    radii ``r_i = y i / (n - 1)``, the sphere fitted in slope from the third-order start ``k0 = c + 3 (Q c^3 + 8 A4)
+    y^2 / 10`` (the ``A4`` term is a conic's fourth-order term ``Q c^3 / 8``). For ``A4 = ... = 0`` it is
+    :func:`surface_cost` of the conic; ``NaN`` where the conic is not defined out to ``y``."""
+    c64 = torch.tensor(float(c), dtype=torch.float64)
+    r = _radii(y_mm, n_points, c64)
+    coefficients = tuple(float(a) for a in coefficients)
+    target = even_asphere_slope(r, c64, torch.tensor(float(Q), dtype=torch.float64), coefficients)
+    a4 = coefficients[0] if coefficients else 0.0
+    k0 = c64 + 0.3 * (float(Q) * c64**3 + 8 * a4) * y_mm**2
+    k = _fit_sphere(target, r, k0, y_mm, iterations)
+    dep = target - sphere_slope(r, k)
+    return float(torch.sqrt((dep**2).mean()))
 
 
 def _backtrack(k, step, ssr, target, r, k_max, halvings: int = 60):
@@ -164,3 +201,28 @@ def slope_departure_cost_third_order(lens: Lens, design: Design) -> torch.Tensor
             y = surf.semi_aperture_mm or lens.pupil_radius_mm
             total = total + as_tensor(surf.conic, like=c).abs() * c.abs() ** 3 * y**3 / 175**0.5
     return total
+
+
+def prescription_costs(prescription, n_points: int = DEFAULT_COST_POINTS) -> dict[int, dict]:
+    """``C_a`` of every aspheric surface of a :class:`lenssim.model.prescription.Prescription` (conic or even-asphere
+    terms), by surface number (as in the file): ``{number: {"cost": C_a (slope), "radius_mm": the aperture it is
+    taken over}}``. Each surface over its clear semi-diameter, or where the file gives none, over the paraxial beam's
+    extent on it (the marginal ray's height plus the chief ray's at the largest field, the largest over the
+    wavelengths). The lens's cost is their sum (each asphere is polished and tested on its own)."""
+    from .sequential import SequentialLens
+
+    seq = None
+    out = {}
+    for i, s in enumerate(prescription.surfaces):
+        if not s.is_aspheric:
+            continue
+        y = s.semi_diameter_mm
+        if y is None:
+            seq = seq or SequentialLens(prescription)
+            y = max(seq.paraxial_beam_heights_mm(lam)[i] for lam in prescription.wavelengths_um)
+        cost = even_asphere_cost(s.curvature_per_mm, s.conic, s.aspheric_coefficients, y, n_points)
+        if not math.isfinite(cost):
+            raise LensError(f"surface {i + 1}: its asphere cost is not finite over the radius {y:g} mm (the conic is "
+                            "not defined out to there)")
+        out[i + 1] = {"cost": cost, "radius_mm": float(y)}
+    return out

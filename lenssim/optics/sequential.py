@@ -574,6 +574,27 @@ class SequentialLens:
         return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
                             radius, rays.aperture_ratio)
 
+    def paraxial_beam_heights_mm(self, wavelength_um: float | None = None) -> list[float]:
+        """Per surface, the paraxial beam's extent (mm): the axial marginal ray's height plus the chief ray's at the
+        largest field (object at infinity: field angle; finite: object height)."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        p = self.prescription
+        z_ep = self.paraxial(lam).entrance_pupil_z_mm
+        r_ep = p.entrance_pupil_diameter_mm / 2
+        f = max(p.fields) if p.fields else 0.0
+        if p.object_at_infinity:
+            h0, u0 = r_ep, 0.0
+            t = math.tan(math.radians(f))
+            h1, u1 = -z_ep * t, t
+        else:
+            u0 = r_ep / (p.object_distance_mm + z_ep)
+            h0 = u0 * p.object_distance_mm
+            u1 = f / (p.object_distance_mm + z_ep)
+            h1 = -f + u1 * p.object_distance_mm
+        mh = self._ynu(h0, u0, lam)[0]
+        ch = self._ynu(h1, u1, lam)[0]
+        return [abs(a) + abs(b) for a, b in zip(mh, ch)]
+
     def check_aperture(self) -> None:
         """Refuse, in one line naming the surface and the quantity, a lens whose axial beam (the entrance-pupil
         diameter the prescription gives, at every wavelength, through the surfaces extended beyond their

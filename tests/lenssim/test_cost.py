@@ -104,3 +104,49 @@ def test_cost_near_the_conic_limit_matches_a_bounded_brute_force_fit(Q):
         warnings.simplefilter("ignore")  # the third-order-validity warning of a conic this strong
         got = float(slope_departure_cost(PAPER_LENS, -0.775, Q, n))
     assert got == pytest.approx(math.sqrt(ref.fun), rel=1e-6)
+
+
+def test_an_even_asphere_s_cost_is_its_definition_evaluated_directly():
+    """Eq. (3) for an even asphere (conic + A4..A8), against a direct evaluation of the definition: the slopes by
+    central differences of the sag (not the analytic slope), the best sphere by a bounded scalar search (not
+    Gauss-Newton)."""
+    from scipy.optimize import minimize_scalar
+
+    from lenssim.model.prescription import PrescriptionSurface
+    from lenssim.optics.cost import even_asphere_cost
+
+    c, Q, coeffs, y, n = 1 / 30.0, -0.8, (2e-5, -3e-8, 4e-11), 9.0, 101
+    surf = PrescriptionSurface(c, 1.0, "air", conic=Q, aspheric_coefficients=coeffs)
+    r = np.linspace(0, y, n)
+    h = 1e-5
+    slope = np.array([(surf.sag_mm(v + h) - surf.sag_mm(v - h)) / (2 * h) for v in r])
+
+    def rms(k):
+        return np.sqrt(np.mean((slope - k * r / np.sqrt(1 - k**2 * r**2)) ** 2))
+
+    best = minimize_scalar(rms, bounds=(c - 0.01, c + 0.01), method="bounded", options={"xatol": 1e-12})
+    ours = even_asphere_cost(c, Q, coeffs, y, n)
+    assert ours > 1e-3  # a real departure: the check is not empty
+    assert ours == pytest.approx(best.fun, rel=1e-6)
+
+
+def test_an_a4_asphere_tends_to_the_third_order_cost():
+    """A sphere with A4 r^4 at a small aperture: the slope departure 4 A4 r^3 less the best line b r leaves an RMS of
+    8 |A4| y^3 / sqrt(175) (the continuum; 2001 radii), as a conic's Q c^3 / 8 = A4."""
+    from lenssim.optics.cost import even_asphere_cost
+
+    a4, y = 1e-4, 1.0
+    assert even_asphere_cost(1 / 500.0, 0.0, (a4,), y, 2001) == pytest.approx(8 * a4 * y**3 / 175**0.5, rel=2e-3)
+
+
+def test_a_prescription_s_aspheres_cost_what_the_paper_s_singlet_costs():
+    """The paper's singlet as a prescription: its one asphere (surface 2) costs today's C_a exactly; surfaces without
+    a conic or coefficients cost nothing (not listed)."""
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.optics.cost import prescription_costs
+    from lenssim_studies.paper import PAPER_LENS
+
+    costs = prescription_costs(read_lens("paper_singlet"))
+    assert list(costs) == [2] and costs[2]["radius_mm"] == 2.0
+    assert costs[2]["cost"] == float(_cost(PAPER_LENS, Design(s=-0.775, Q_back=-2.4)))
+    assert prescription_costs(read_lens("cooke_triplet")) == {}

@@ -32,6 +32,7 @@ def test_evaluate_any_lens_json(capsys):
     assert all(r <= s for r, s in zip(rep["mse_r"], rep["mse_s"]))  # Wiener restoration never adds error
     assert 0 < rep["strehl"] <= 1 and rep["rms_w"] > rep["rms_w_piston_removed_waves"] > 0
     assert rep["units"]["rms_w"] == "waves" and rep["units"]["mtf50"] == "cycles/mm"
+    assert rep["cost"] == 0 and rep["cost_per_surface"] == {}  # spherical surfaces only: no asphere to pay for
 
 
 def test_evaluate_any_lens_prints_a_table(capsys):

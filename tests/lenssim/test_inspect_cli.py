@@ -62,3 +62,15 @@ def test_inspect_refuses_a_lens_whose_axial_beam_is_totally_reflected(tmp_path, 
     err = capsys.readouterr().err
     assert "surface 2: the axial beam's rim" in err and "totally internally reflected" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_inspect_reports_the_cost_of_every_asphere(capsys):
+    """The paper's singlet as a prescription: its back conic costs today's C_a (lenssim.optics.cost)."""
+    from lenssim import Design, slope_departure_cost
+    from lenssim_studies.paper import PAPER_LENS
+
+    assert main(["inspect", "paper_singlet", "--json", "--angles", "0"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert list(rep["asphere_cost"]) == ["2"]
+    assert rep["cost"] == pytest.approx(float(slope_departure_cost(PAPER_LENS, Design(s=-0.775, Q_back=-2.4))),
+                                        rel=1e-12)
