@@ -118,9 +118,33 @@ def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool) -
     return ms.sqrt(), ms_p.sqrt()
 
 
+def _check_reference(psf: SequentialPSF, reference: SequentialPSF, alpha: torch.Tensor) -> None:
+    """A reference provider must sample the same pixels in the same light as ``psf``, out to the angles asked."""
+    if not isinstance(reference, SequentialPSF):
+        raise ValueError(f"reference={type(reference).__name__} is not allowed: a SequentialPSF")
+    if reference.sensor.pixel_pitch_um != psf.sensor.pixel_pitch_um or reference.sampling != psf.sampling:
+        raise ValueError("the reference lens's PSFs must be on the same pixels (pitch and sampling) as the lens's")
+    if reference.quadrature() != psf.quadrature():
+        raise ValueError("the reference lens's PSFs must be in the same wavelengths and channels as the lens's")
+    if float(alpha.max()) > reference.max_field_deg * (1 + 1e-12):
+        raise ValueError(f"field angle {float(alpha.max()):g} deg is beyond the reference's {reference.max_field_deg:g}")
+
+
+def _reference_otf(reference: SequentialPSF, a: torch.Tensor, n: int, m: int, registered: bool) -> torch.Tensor:
+    """The reference provider's quarter-plane OTFs ``(C, q, q)`` at field angle ``a`` ``(1,)`` on the ``n``-pixel,
+    ``m``-frequency grid, kept with the provider (a Monte Carlo asks for the same ones for every copy)."""
+    store = reference._cache.setdefault("reference_otfs", {})
+    key = (float(a[0]), n, m, registered)
+    if key not in store:
+        half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)
+        store[key] = _otf_quarter(reference.psfs_at_angles(a, half_pi, n, n, distortion=not registered,
+                                                           complex_dtype=torch.complex128)[0], m)
+    return store[key]
+
+
 def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=None, psd_model: str = "discrete",
                         numerics: Numerics = DEFAULT_NUMERICS, criteria=None, registered: bool = True,
-                        progress: Callable[[int], None] | None = None) -> dict:
+                        progress: Callable[[int], None] | None = None, reference: SequentialPSF | None = None) -> dict:
     """Every criterion of one lens (:func:`lenssim.criteria.lens_criteria` computed from the OTF, and ``rms_w``) for
     ``psf`` (see the module docstring) at the SNRs ``snr_db`` (dB) with the image model's correlation ``rho0``.
 
@@ -129,7 +153,12 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     ``rms_w`` and ``rms_w_piston_removed`` (waves), ``rms_w_alpha``, ``alpha_deg``, ``snr_db`` and ``psf_grid_px``
     (the pixel grid ``n`` of the OTFs). ``registered=False``: every PSF and wavefront about the paraxial image point
     (distortion scored as error, as the paper's singlet's Gaussian image point). ``progress(k)`` is called with the
-    number of field angles done."""
+    number of field angles done.
+
+    ``reference``: another provider (e.g. the nominal lens's, on the same sensor and wavelengths) whose OTF at each
+    field angle, on the same grid, fills :attr:`lenssim.criteria.OTFContext.reference` (``mse_r_nominal``: the Wiener
+    filter designed for it applied to this lens); the grid ``n`` is then the larger of the two PSFs' supports. Without
+    it every result is as before (``mse_r_nominal`` equals ``mse_r``)."""
     names = otf_criteria() if criteria is None else tuple(c for c in criteria if CRITERIA[c].from_otf is not None)
     alpha = torch.tensor(evaluation_angles(psf.max_field_deg) if angles_deg is None else
                          [float(a) for a in angles_deg], dtype=torch.float64)
@@ -142,8 +171,12 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     geo = psf.geometry
     rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
     cols = torch.zeros_like(rows)
-    support = psf.extents_px(rows, cols, (0.0, 0.0))
-    n = _grid_size(psf, int(support.max()), numerics)
+    support = int(psf.extents_px(rows, cols, (0.0, 0.0)).max())
+    if reference is not None:
+        _check_reference(psf, reference, alpha)
+        ref_rows = torch.tensor([reference.geometry.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
+        support = max(support, int(reference.extents_px(ref_rows, cols, (0.0, 0.0)).max()))
+    n = _grid_size(psf, support, numerics)
     m = n * numerics.oversample
     check_memory(C * 8 * m * m * 16, f"the OTFs of one field angle on {m} x {m} frequency samples",
                  setting="max_fft_size")
@@ -163,10 +196,11 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
                                                 complex_dtype=torch.complex128)[0], m)  # (C, q, q)
         H0_all = _otf_quarter(psf.psfs_at_angles(a, half_pi, n, k, table=perfect, distortion=False,
                                                  complex_dtype=torch.complex128)[0], m)
+        R_all = None if reference is None else _reference_otf(reference, a, n, m, registered)
         for c in range(C):
             H = H_all[c:c + 1]
             ctx = OTFContext(H, H.real.square() + H.imag.square(), psd_q, weights, pw, sigma2, n, view, numerics,
-                             _cache={"dl": H0_all[c:c + 1]})
+                             reference=None if R_all is None else R_all[c:c + 1], _cache={"dl": H0_all[c:c + 1]})
             for name in names:
                 per[name][c, i] = CRITERIA[name].from_otf(ctx)[0]
         if progress is not None:

@@ -16,6 +16,17 @@ __all__ = ["register", "cmd_tolerance"]
 
 
 def cmd_tolerance(args) -> int:
+    if getattr(args, "lens", None) is not None:
+        return cmd_tolerance_lens(args)
+    from .lens import check_lens_arguments
+
+    check_lens_arguments(args)  # --refocus and --pixel-pitch without --lens
+    if args.lenses is None:
+        from lenssim_studies.tolerance import DEFAULT_LENSES
+
+        args.lenses = DEFAULT_LENSES
+    if args.sensitivity_lenses is None:
+        args.sensitivity_lenses = DEFAULT_SENSITIVITY_LENSES
     from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
     from lenssim.torch_utils import select_device
@@ -69,29 +80,148 @@ def cmd_tolerance(args) -> int:
         return 0
 
 
+DEFAULT_SENSITIVITY_LENSES = 200
+"""Lenses per tolerance term of the singlet's sensitivity table by default."""
+MAX_LENS_COPIES = 100_000
+"""Most copies of a Monte Carlo of any lens (each traces its own wavefront table: far past a day's run)."""
+LENS_REFUSED = (("--yield", "yield_"), ("--sensitivity-lenses", "sensitivity_lenses"), ("--scheduler", "scheduler"),
+                ("--workers", "workers"), ("--worker-threads", "worker_threads"))
+"""Flags of the singlet's Monte Carlo that a Monte Carlo of any lens does not take."""
+
+
+def surface_tolerances_from_args(args):
+    """The :class:`lenssim.model.surface_tolerances.SurfaceTolerances` of ``--grade``, ``--tolerances FILE``,
+    ``--off TERM`` and ``--no-focus-compensation`` (for ``--lens``)."""
+    import dataclasses
+
+    from lenssim.io.files import read_toml
+    from lenssim.model.surface_tolerances import SurfaceTolerances, surface_grade
+
+    from .common import DEFAULT_GRADE
+
+    name = args.grade or DEFAULT_GRADE
+    t = surface_grade(name)
+    if args.tolerances:
+        table = read_toml(args.tolerances, "tolerances file")
+        unknown = sorted(set(table) - {"tolerances"})
+        if unknown or "tolerances" not in table:
+            raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
+                             + (f"; unknown table(s) {unknown}" if unknown else ""))
+        t = SurfaceTolerances.from_dict({"grade": name, **table["tolerances"]})
+    terms = [f.name for f in dataclasses.fields(t) if f.name != "focus_compensated"]
+    for term in getattr(args, "off", None) or ():
+        if term not in terms:
+            raise ValueError(f"--off {term!r} is not allowed with --lens: one of {', '.join(terms)}")
+        t = dataclasses.replace(t, **{term: 0.0})
+    if getattr(args, "no_focus_compensation", False):
+        t = dataclasses.replace(t, focus_compensated=False)
+    return t
+
+
+def cmd_tolerance_lens(args) -> int:
+    """``lenssim tolerance --lens LENS``: a Monte Carlo of manufactured copies of any lens
+    (:func:`lenssim.sequential_tolerance.run_lens_tolerance`): every argument checked before any work."""
+    import math
+
+    from tqdm import tqdm
+
+    from lenssim.io.files import atomic_write, atomic_write_text, check_output_dir, json_text, staged_output_dir
+    from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
+    from lenssim.sequential_tolerance import (DEFAULT_LENS_COPIES, lens_tolerance_report, run_lens_tolerance,
+                                              summarise_lens_tolerance)
+    from lenssim.torch_utils import select_device
+    from lenssim_studies.paper import PAPER_RHO0
+
+    from .camera import PROGRESS_DELAY_S
+    from .lens import check_lens_arguments, lens_provider, refocused_lens
+
+    given = [f for f, k in LENS_REFUSED if getattr(args, k, None) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)} belong(s) to the paper's singlet's Monte Carlo; leave them out with "
+                         f"--lens {args.lens}")
+    n = DEFAULT_LENS_COPIES if args.lenses is None else args.lenses
+    if not 1 <= n <= MAX_LENS_COPIES:
+        raise ValueError(f"-n/--lenses {n} is not allowed: from 1 to {MAX_LENS_COPIES} copies")
+    tol = surface_tolerances_from_args(args)
+    snr = list(args.snr)
+    ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
+    if ref_snr not in snr:
+        raise ValueError(f"--reference-snr {ref_snr:g} is not allowed: one of the --snr values {snr}")
+    p = check_lens_arguments(args)  # the paper's singlet's flags refused, the lens read and its aperture checked
+    amax = max(p.fields)
+    for a in args.angles or ():
+        if not (math.isfinite(a) and 0 <= a <= amax):
+            raise ValueError(f"--angles {a:g} is not allowed: field angles from 0 to the lens's largest, {amax:g} deg")
+    out = check_output_dir(args.out)
+    select_device(args.device)
+    seq, shift = refocused_lens(p, args.refocus or "file")
+    pitch = (seq.primary_wavelength_um * seq.paraxial().working_f_number / 2 if args.pixel_pitch is None
+             else float(args.pixel_pitch))
+    sampling = "point" if args.pixel_pitch is None else "area"  # as evaluate --lens: Nyquist pixels, point samples
+    psf = lens_provider(args, p, seq, pitch_um=pitch, width_px=1, height_px=1, max_field_deg=amax, sampling=sampling)
+    numerics = DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS
+    t0 = time.perf_counter()
+    with staged_output_dir(out) as stage:
+        with tqdm(total=n, unit="copy", desc="manufactured copies", file=sys.stderr, delay=PROGRESS_DELAY_S,
+                  mininterval=2.0, leave=False, disable=args.quiet) as bar:
+            ds = run_lens_tolerance(psf, tol, n, seed=args.seed, snr_db=snr, rho0=PAPER_RHO0,
+                                    angles_deg=tuple(args.angles) if args.angles else None,
+                                    coarse=not args.accurate, numerics=numerics, progress=bar.update)
+        ds.attrs["refocus"] = args.refocus or "file"
+        ds.attrs["file"] = str(args.lens)
+        summary = summarise_lens_tolerance(ds, ref_snr)
+        text = lens_tolerance_report(ds, summary)
+        run = {"lens": p.name or str(args.lens), "file": str(args.lens), "refocus": args.refocus or "file",
+               "image_shift_mm": shift, "pixel_pitch_um": pitch, "sampling": sampling, "lenses": n, "seed": args.seed,
+               "snr_db": snr, "angles_deg": list(ds.attrs["angles_deg"]), "tolerances": tol.to_dict(),
+               "numerics": numerics.to_dict(), "copies_numerics": ds.attrs["numerics"],
+               "not_modelled": ds.attrs["not_modelled"]}
+        atomic_write(stage / "tolerance.nc", lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+        atomic_write_text(stage / "summary.json", json_text({"run": run, "summary": summary}))
+        atomic_write_text(stage / "report.md", text)
+    print(text)
+    print(f"wrote {args.out}/ (tolerance.nc, report.md, summary.json) in {time.perf_counter() - t0:.0f} s",
+          file=sys.stderr)
+    return 0
+
+
 def register(sub) -> None:
     from lenssim_studies.paper import PAPER_SNR_DB
+    from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES
     from lenssim_studies.tolerance import DEFAULT_LENSES, TOLERANCE_FIELD_ANGLES
 
+    from .lens import add_lens_arguments
+
     t = sub.add_parser("tolerance", help="Monte Carlo of manufactured lenses of one design: as-built criteria, "
-                                         "restored with their own and with the nominal PSFs")
+                                         "restored with their own and with the nominal PSFs",
+                       description="The paper's singlet (--design and its parameters), or any lens with --lens LENS: "
+                                   "copies with radius, thickness, conic and index errors per surface and a despace "
+                                   "(--grade, --tolerances FILE, --off TERM), each focused at assembly unless "
+                                   "--no-focus-compensation, evaluated at --angles (default 4 from the axis to the "
+                                   "largest); decentre and tilt are not supported for --lens yet.")
     add_design_arguments(t)
     add_camera_arguments(t)
     add_tolerance_arguments(t)
-    t.add_argument("-n", "--lenses", type=int, default=DEFAULT_LENSES,
-                   help=f"Monte Carlo lenses (default {DEFAULT_LENSES})")
+    add_lens_arguments(t, pitch_help="--lens: the sensor's pixel pitch (um; area samples) instead of the Nyquist "
+                                     "pitch lambda N_w / 2 with point samples")
+    t.add_argument("-n", "--lenses", type=int, default=None,
+                   help=f"Monte Carlo lenses (default {DEFAULT_LENSES}; with --lens {DEFAULT_LENS_COPIES}, each "
+                        "copy tracing its own wavefronts)")
     t.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     t.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)})")
     t.add_argument("--reference-snr", type=float, help="SNR (dB) of the summary, yields and figures (default: the "
                                                         "middle --snr)")
     t.add_argument("--angles", type=float, nargs="+", metavar="DEG",
-                   help=f"field angles (each at 4 azimuths; default {' '.join(f'{a:g}' for a in TOLERANCE_FIELD_ANGLES)})")
+                   help=f"field angles (each at 4 azimuths; default {' '.join(f'{a:g}' for a in TOLERANCE_FIELD_ANGLES)}; "
+                        "with --lens: one azimuth, default 4 angles from the axis to the lens's largest)")
     t.add_argument("--yield", dest="yield_", action="append", metavar="CRITERION<=VALUE",
                    help="report the fraction of lenses meeting a threshold, e.g. 'mse_r_nominal<=0.05' (repeatable)")
-    t.add_argument("--sensitivity-lenses", type=int, default=200, metavar="N",
-                   help="lenses per tolerance term for the sensitivity table (default 200; 0: none)")
-    t.add_argument("--accurate", action="store_true", help="the default numerics (2x oversampled OTFs) instead of "
+    t.add_argument("--sensitivity-lenses", type=int, default=None, metavar="N",
+                   help=f"lenses per tolerance term for the sensitivity table (default {DEFAULT_SENSITIVITY_LENSES}; "
+                        "0: none)")
+    t.add_argument("--accurate", action="store_true", help="the default numerics (2x oversampled OTFs; with --lens "
+                                                           "also each copy's full wavefront table) instead of "
                                                            "the fast ones")
     t.add_argument("--out", required=True, help="output folder (a second run resumes the Monte Carlo)")
     add_device_argument(t)

@@ -171,14 +171,28 @@ class SequentialLens:
     """A centred sequential lens (see the module docstring) built from a :class:`Prescription`.
 
     ``image_shift_mm`` moves the image plane along the axis from where the prescription puts it (refocusing).
+    ``index_offsets``: ``{surface index (0-based): dn}``, an absolute refractive-index error added at every wavelength
+    to the glass after that surface (a manufactured copy's melt: the catalogue glass keeps its dispersion); only
+    glass may carry one.
     """
 
-    def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0):
+    def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0, index_offsets=None):
         self.prescription = prescription
         self.image_shift_mm = float(image_shift_mm)
         self._glasses = []
         for i, s in enumerate(prescription.surfaces):
             self._glasses.append(self._material(s.material, i + 1))
+        offsets = {}
+        for i, dn in dict(index_offsets or {}).items():
+            if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(self._glasses):
+                raise ValueError(f"index offset at surface index {i!r} is not allowed: 0 to {len(self._glasses) - 1}")
+            if self._glasses[i] is None:
+                raise ValueError(f"surface {i + 1}: an index offset needs a glass after the surface, not air")
+            if isinstance(dn, bool) or not isinstance(dn, (int, float)) or not math.isfinite(dn):
+                raise ValueError(f"surface {i + 1}: index offset {dn!r} is not allowed: a finite number")
+            if dn:
+                offsets[i] = float(dn)
+        self.index_offsets = dict(sorted(offsets.items()))
         self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64)
 
     # -- materials -------------------------------------------------------------------------------------------------
@@ -198,7 +212,17 @@ class SequentialLens:
     def index_after(self, i: int, wavelength_um: float) -> float:
         """Refractive index after surface ``i`` (0-based; air is 1)."""
         g = self._glasses[i]
-        return 1.0 if g is None else float(g.index(wavelength_um))
+        return 1.0 if g is None else float(g.index(wavelength_um)) + self.index_offsets.get(i, 0.0)
+
+    def cache_key(self) -> str:
+        """A stable text naming everything that sets this lens's optics (the prescription, the image plane and any
+        index offsets): equal keys, equal rays. Without index offsets it is what it was before they existed."""
+        import json
+
+        parts = [self.prescription.to_dict(), self.image_shift_mm]
+        if self.index_offsets:
+            parts.append({"index_offsets": {str(k): v for k, v in self.index_offsets.items()}})
+        return json.dumps(parts, sort_keys=True, default=str)
 
     @property
     def primary_wavelength_um(self) -> float:
@@ -630,7 +654,8 @@ class SequentialLens:
         """Paraxial chief-ray heights (mm) on the paraxial image plane at ``fields`` (deg or mm)."""
         from dataclasses import replace
 
-        seq = SequentialLens(replace(self.prescription, fields=tuple(fields)), image_shift_mm=self.image_shift_mm)
+        seq = SequentialLens(replace(self.prescription, fields=tuple(fields)), image_shift_mm=self.image_shift_mm,
+                             index_offsets=self.index_offsets)
         return list(seq.paraxial(wavelength_um).image_heights_mm)
 
 

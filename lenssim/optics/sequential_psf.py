@@ -306,6 +306,9 @@ class SequentialPSF(PSFProvider):
     sampling: str = "area"
     numerics: Numerics = field(default_factory=lambda: DEFAULT_NUMERICS)
     mirror_symmetric: bool = True
+    table_max_nodes: int = TABLE_MAX_NODES
+    """Most field-angle nodes of the wavefront table (:func:`wavefront_table`); :data:`TABLE_INITIAL_NODES` (or
+    fewer) traces the initial nodes only, no bisection (a coarser, faster table)."""
 
     def __post_init__(self):
         p = self.lens.prescription
@@ -401,12 +404,14 @@ class SequentialPSF(PSFProvider):
         """The :class:`WavefrontTable` (traced once, on first use; shared in the process by providers of the same lens,
         image plane, wavelengths and largest angle: :data:`TABLE_CACHE_SIZE` are kept)."""
         if "table" not in self._cache:
-            key = json.dumps([self.lens.prescription.to_dict(), self.lens.image_shift_mm, self.quadrature()[0],
-                              self.max_field_deg], sort_keys=True, default=str)
+            # everything that changes the optics (the lens's cache_key: prescription, image plane, index offsets)
+            key = json.dumps([self.lens.cache_key(), self.quadrature()[0], self.max_field_deg]
+                             + ([self.table_max_nodes] if self.table_max_nodes != TABLE_MAX_NODES else []),
+                             sort_keys=True, default=str)
             hit = _TABLES.pop(key, None)
             if hit is None:
                 hit = wavefront_table(self.lens, self.quadrature()[0], self.max_field_deg, self.image_scale_mm,
-                                      progress=progress)
+                                      progress=progress, max_nodes=self.table_max_nodes)
             _TABLES[key] = hit  # most recently used last
             while len(_TABLES) > TABLE_CACHE_SIZE:
                 _TABLES.pop(next(iter(_TABLES)))
@@ -503,10 +508,15 @@ class SequentialPSF(PSFProvider):
 
     def fingerprint(self) -> str:
         """A stable description of these PSFs (lens, image plane, sensor, spectrum, sampling, numerics)."""
-        return json.dumps({"prescription": self.lens.prescription.to_dict(), "image_shift_mm": self.lens.image_shift_mm,
-                           "sensor": self.sensor.to_dict(), "spectrum": self.light.to_dict(),
-                           "channels": [c.to_dict() for c in self.colour_channels], "max_field_deg": self.max_field_deg,
-                           "sampling": self.sampling, "numerics": self.numerics.to_dict()}, sort_keys=True, default=str)
+        d = {"prescription": self.lens.prescription.to_dict(), "image_shift_mm": self.lens.image_shift_mm,
+             "sensor": self.sensor.to_dict(), "spectrum": self.light.to_dict(),
+             "channels": [c.to_dict() for c in self.colour_channels], "max_field_deg": self.max_field_deg,
+             "sampling": self.sampling, "numerics": self.numerics.to_dict()}
+        if getattr(self.lens, "index_offsets", None):  # a manufactured copy's glass errors (absent: as before)
+            d["index_offsets"] = {str(k): v for k, v in self.lens.index_offsets.items()}
+        if self.table_max_nodes != TABLE_MAX_NODES:
+            d["table_max_nodes"] = self.table_max_nodes
+        return json.dumps(d, sort_keys=True, default=str)
 
 
 def _paraxial_image_heights(seq: SequentialLens, lam: float, z_img: float, tan_field: float):
