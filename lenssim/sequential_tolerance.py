@@ -38,7 +38,8 @@ from .optics.sequential import SequentialLens
 from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from .sequential_metrics import evaluate_sequential, evaluation_angles
 
-__all__ = ["manufactured_lens", "copy_provider", "run_lens_tolerance", "summarise_lens_tolerance",
+__all__ = ["manufactured_lens", "copy_provider", "nominal_criteria", "copy_criteria", "tolerance_angles",
+           "lens_tolerance_dataset", "run_lens_tolerance", "summarise_lens_tolerance",
            "lens_tolerance_report", "TOLERANCE_ANGLES", "DEFAULT_LENS_COPIES", "CRITERIA"]
 
 TOLERANCE_ANGLES = 4
@@ -48,6 +49,8 @@ DEFAULT_LENS_COPIES = 20
 for a multi-element lens on a CPU), so a few tens; the mean of 20 copies is within about 20% (1 / sqrt(20) of the
 spread) of the population's."""
 CRITERIA = ("mse_s", "mse_r", "mse_r_nominal", "rms_w")
+NOT_MODELLED = "decentre and tilt (a tracer without rotational symmetry is needed)"
+"""What a Monte Carlo of any lens leaves out (recorded with every run)."""
 
 
 def manufactured_lens(nominal: SequentialLens, pert: SurfacePerturbations, i: int) -> SequentialLens:
@@ -76,43 +79,53 @@ def _values(r: dict) -> dict:
     return {k: r[k] for k in CRITERIA if k in r}
 
 
-def run_lens_tolerance(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int, *, seed: int, snr_db, rho0: float,
-                       angles_deg=None, coarse: bool = True, numerics=None, compare_default: bool = True,
-                       progress: Callable[[int], None] | None = None):
-    """``n`` copies of ``psf.lens`` (see the module docstring) as an :class:`xarray.Dataset` ``(lens, snr)``: the
-    criteria per copy, the sampled errors per copy (one variable per surface and term), the nominal lens's criteria
-    (``nominal_*``, at the copies' numerics; ``nominal_default_*`` at the default numerics), and the run's settings
-    as attributes (``compare_default=False``: the nominal's default-numerics values are not computed, and are the
-    coarse ones). ``progress(k)`` is called with the number of copies done."""
+def nominal_criteria(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg, numerics, coarse: bool = True,
+                     compare_default: bool = True):
+    """The nominal lens of ``psf`` evaluated as the copies are: ``(provider, values, default_values)``: its provider at
+    the copies' numerics (the reference of every copy's ``mse_r_nominal``), its criteria there, and its criteria at
+    the default numerics (the same values when ``coarse`` is off or ``compare_default`` is False)."""
+    kw = dict(rho0=rho0, angles_deg=angles_deg, numerics=numerics)
+    nominal = copy_provider(psf, psf.lens, coarse=coarse)
+    nom = _values(evaluate_sequential(nominal, snr_db, criteria=CRITERIA, reference=nominal, **kw))
+    full = nom if not (coarse and compare_default) else _values(
+        evaluate_sequential(copy_provider(psf, psf.lens, coarse=False), snr_db, criteria=CRITERIA, **kw))
+    return nominal, nom, full
+
+
+def copy_criteria(psf: SequentialPSF, nominal: SequentialPSF, pert: SurfacePerturbations, i: int, snr_db, *,
+                  rho0: float, angles_deg, numerics, coarse: bool = True) -> dict:
+    """Copy ``i`` of ``pert`` (:func:`manufactured_lens`) evaluated on ``psf``'s sensor and light at ``angles_deg``,
+    restored with its own PSFs and with ``nominal``'s Wiener filter: the :data:`CRITERIA` (torch tensors, per SNR where
+    they depend on it), its image-plane shift and its focal length (mm). A copy that cannot be evaluated is a
+    ``ValueError`` naming it."""
+    lens = manufactured_lens(psf.lens, pert, i)
+    try:
+        r = evaluate_sequential(copy_provider(psf, lens, coarse=coarse), snr_db, criteria=CRITERIA, reference=nominal,
+                                rho0=rho0, angles_deg=angles_deg, numerics=numerics)
+    except ValueError as exc:
+        raise ValueError(f"manufactured copy {i}: {exc}") from None
+    return _values(r) | {"image_shift_mm": lens.image_shift_mm, "efl_mm": lens.paraxial().efl_mm}
+
+
+def tolerance_angles(psf: SequentialPSF, angles_deg=None) -> tuple[float, ...]:
+    """The field angles (deg) of a Monte Carlo: ``angles_deg``, or :data:`TOLERANCE_ANGLES` from the axis to the
+    provider's largest, evenly."""
+    return (evaluation_angles(psf.max_field_deg, TOLERANCE_ANGLES) if angles_deg is None
+            else tuple(float(a) for a in angles_deg))
+
+
+def lens_tolerance_dataset(psf: SequentialPSF, tolerances: SurfaceTolerances, pert: SurfacePerturbations, rows,
+                           nom: dict, full: dict, *, snr_db, seed: int, angles_deg, rho0: float, coarse: bool):
+    """The :class:`xarray.Dataset` ``(lens, snr)`` of a Monte Carlo from its per-copy ``rows``
+    (:func:`copy_criteria`) and the nominal's values (:func:`nominal_criteria`): see :func:`run_lens_tolerance`."""
     import xarray as xr
 
-    from .model.numerics import DEFAULT_NUMERICS
-
-    numerics = DEFAULT_NUMERICS if numerics is None else numerics
+    n = len(rows)
     snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
-    angles = (evaluation_angles(psf.max_field_deg, TOLERANCE_ANGLES) if angles_deg is None
-              else tuple(float(a) for a in angles_deg))
-    pert = tolerances.sample(psf.lens.prescription, n, seed=seed)
-    kw = dict(rho0=rho0, angles_deg=angles, numerics=numerics)
-    nominal = copy_provider(psf, psf.lens, coarse=coarse)
-    nom = _values(evaluate_sequential(nominal, snr, criteria=CRITERIA, reference=nominal, **kw))
-    full = nom if not (coarse and compare_default) else _values(evaluate_sequential(copy_provider(psf, psf.lens, coarse=False), snr,
-                                                              criteria=CRITERIA, **kw))
-    rows = []
-    for i in range(n):
-        lens = manufactured_lens(psf.lens, pert, i)
-        try:
-            r = evaluate_sequential(copy_provider(psf, lens, coarse=coarse), snr, criteria=CRITERIA, reference=nominal,
-                                    **kw)
-        except ValueError as exc:
-            raise ValueError(f"manufactured copy {i}: {exc}") from None
-        rows.append(_values(r) | {"image_shift_mm": lens.image_shift_mm, "efl_mm": lens.paraxial().efl_mm})
-        if progress is not None:
-            progress(1)
     coords = {"lens": torch.arange(n).numpy(), "snr": snr.numpy()}
     data = {}
     for k in CRITERIA:
-        per_snr = rows[0][k].ndim > 0
+        per_snr = torch.as_tensor(rows[0][k]).ndim > 0
         v = torch.stack([torch.as_tensor(r[k], dtype=torch.float64) for r in rows]).numpy()
         data[k] = (("lens", "snr") if per_snr else ("lens",), v, {"units": "waves" if k == "rms_w" else "1"})
         data[f"nominal_{k}"] = (("snr",) if per_snr else (), torch.as_tensor(nom[k]).numpy(),
@@ -120,20 +133,45 @@ def run_lens_tolerance(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int
         data[f"nominal_default_{k}"] = (("snr",) if per_snr else (), torch.as_tensor(full[k]).numpy(),
                                         {"about": "the nominal lens at the default numerics"})
     for k in ("image_shift_mm", "efl_mm"):
-        data[k] = (("lens",), torch.tensor([r[k] for r in rows], dtype=torch.float64).numpy(),
+        data[k] = (("lens",), torch.tensor([float(r[k]) for r in rows], dtype=torch.float64).numpy(),
                    {"units": "mm", "about": "the copy's image-plane shift from its own file's plane" if
                     k == "image_shift_mm" else "the copy's paraxial focal length (primary wavelength)"})
     for name, (v, unit, about) in pert.variables().items():
-        data[f"error_{name}"] = (("lens",), v.numpy(), {"units": unit, "about": about})
+        data[f"error_{name}"] = (("lens",), v[:n].numpy(), {"units": unit, "about": about})
     attrs = {"lens": psf.lens.prescription.name, "prescription": json.dumps(psf.lens.prescription.to_dict(),
                                                                             default=str),
              "nominal_image_shift_mm": psf.lens.image_shift_mm, "nominal_efl_mm": psf.lens.paraxial().efl_mm,
-             "tolerances": json.dumps(tolerances.to_dict()), "seed": int(seed), "angles_deg": list(angles),
+             "tolerances": json.dumps(tolerances.to_dict()), "seed": int(seed), "angles_deg": list(angles_deg),
              "pixel_pitch_um": psf.sensor.pixel_pitch_um, "sampling": psf.sampling, "rho0": float(rho0),
              "coarse_numerics": int(bool(coarse)),
              "numerics": "copies: wavefront table at its initial field-angle nodes only" if coarse else "default",
-             "not_modelled": "decentre and tilt (a tracer without rotational symmetry is needed)"}
+             "not_modelled": NOT_MODELLED}
     return xr.Dataset({k: xr.Variable(*v) for k, v in data.items()}, coords=coords, attrs=attrs)
+
+
+def run_lens_tolerance(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int, *, seed: int, snr_db, rho0: float,
+                       angles_deg=None, coarse: bool = True, numerics=None, compare_default: bool = True,
+                       progress: Callable[[int], None] | None = None):
+    """``n`` copies of ``psf.lens`` (see the module docstring) as an :class:`xarray.Dataset` ``(lens, snr)``: the
+    criteria per copy, the sampled errors per copy (one variable per surface and term), the nominal lens's criteria
+    (``nominal_*``, at the copies' numerics; ``nominal_default_*`` at the default numerics), and the run's settings
+    as attributes (``compare_default=False``: the nominal's default-numerics values are not computed, and are the
+    coarse ones). ``progress(k)`` is called with the number of copies done. In memory, in one go: the resumable run
+    is :mod:`lenssim_studies.lens_tolerance`'s."""
+    from .model.numerics import DEFAULT_NUMERICS
+
+    numerics = DEFAULT_NUMERICS if numerics is None else numerics
+    angles = tolerance_angles(psf, angles_deg)
+    pert = tolerances.sample(psf.lens.prescription, n, seed=seed)
+    kw = dict(rho0=rho0, angles_deg=angles, numerics=numerics)
+    nominal, nom, full = nominal_criteria(psf, snr_db, coarse=coarse, compare_default=compare_default, **kw)
+    rows = []
+    for i in range(n):
+        rows.append(copy_criteria(psf, nominal, pert, i, snr_db, coarse=coarse, **kw))
+        if progress is not None:
+            progress(1)
+    return lens_tolerance_dataset(psf, tolerances, pert, rows, nom, full, snr_db=snr_db, seed=seed, angles_deg=angles,
+                                  rho0=rho0, coarse=coarse)
 
 
 def _snr_index(ds, ref_snr: float) -> int:

@@ -123,16 +123,13 @@ def cmd_tolerance_lens(args) -> int:
     (:func:`lenssim.sequential_tolerance.run_lens_tolerance`): every argument checked before any work."""
     import math
 
-    from tqdm import tqdm
-
-    from lenssim.io.files import atomic_write, atomic_write_text, check_output_dir, json_text, staged_output_dir
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
-    from lenssim.sequential_tolerance import (DEFAULT_LENS_COPIES, lens_tolerance_report, run_lens_tolerance,
-                                              summarise_lens_tolerance)
+    from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES, lens_tolerance_report, summarise_lens_tolerance
+    from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
     from lenssim.torch_utils import select_device
     from lenssim_studies.paper import PAPER_RHO0
 
-    from .camera import PROGRESS_DELAY_S
     from .lens import check_lens_arguments, lens_provider, refocused_lens
 
     given = [f for f, k in LENS_REFUSED if getattr(args, k, None) is not None]
@@ -160,25 +157,22 @@ def cmd_tolerance_lens(args) -> int:
     sampling = "point" if args.pixel_pitch is None else "area"  # as evaluate --lens: Nyquist pixels, point samples
     psf = lens_provider(args, p, seq, pitch_um=pitch, width_px=1, height_px=1, max_field_deg=amax, sampling=sampling)
     numerics = DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS
+    run = LensToleranceRun(psf, tol, n, args.seed, tuple(snr), PAPER_RHO0, numerics,
+                           angles_deg=tuple(args.angles) if args.angles else None, coarse=not args.accurate)
     t0 = time.perf_counter()
-    with staged_output_dir(out) as stage:
-        with tqdm(total=n, unit="copy", desc="manufactured copies", file=sys.stderr, delay=PROGRESS_DELAY_S,
-                  mininterval=2.0, leave=False, disable=args.quiet) as bar:
-            ds = run_lens_tolerance(psf, tol, n, seed=args.seed, snr_db=snr, rho0=PAPER_RHO0,
-                                    angles_deg=tuple(args.angles) if args.angles else None,
-                                    coarse=not args.accurate, numerics=numerics, progress=bar.update)
-        ds.attrs["refocus"] = args.refocus or "file"
-        ds.attrs["file"] = str(args.lens)
+    with output_lock(out):  # one run at a time writes this folder; a second run resumes the Monte Carlo
+        out.mkdir(parents=True, exist_ok=True)
+        ds = run_lens_tolerance_resumable(run, out / "tolerance.nc", show_progress=not args.quiet,
+                                          attrs={"refocus": args.refocus or "file", "file": str(args.lens)})
         summary = summarise_lens_tolerance(ds, ref_snr)
         text = lens_tolerance_report(ds, summary)
-        run = {"lens": p.name or str(args.lens), "file": str(args.lens), "refocus": args.refocus or "file",
-               "image_shift_mm": shift, "pixel_pitch_um": pitch, "sampling": sampling, "lenses": n, "seed": args.seed,
-               "snr_db": snr, "angles_deg": list(ds.attrs["angles_deg"]), "tolerances": tol.to_dict(),
-               "numerics": numerics.to_dict(), "copies_numerics": ds.attrs["numerics"],
-               "not_modelled": ds.attrs["not_modelled"]}
-        atomic_write(stage / "tolerance.nc", lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-        atomic_write_text(stage / "summary.json", json_text({"run": run, "summary": summary}))
-        atomic_write_text(stage / "report.md", text)
+        info = {"lens": p.name or str(args.lens), "file": str(args.lens), "refocus": args.refocus or "file",
+                "image_shift_mm": shift, "pixel_pitch_um": pitch, "sampling": sampling, "lenses": n, "seed": args.seed,
+                "snr_db": snr, "angles_deg": list(ds.attrs["angles_deg"]), "tolerances": tol.to_dict(),
+                "numerics": numerics.to_dict(), "copies_numerics": ds.attrs["numerics"],
+                "not_modelled": ds.attrs["not_modelled"], "config_digest": run.digest()}
+        atomic_write_text(out / "summary.json", json_text({"run": info, "summary": summary}))
+        atomic_write_text(out / "report.md", text)
     print(text)
     print(f"wrote {args.out}/ (tolerance.nc, report.md, summary.json) in {time.perf_counter() - t0:.0f} s",
           file=sys.stderr)

@@ -50,7 +50,7 @@ def partial_folder(part: Path, meta_name: str, digest: str, payload: dict, refus
 
 
 def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight, desc: str, show_progress: bool,
-                  max_chunks: int | None = None, cluster=None) -> list | None:
+                  max_chunks: int | None = None, cluster=None, unit: str = "PSF") -> list | None:
     """The chunks of a resumable run, one file each at ``paths``: those already there are kept where they verify, the
     others computed and written, and all of them read back and verified.
 
@@ -58,7 +58,7 @@ def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight,
     about as a :class:`lenssim.validate.ResumeWarning` and computed again; one just written stops the run with a
     ``ValueError``); ``write(path, chunk, i)`` writes it atomically; ``compute(i, progress)`` computes it here, or
     ``cluster(todo)`` (optional) yields ``(i, chunk)`` for the indices ``todo`` as they are done elsewhere.
-    ``weight(i)``: chunk ``i``'s share of the progress bar (``desc``, on stderr, in PSFs). With ``max_chunks`` at most
+    ``weight(i)``: chunk ``i``'s share of the progress bar (``desc``, on stderr, counted in ``unit``). With ``max_chunks`` at most
     that many are computed; if any are left, None. ``kind`` names the chunks in messages ("sweep", "tolerance").
     """
     import sys
@@ -76,7 +76,7 @@ def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight,
                 p.unlink()
     total = sum(weight(i) for i in range(len(paths)))
     done = sum(weight(i) for i, p in enumerate(paths) if p.exists())
-    bar = tqdm(total=total, initial=done, unit="PSF", disable=not show_progress, file=sys.stderr, desc=desc)
+    bar = tqdm(total=total, initial=done, unit=unit, disable=not show_progress, file=sys.stderr, desc=desc)
     todo = [i for i, p in enumerate(paths) if not p.exists()]
     stopped = max_chunks is not None and len(todo) > max_chunks
     todo = todo[:max_chunks] if max_chunks is not None else todo

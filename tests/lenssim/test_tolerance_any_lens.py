@@ -244,3 +244,36 @@ def test_cli_refuses_in_one_line(tmp_path, capsys, extra, toml, match):
 
 def test_not_supported_message_is_the_one_line():
     assert NOT_SUPPORTED == "decentre and tilt need a tracer without rotational symmetry: not supported for --lens yet"
+
+
+def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singlet, tmp_path):
+    import warnings
+
+    import xarray as xr
+
+    from lenssim.validate import ResumeWarning
+    from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+
+    p, seq = singlet
+    psf = _provider(p, seq)
+    tol = SURFACE_GRADES["commercial"]
+    run = LensToleranceRun(psf, tol, 3, 1, SNR, 0.937, SMALL, angles_deg=(0.0, 3.0), chunk_copies=1)
+    out = tmp_path / "t.nc"
+    assert run_lens_tolerance_resumable(run, out, show_progress=False, max_chunks=2) is None
+    part = tmp_path / "t.nc.partial"
+    chunks = sorted(part.glob("chunk_*.npz"))
+    assert len(chunks) == 2 and not out.exists()
+    chunks[1].write_bytes(chunks[1].read_bytes()[:-40])  # a chunk cut short by a crash
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = run_lens_tolerance_resumable(run, out, show_progress=False)
+    assert any(issubclass(w.category, ResumeWarning) for w in caught)
+    assert out.exists() and not part.exists()
+    one = run_lens_tolerance(psf, tol, 3, seed=1, snr_db=SNR, rho0=0.937, angles_deg=(0.0, 3.0), numerics=SMALL)
+    for k in one.data_vars:
+        assert (ds[k].values == one[k].values).all(), k
+    with xr.open_dataset(out, engine="scipy") as back:
+        assert back.attrs["config_digest"] == run.digest()
+    other = LensToleranceRun(psf, tol, 3, 2, SNR, 0.937, SMALL, angles_deg=(0.0, 3.0), chunk_copies=1)
+    with pytest.raises(FileExistsError, match="not the finished result"):
+        run_lens_tolerance_resumable(other, out, show_progress=False)
