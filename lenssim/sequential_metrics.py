@@ -22,7 +22,12 @@ a pixel-wise MSE against the undistorted scene would score a shift of whole pixe
 therefore at the chief ray's point, against the aberration-free PSF of the same (vignetted) pupil.
 
 The PSFs along one radius of a rotationally symmetric lens are mirror-symmetric about it, so ``Re H`` and ``|H|^2``
-are even in both frequency axes and the quarter plane carries the integrals, as for the singlet.
+are even in both frequency axes and the quarter plane carries the integrals, as for the singlet. A decentred or
+tilted lens (a manufactured copy, :mod:`lenssim.sequential_tolerance`) is evaluated along its ``+y`` field (other
+azimuths: :meth:`lenssim.optics.sequential.SequentialLens.rotated`), its PSFs about the chief ray's point
+(``registered``) and not mirror-symmetric: each criterion is the mean of its values on the quarters ``fx >= 0`` and
+``fx <= 0`` (``|H|^2`` and ``Re H`` are even under ``f -> -f``: exactly the full plane's mean for the integrals
+``mse_s``, ``mse_r``, ``mse_r_nominal``; for ``mtf50``, the mean of the two halves' values).
 
 References
 ----------
@@ -77,15 +82,23 @@ def _grid_size(psf: SequentialPSF, support_px: int, numerics: Numerics) -> int:
     return n
 
 
-def _otf_quarter(psf_centered: torch.Tensor, m: int) -> torch.Tensor:
+def _otf_quarters(psf_centered: torch.Tensor, m: int, mirrored: bool):
     """Quarter-plane OTF ``(..., m/2+1, m/2+1)`` of PSFs ``(..., n, n)`` centred at ``[n//2, n//2]`` (unit sum),
-    zero-padded to ``m x m`` about their centre (frequency sample ``k`` at ``k/m`` cycles/pixel)."""
+    zero-padded to ``m x m`` about their centre (frequency sample ``k`` at ``k/m`` cycles/pixel), and with
+    ``mirrored`` also the quarter ``fx <= 0`` (``H(fy, -fx)``, sample ``k`` at
+    ``-k/m``): ``(Q, Q_mirrored or None)``. A PSF not mirror-symmetric about its meridian (a decentred or tilted lens)
+    needs both: its ``|H|^2`` and ``Re H`` are even under ``f -> -f`` only, so the full plane is these two quarters
+    and their point reflections."""
     n = psf_centered.shape[-1]
     o = m // 2 - n // 2
     pad = torch.zeros(*psf_centered.shape[:-2], m, m, dtype=psf_centered.dtype)
     pad[..., o:o + n, o:o + n] = psf_centered
     H = torch.fft.fft2(torch.fft.ifftshift(pad, dim=(-2, -1)))
-    return H[..., : m // 2 + 1, : m // 2 + 1]
+    q = m // 2 + 1
+    if not mirrored:
+        return H[..., :q, :q], None
+    neg = torch.remainder(-torch.arange(q), m)
+    return H[..., :q, :q], H[..., :q, :].index_select(-1, neg)
 
 
 def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool) -> tuple[torch.Tensor, torch.Tensor]:
@@ -132,13 +145,16 @@ def _check_reference(psf: SequentialPSF, reference: SequentialPSF, alpha: torch.
 
 def _reference_otf(reference: SequentialPSF, a: torch.Tensor, n: int, m: int, registered: bool) -> torch.Tensor:
     """The reference provider's quarter-plane OTFs ``(C, q, q)`` at field angle ``a`` ``(1,)`` on the ``n``-pixel,
-    ``m``-frequency grid, kept with the provider (a Monte Carlo asks for the same ones for every copy)."""
+    ``m``-frequency grid, and its mirrored quarter (:func:`_otf_quarters`; the same one for a centred lens), kept with
+    the provider (a Monte Carlo asks for the same ones for every copy)."""
     store = reference._cache.setdefault("reference_otfs", {})
     key = (float(a[0]), n, m, registered)
     if key not in store:
         half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)
-        store[key] = _otf_quarter(reference.psfs_at_angles(a, half_pi, n, n, distortion=not registered,
-                                                           complex_dtype=torch.complex128)[0], m)
+        q, q_m = _otf_quarters(reference.psfs_at_angles(a, half_pi, n, n, distortion=not registered,
+                                                        complex_dtype=torch.complex128)[0], m,
+                               not reference.lens.is_centred)
+        store[key] = (q, q if q_m is None else q_m)
     return store[key]
 
 
@@ -189,20 +205,26 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     view = _SensorView(psf.sensor)
     per = {c: torch.empty((C, A, S) if CRITERIA[c].per_snr else (C, A), dtype=torch.float64) for c in names}
     half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)  # the field along +y: the rows
+    mirrored = not psf.lens.is_centred  # a decentred or tilted lens: both quarters (_otf_quarters)
     for i in range(A if names else 0):
         a = alpha[i:i + 1]
         k = n  # the PSF on the whole grid: the diffraction wings beyond its support matter to the MSEs at the 1% level
-        H_all = _otf_quarter(psf.psfs_at_angles(a, half_pi, n, k, distortion=not registered,
-                                                complex_dtype=torch.complex128)[0], m)  # (C, q, q)
-        H0_all = _otf_quarter(psf.psfs_at_angles(a, half_pi, n, k, table=perfect, distortion=False,
-                                                 complex_dtype=torch.complex128)[0], m)
-        R_all = None if reference is None else _reference_otf(reference, a, n, m, registered)
+        H_all = _otf_quarters(psf.psfs_at_angles(a, half_pi, n, k, distortion=not registered,
+                                                 complex_dtype=torch.complex128)[0], m, mirrored)  # (C, q, q) each
+        H0_all = _otf_quarters(psf.psfs_at_angles(a, half_pi, n, k, table=perfect, distortion=False,
+                                                  complex_dtype=torch.complex128)[0], m, mirrored)
+        R_all = (None, None) if reference is None else _reference_otf(reference, a, n, m, registered)
         for c in range(C):
-            H = H_all[c:c + 1]
-            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd_q, weights, pw, sigma2, n, view, numerics,
-                             reference=None if R_all is None else R_all[c:c + 1], _cache={"dl": H0_all[c:c + 1]})
-            for name in names:
-                per[name][c, i] = CRITERIA[name].from_otf(ctx)[0]
+            vals = {name: [] for name in names}
+            for j in range(2 if mirrored else 1):  # the quarter fx >= 0, then (mirrored) fx <= 0
+                H = H_all[j][c:c + 1]
+                ctx = OTFContext(H, H.real.square() + H.imag.square(), psd_q, weights, pw, sigma2, n, view, numerics,
+                                 reference=None if R_all[j] is None else R_all[j][c:c + 1],
+                                 _cache={"dl": H0_all[j][c:c + 1]})
+                for name in names:
+                    vals[name].append(CRITERIA[name].from_otf(ctx)[0])
+            for name in names:  # the full plane's mean: the two quarters' average (exact for the MSE integrals)
+                per[name][c, i] = vals[name][0] if len(vals[name]) == 1 else 0.5 * (vals[name][0] + vals[name][1])
         if progress is not None:
             progress(1)
     out: dict = {"alpha_deg": alpha, "snr_db": torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1),

@@ -11,7 +11,10 @@ switched off, :func:`manufactured_lens`) and evaluates each on the nominal lens'
   design): never below ``mse_r``, the matched filter being the minimum-MSE linear filter;
 * ``mse_s`` (the sensor image) and ``rms_w`` (waves).
 
-Decentre and tilt are not modelled (they need a tracer without rotational symmetry).
+A copy with decentred or tilted surfaces or elements is not rotationally symmetric: it is evaluated along the four
+image azimuths :data:`MISALIGNED_AZIMUTHS_DEG` (each as the ``+y`` field of
+:meth:`lenssim.optics.sequential.SequentialLens.rotated`, the PSFs not mirror-symmetric, about the chief ray's point),
+and its field average is over those too. Its image plane is focused on the centred copy's paraxial focus.
 
 **Coarser numerics for the copies** (``coarse=True``, the default): each copy's wavefront table is traced at the
 table's initial field-angle nodes only (:data:`lenssim.optics.sequential_psf.TABLE_INITIAL_NODES`, 9 from the axis
@@ -33,7 +36,8 @@ from collections.abc import Callable
 
 import torch
 
-from .model.surface_tolerances import SurfacePerturbations, SurfaceTolerances, perturbed_prescription
+from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, copy_misalignments,
+                                       perturbed_prescription)
 from .optics.sequential import SequentialLens
 from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from .sequential_metrics import evaluate_sequential, evaluation_angles
@@ -49,7 +53,11 @@ DEFAULT_LENS_COPIES = 20
 for a multi-element lens on a CPU), so a few tens; the mean of 20 copies is within about 20% (1 / sqrt(20) of the
 spread) of the population's."""
 CRITERIA = ("mse_s", "mse_r", "mse_r_nominal", "rms_w")
-NOT_MODELLED = "decentre and tilt (a tracer without rotational symmetry is needed)"
+NOT_MODELLED = ("surface form (figure) errors, the image plane's tilt, and a decentred copy's own focus (the centred "
+                "copy's paraxial focus is used)")
+MISALIGNED_AZIMUTHS_DEG = (0.0, 90.0, 180.0, 270.0)
+"""Image azimuths (deg) at which a decentred or tilted copy is evaluated (each field angle at each; a multiple of 90
+degrees maps the pixel grid onto itself, so a centred lens gives the same value at each)."""
 """What a Monte Carlo of any lens leaves out (recorded with every run)."""
 
 
@@ -63,10 +71,10 @@ def manufactured_lens(nominal: SequentialLens, pert: SurfacePerturbations, i: in
     p, offsets = perturbed_prescription(p0, pert, i)
     shift = nominal.image_shift_mm + float(pert.despace_mm[i])
     copy = SequentialLens(p, image_shift_mm=0.0, index_offsets=offsets)
-    if pert.tolerances.focus_compensated:
+    if pert.tolerances.focus_compensated:  # on the paraxial focus: the centred copy's (decentres and tilts left out)
         dz = copy.paraxial().image_z_mm - nominal.paraxial().image_z_mm  # the copy's focus moved by (0 if no error)
         shift += dz + (p0.image_z_mm - p.image_z_mm)
-    return SequentialLens(p, image_shift_mm=shift, index_offsets=offsets)
+    return SequentialLens(p, image_shift_mm=shift, index_offsets=offsets, misalignments=copy_misalignments(p, pert, i))
 
 
 def copy_provider(psf: SequentialPSF, lens: SequentialLens, *, coarse: bool = True) -> SequentialPSF:
@@ -99,12 +107,20 @@ def copy_criteria(psf: SequentialPSF, nominal: SequentialPSF, pert: SurfacePertu
     they depend on it), its image-plane shift and its focal length (mm). A copy that cannot be evaluated is a
     ``ValueError`` naming it."""
     lens = manufactured_lens(psf.lens, pert, i)
+    runs = []
     try:
-        r = evaluate_sequential(copy_provider(psf, lens, coarse=coarse), snr_db, criteria=CRITERIA, reference=nominal,
-                                rho0=rho0, angles_deg=angles_deg, numerics=numerics)
+        for phi in (0.0,) if lens.is_centred else MISALIGNED_AZIMUTHS_DEG:
+            runs.append(_values(evaluate_sequential(copy_provider(psf, lens.rotated(phi), coarse=coarse), snr_db,
+                                                    criteria=CRITERIA, reference=nominal, rho0=rho0,
+                                                    angles_deg=angles_deg, numerics=numerics)))
     except ValueError as exc:
         raise ValueError(f"manufactured copy {i}: {exc}") from None
-    return _values(r) | {"image_shift_mm": lens.image_shift_mm, "efl_mm": lens.paraxial().efl_mm}
+    if len(runs) == 1:
+        r = runs[0]
+    else:  # the field average over the azimuths too: the mean of the MSEs, the root of the mean square wavefront
+        r = {k: torch.stack([v[k] for v in runs]).mean(dim=0) for k in CRITERIA if k != "rms_w"}
+        r["rms_w"] = torch.stack([v["rms_w"] for v in runs]).square().mean().sqrt()
+    return r | {"image_shift_mm": lens.image_shift_mm, "efl_mm": lens.paraxial().efl_mm}
 
 
 def tolerance_angles(psf: SequentialPSF, angles_deg=None) -> tuple[float, ...]:
@@ -210,7 +226,8 @@ def lens_tolerance_report(ds, summary: dict) -> str:
              f"{summary['reference_snr_db']:g} dB.", "",
              "Tolerances (+/- limits, each 2 standard deviations): " + ", ".join(
                  f"{k} {v:g}" for k, v in tol.items() if k != "focus_compensated")
-             + f"; focus compensated: {'yes' if tol['focus_compensated'] else 'no'}. Decentre and tilt: not modelled.",
+             + f"; focus compensated: {'yes' if tol['focus_compensated'] else 'no'}. Not modelled: "
+             + ds.attrs["not_modelled"] + ".",
              "", "| criterion | nominal | mean | median | p90 | max |", "|---|---|---|---|---|---|"]
     for k in CRITERIA:
         s = summary[k]

@@ -189,10 +189,11 @@ def register(sub) -> None:
     t = sub.add_parser("tolerance", help="Monte Carlo of manufactured lenses of one design: as-built criteria, "
                                          "restored with their own and with the nominal PSFs",
                        description="The paper's singlet (--design and its parameters), or any lens with --lens LENS: "
-                                   "copies with radius, thickness, conic and index errors per surface and a despace "
-                                   "(--grade, --tolerances FILE, --off TERM), each focused at assembly unless "
-                                   "--no-focus-compensation, evaluated at --angles (default 4 from the axis to the "
-                                   "largest); decentre and tilt are not supported for --lens yet.")
+                                   "copies with radius, thickness, conic and index errors, decentres and tilts per "
+                                   "surface and per element, and a despace (--grade, --tolerances FILE, --off TERM), "
+                                   "each focused at assembly unless --no-focus-compensation, evaluated at --angles "
+                                   "(default 4 from the axis to the largest; a decentred or tilted copy at 4 "
+                                   "azimuths).")
     add_design_arguments(t)
     add_camera_arguments(t)
     add_tolerance_arguments(t)

@@ -12,13 +12,20 @@ standard deviations of a normal draw (95% of the parts inside it). Terms:
 * ``index``: the refractive index of every glass element (absolute; one draw per glass-filled gap, added at every
   wavelength: the catalogue glass keeps its dispersion);
 * ``despace_um``: the image plane's residual error (the assembly's focus error);
+* ``surface_decentre_um`` and ``surface_tilt_arcmin``: every lens surface (a surface with glass on either side)
+  decentred and tilted against its element's axis (the moulding's or the polishing's concentricity and wedge; both
+  components drawn, a vector in a random direction; the tilt about the surface's vertex);
+* ``element_decentre_um`` and ``element_tilt_arcmin``: every element (a run of surfaces joined by glass: a singlet,
+  or a cemented group as one) decentred and tilted in the barrel, as a rigid body, the tilt about its first surface's
+  vertex (OpticStudio's element tolerances); a surface's own motion is applied first, then its element's;
 * ``focus_compensated`` (default true): each copy's image plane is placed so that its distance from the copy's own
   paraxial focus (primary wavelength) equals the nominal lens's, plus the despace draw, as a camera module is
   focused at assembly; false: the image plane stays at the nominal distance behind the last surface (plus the
   despace draw), and radius, thickness and index errors defocus the copy.
 
-Decentre and tilt of a surface or element need a ray tracer without rotational symmetry, which lenssim does not
-have: such keys are refused (:data:`NOT_SUPPORTED`).
+The decentres and tilts make a copy that is not rotationally symmetric: it is traced as such
+(:class:`lenssim.optics.sequential.SequentialLens` with ``misalignments``) and evaluated at four image azimuths
+(:mod:`lenssim.sequential_tolerance`).
 
 Grades (:data:`SURFACE_GRADES`): ``radius_pct``, ``conic_pct``, ``index`` and ``despace_um`` are the grades of
 :data:`lenssim.model.tolerances.GRADES` (the moulded asphere's front-surface radius, conic, index and despace;
@@ -27,6 +34,10 @@ tolerance of Apollo Optical Systems' published "Typical Manufacturing Tolerances
 lenses (https://www.apollooptical.com/manufacturing-tolerances): +/-0.025 mm commercial, +/-0.015 mm precision; the
 same table's radius tolerances (+/-1% and +/-0.5% of the radius) are the grades' radius values, so the two agree.
 The same limit is applied to air gaps (spacer and barrel tolerances of that order; a choice, not from the table).
+The surface decentre and tilt per grade are the singlet's ``asphere_decentre_um`` and ``asphere_tilt_arcmin``
+(Apollo's concentricity; typical centring classes), the element tilt its ``lens_tilt_arcmin``; the element decentre
+(:data:`ELEMENT_DECENTRE_UM`) is an assumption of the same order as the surface decentre (a lens seated in a bore
+with a clearance of some 10-25 um), not from a published table.
 """
 
 from __future__ import annotations
@@ -36,19 +47,41 @@ from dataclasses import asdict, dataclass, fields, replace
 
 import torch
 
+from .misalignment import Misalignment
 from .prescription import Prescription
 from .tolerances import GRADES, TOLERANCE_SIGMAS
 
-__all__ = ["SurfaceTolerances", "SurfacePerturbations", "SURFACE_GRADES", "THICKNESS_UM", "NOT_SUPPORTED",
-           "surface_grade", "perturbed_prescription"]
-
-NOT_SUPPORTED = "decentre and tilt need a tracer without rotational symmetry: not supported for --lens yet"
-"""The one line that refuses a decentre or tilt tolerance of any lens."""
-_REFUSED_WORDS = ("decentre", "decenter", "tilt", "wedge", "concentricity")
+__all__ = ["SurfaceTolerances", "SurfacePerturbations", "SURFACE_GRADES", "THICKNESS_UM", "ELEMENT_DECENTRE_UM",
+           "surface_grade", "perturbed_prescription", "lens_surfaces", "lens_elements", "copy_misalignments"]
 
 THICKNESS_UM = {"none": 0.0, "commercial": 25.0, "precision": 15.0}
 """Thickness limit (um) per grade: Apollo Optical Systems' centre-thickness tolerances for injection-moulded
 lenses, commercial and precision (module docstring)."""
+ELEMENT_DECENTRE_UM = {"none": 0.0, "commercial": 25.0, "precision": 10.0}
+"""Element decentre limit (um) per grade: an assumption (module docstring)."""
+ARCMIN_DEG = 1.0 / 60.0
+
+
+def lens_surfaces(prescription: Prescription) -> tuple[int, ...]:
+    """0-based indices of the surfaces with glass on at least one side (the surfaces of the elements)."""
+    surfs = prescription.surfaces
+    return tuple(i for i in range(len(surfs)) if not surfs[i].is_air or (i > 0 and not surfs[i - 1].is_air))
+
+
+def lens_elements(prescription: Prescription) -> tuple[tuple[int, int], ...]:
+    """The elements ``(first, last)`` (0-based surface indices): runs of surfaces joined by glass (a cemented group is
+    one element)."""
+    out, start = [], None
+    for i, s in enumerate(prescription.surfaces):
+        if not s.is_air and start is None:
+            start = i
+        if s.is_air and start is not None:
+            out.append((start, i))
+            start = None
+    if start is not None:  # glass up to the image (an immersed image): the element ends at the last surface
+        out.append((start, len(prescription.surfaces) - 1))
+    return tuple(out)
+
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,6 +93,10 @@ class SurfaceTolerances:
     conic_pct: float = 0.0
     index: float = 0.0
     despace_um: float = 0.0
+    surface_decentre_um: float = 0.0
+    surface_tilt_arcmin: float = 0.0
+    element_decentre_um: float = 0.0
+    element_tilt_arcmin: float = 0.0
     focus_compensated: bool = True
 
     def __post_init__(self):
@@ -76,11 +113,8 @@ class SurfaceTolerances:
     @classmethod
     def from_dict(cls, d: dict) -> "SurfaceTolerances":
         """From a ``[tolerances]`` table: ``grade = "commercial"`` (or ``"precision"``, ``"none"``) starts from a
-        grade, the other keys override it; a decentre or tilt key is refused (:data:`NOT_SUPPORTED`), an unknown key
-        is an error that lists the valid ones."""
+        grade, the other keys override it; an unknown key is an error that lists the valid ones."""
         d = dict(d)
-        if any(w in str(k).lower() for k in d for w in _REFUSED_WORDS):
-            raise ValueError(NOT_SUPPORTED)
         base = surface_grade(d.pop("grade", "none"))
         allowed = [f.name for f in fields(cls)]
         bad = sorted(str(k) for k in set(d) - set(allowed))
@@ -97,8 +131,9 @@ class SurfaceTolerances:
 
     def sample(self, prescription: Prescription, n: int, *, seed: int) -> "SurfacePerturbations":
         """``n`` manufactured copies of ``prescription``, reproducibly from ``seed`` (an explicit
-        :class:`torch.Generator`): the terms drawn in a fixed order (radius, thickness, conic, index, despace), each
-        for all its surfaces, always (zero where switched off), so that switching a term off leaves the others'
+        :class:`torch.Generator`): the terms drawn in a fixed order (radius, thickness, conic, index, despace,
+        surface decentre, surface tilt, element decentre, element tilt; a vector term's two components together),
+        each for all its surfaces, always (zero where switched off), so that switching a term off leaves the others'
         draws unchanged (common random numbers)."""
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise ValueError(f"number of lenses n={n!r} is not allowed: an integer >= 1")
@@ -110,19 +145,30 @@ class SurfaceTolerances:
         g = torch.Generator().manual_seed(int(seed))
         sd = 1.0 / TOLERANCE_SIGMAS
 
-        def draw(k, limit):
-            return torch.randn((n, k), generator=g, dtype=torch.float64) * (limit * sd)
+        def draw(k, limit, *vector):
+            return torch.randn((n, k, *vector), generator=g, dtype=torch.float64) * (limit * sd)
 
+        lens_at = lens_surfaces(prescription)
+        elements = lens_elements(prescription)
         return SurfacePerturbations(
             radius_rel=draw(len(radius_at), self.radius_pct * 1e-2), radius_at=radius_at,
             thickness_mm=draw(len(thick_at), self.thickness_um * 1e-3), thickness_at=thick_at,
             conic_rel=draw(len(conic_at), self.conic_pct * 1e-2), conic_at=conic_at,
             index=draw(len(glass_at), self.index), index_at=glass_at,
-            despace_mm=draw(1, self.despace_um * 1e-3)[:, 0], tolerances=self)
+            despace_mm=draw(1, self.despace_um * 1e-3)[:, 0],
+            surface_decentre_mm=draw(len(lens_at), self.surface_decentre_um * 1e-3, 2),
+            surface_tilt_deg=draw(len(lens_at), self.surface_tilt_arcmin * ARCMIN_DEG, 2), surface_at=lens_at,
+            element_decentre_mm=draw(len(elements), self.element_decentre_um * 1e-3, 2),
+            element_tilt_deg=draw(len(elements), self.element_tilt_arcmin * ARCMIN_DEG, 2), elements=elements,
+            tolerances=self)
 
 
 SURFACE_GRADES = {name: SurfaceTolerances(radius_pct=t.radius_front_pct, thickness_um=THICKNESS_UM[name],
-                                          conic_pct=t.conic_pct, index=t.index, despace_um=t.despace_um)
+                                          conic_pct=t.conic_pct, index=t.index, despace_um=t.despace_um,
+                                          surface_decentre_um=t.asphere_decentre_um,
+                                          surface_tilt_arcmin=t.asphere_tilt_arcmin,
+                                          element_decentre_um=ELEMENT_DECENTRE_UM[name],
+                                          element_tilt_arcmin=t.lens_tilt_arcmin)
                   for name, t in GRADES.items()}
 """Named grades (``none``, ``commercial``, ``precision``): see the module docstring for the values' sources."""
 
@@ -138,7 +184,10 @@ def surface_grade(name: str) -> SurfaceTolerances:
 class SurfacePerturbations:
     """Sampled errors of ``N`` copies (float64, one column per surface the term applies to; ``*_at`` the 0-based
     surface indices of the columns): relative radius errors, thickness errors (mm) of the gap after the surface,
-    relative conic errors, index errors of the glass after the surface, and the despace (mm) ``(N,)``."""
+    relative conic errors, index errors of the glass after the surface, the despace (mm) ``(N,)``; the decentres (mm)
+    and tilts (degrees; ``[..., 0]`` about ``x``, ``[..., 1]`` about ``y``, as
+    :class:`lenssim.model.misalignment.Misalignment`) ``(N, k, 2)`` of the lens surfaces ``surface_at`` and of the
+    elements ``elements`` (``(first, last)`` surface indices)."""
 
     radius_rel: torch.Tensor
     radius_at: tuple[int, ...]
@@ -149,6 +198,12 @@ class SurfacePerturbations:
     index: torch.Tensor
     index_at: tuple[int, ...]
     despace_mm: torch.Tensor
+    surface_decentre_mm: torch.Tensor
+    surface_tilt_deg: torch.Tensor
+    surface_at: tuple[int, ...]
+    element_decentre_mm: torch.Tensor
+    element_tilt_deg: torch.Tensor
+    elements: tuple[tuple[int, int], ...]
     tolerances: SurfaceTolerances
 
     def __len__(self) -> int:
@@ -168,6 +223,20 @@ class SurfacePerturbations:
         for i, k in enumerate(self.index_at):
             out[f"index_s{k + 1}"] = (self.index[:, i], "1", f"index error of the glass after surface {k + 1}")
         out["despace_um"] = (self.despace_mm * 1e3, "um", "image-plane residual (despace)")
+        for i, k in enumerate(self.surface_at):
+            for j, ax in enumerate("xy"):
+                out[f"decentre_s{k + 1}_{ax}_um"] = (self.surface_decentre_mm[:, i, j] * 1e3, "um",
+                                                     f"decentre of surface {k + 1} along {ax}")
+            for j, ax in enumerate("xy"):
+                out[f"tilt_s{k + 1}_{ax}_arcmin"] = (self.surface_tilt_deg[:, i, j] * 60, "arcmin",
+                                                     f"tilt of surface {k + 1} about {ax}")
+        for i, (a, b) in enumerate(self.elements):
+            for j, ax in enumerate("xy"):
+                out[f"decentre_e{i + 1}_{ax}_um"] = (self.element_decentre_mm[:, i, j] * 1e3, "um",
+                                                     f"decentre of element {i + 1} (surfaces {a + 1}-{b + 1}) along {ax}")
+            for j, ax in enumerate("xy"):
+                out[f"tilt_e{i + 1}_{ax}_arcmin"] = (self.element_tilt_deg[:, i, j] * 60, "arcmin",
+                                                     f"tilt of element {i + 1} (surfaces {a + 1}-{b + 1}) about {ax}")
         return out
 
 
@@ -190,3 +259,24 @@ def perturbed_prescription(prescription: Prescription, pert: SurfacePerturbation
         raise ValueError(f"manufactured copy {i}: {exc} (tolerances too wide for this lens)") from None
     offsets = {k: float(pert.index[i, j]) for j, k in enumerate(pert.index_at) if float(pert.index[i, j]) != 0.0}
     return p, offsets
+
+
+def copy_misalignments(prescription: Prescription, pert: SurfacePerturbations, i: int) -> dict:
+    """Copy ``i``'s decentres and tilts as ``{surface index: (Misalignment, ...)}`` for
+    :class:`lenssim.optics.sequential.SequentialLens` (``prescription``: the copy's own, whose vertices pivot the
+    element tilts): each lens surface's own motion about its vertex, then its element's about the element's first
+    vertex. Empty when every term is zero."""
+    motions: dict[int, list] = {}
+    z = prescription.vertex_z_mm
+    for j, k in enumerate(pert.surface_at):
+        d, t = pert.surface_decentre_mm[i, j].tolist(), pert.surface_tilt_deg[i, j].tolist()
+        m = Misalignment(decentre_x_mm=d[0], decentre_y_mm=d[1], tilt_x_deg=t[0], tilt_y_deg=t[1])
+        if not m.is_zero:
+            motions.setdefault(k, []).append(m)
+    for j, (a, b) in enumerate(pert.elements):
+        d, t = pert.element_decentre_mm[i, j].tolist(), pert.element_tilt_deg[i, j].tolist()
+        m = Misalignment(decentre_x_mm=d[0], decentre_y_mm=d[1], tilt_x_deg=t[0], tilt_y_deg=t[1], pivot_z_mm=z[a])
+        if not m.is_zero:
+            for k in range(a, b + 1):
+                motions.setdefault(k, []).append(m)
+    return {k: tuple(v) for k, v in motions.items()}

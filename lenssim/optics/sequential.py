@@ -1,4 +1,5 @@
-"""Any centred sequential lens from a prescription: paraxial data, Seidel sums, real rays and the exact wavefront.
+"""Any sequential lens from a prescription, centred or with decentred and tilted surfaces: paraxial data, Seidel sums,
+real rays and the exact wavefront.
 
 :class:`SequentialLens` reads a :class:`lenssim.model.prescription.Prescription` (surfaces numbered as in the file,
 object = 0) and answers, at any wavelength of the prescription:
@@ -24,6 +25,18 @@ Conventions: the axis is ``z``, surface 1's vertex at ``z = 0``; fields lie alon
 chief ray's direction ``(0, sin a, cos a)`` in object space; an object height ``h`` sits at ``y = -h``, so both image
 above the axis for a positive lens). Units: mm, um for wavelengths, waves for wavefronts.
 
+Misalignment (decentre and tilt, ``misalignments``; :mod:`lenssim.model.misalignment` gives the rigid motion, its
+signs and its pivot): the real rays (:meth:`SequentialLens.trace`, so :meth:`SequentialLens.aim` and
+:meth:`SequentialLens.wavefront`) meet each moved surface in its own nominal frame (the rays' points and directions
+carried through the inverse of the surface's motion, intersected, refracted, vignetted by the semi-diameter there,
+and carried back); the real aiming puts pupil point ``(px, py)`` at ``(px, py)`` times the stop's paraxial radius in
+the stop's own frame (the chief ray through the moved stop's centre). The image plane stays where it was, normal to
+the axis; the rest keeps the centred lens: the paraxial data (:meth:`SequentialLens.paraxial`, so the entrance and
+exit pupils, the aiming's starting guess and the reference sphere's exit-pupil plane), the Seidel and chromatic sums
+are those of the lens without its misalignments. A misaligned lens is not rotationally symmetric: a field at image
+azimuth ``phi`` is the field along ``+y`` of :meth:`SequentialLens.rotated` ``(phi)``. With no misalignment every
+result is bit for bit what it was before misalignments existed.
+
 References
 ----------
 .. [1] W. T. Welford, *Aberrations of Optical Systems* (Adam Hilger, 1986), ch. 4 (optical path, reference sphere),
@@ -38,6 +51,7 @@ from dataclasses import dataclass
 import torch
 
 from ..model.glass import as_glass
+from ..model.misalignment import Misalignment
 from ..model.prescription import Prescription, PrescriptionError
 from ..model.surface import Surface
 from .paraxial import seidel_surface_sums
@@ -168,15 +182,21 @@ def _sag(c, k, coeffs, rho):
 
 
 class SequentialLens:
-    """A centred sequential lens (see the module docstring) built from a :class:`Prescription`.
+    """A sequential lens (see the module docstring) built from a :class:`Prescription`.
 
     ``image_shift_mm`` moves the image plane along the axis from where the prescription puts it (refocusing).
     ``index_offsets``: ``{surface index (0-based): dn}``, an absolute refractive-index error added at every wavelength
     to the glass after that surface (a manufactured copy's melt: the catalogue glass keeps its dispersion); only
     glass may carry one.
+    ``misalignments``: ``{surface index (0-based): Misalignment}``, each surface's decentre and tilt
+    (:class:`lenssim.model.misalignment.Misalignment`; an element's from
+    :func:`lenssim.model.misalignment.element_misalignment`), or a tuple of them applied in order (e.g. a surface's
+    own wedge within its element, then the element's motion in the barrel); zero ones are dropped. They change the real rays only
+    (module docstring): the paraxial data and the Seidel sums remain the centred lens's.
     """
 
-    def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0, index_offsets=None):
+    def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0, index_offsets=None,
+                 misalignments=None):
         self.prescription = prescription
         self.image_shift_mm = float(image_shift_mm)
         self._glasses = []
@@ -194,6 +214,30 @@ class SequentialLens:
                 offsets[i] = float(dn)
         self.index_offsets = dict(sorted(offsets.items()))
         self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64)
+        moved = {}
+        for i, m in dict(misalignments or {}).items():
+            if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(self._glasses):
+                raise ValueError(f"misalignment at surface index {i!r} is not allowed: 0 to {len(self._glasses) - 1}")
+            motions = (m,) if isinstance(m, Misalignment) else tuple(m) if isinstance(m, (tuple, list)) else (m,)
+            for one in motions:
+                if not isinstance(one, Misalignment):
+                    raise ValueError(f"surface {i + 1}: misalignment {one!r} is not allowed: a "
+                                     "lenssim.model.misalignment.Misalignment (or a sequence of them)")
+            motions = tuple(one for one in motions if not one.is_zero)
+            if motions:
+                moved[i] = motions[0] if len(motions) == 1 else motions
+        self.misalignments = dict(sorted(moved.items()))
+        self._frames = {}  # surface index -> (A (3, 3), b (3,)), float64: a nominal point X goes to A X + b
+        for i, m in self.misalignments.items():
+            A = torch.eye(3, dtype=torch.float64)
+            b = torch.zeros(3, dtype=torch.float64)
+            for one in (m,) if isinstance(m, Misalignment) else m:  # applied in order: X -> R (X - pivot) + pivot + dec
+                R = torch.tensor(one.rotation_matrix(), dtype=torch.float64)
+                pivot = torch.tensor([0.0, 0.0, float(self._z[i]) if one.pivot_z_mm is None else one.pivot_z_mm],
+                                     dtype=torch.float64)
+                dec = torch.tensor([one.decentre_x_mm, one.decentre_y_mm, 0.0], dtype=torch.float64)
+                A, b = R @ A, R @ (b - pivot) + pivot + dec
+            self._frames[i] = (A, b)
 
     # -- materials -------------------------------------------------------------------------------------------------
     @staticmethod
@@ -215,14 +259,44 @@ class SequentialLens:
         return 1.0 if g is None else float(g.index(wavelength_um)) + self.index_offsets.get(i, 0.0)
 
     def cache_key(self) -> str:
-        """A stable text naming everything that sets this lens's optics (the prescription, the image plane and any
-        index offsets): equal keys, equal rays. Without index offsets it is what it was before they existed."""
+        """A stable text naming everything that sets this lens's optics (the prescription, the image plane, any
+        index offsets and misalignments): equal keys, equal rays. Without index offsets and misalignments it is what
+        it was before they existed."""
         import json
 
         parts = [self.prescription.to_dict(), self.image_shift_mm]
         if self.index_offsets:
             parts.append({"index_offsets": {str(k): v for k, v in self.index_offsets.items()}})
+        if self.misalignments:
+            parts.append({"misalignments": {str(k): m.to_dict() if isinstance(m, Misalignment) else
+                                            [one.to_dict() for one in m] for k, m in self.misalignments.items()}})
         return json.dumps(parts, sort_keys=True, default=str)
+
+    @property
+    def is_centred(self) -> bool:
+        """No surface decentred or tilted (the lens is rotationally symmetric about ``z``)."""
+        return not self.misalignments
+
+    def rotated(self, azimuth_deg: float) -> "SequentialLens":
+        """The same lens seen in a frame turned about ``z`` (:meth:`Misalignment.rotated`): same prescription, image
+        shift and index offsets, each misalignment turned so that this new lens's field along ``+y`` is this lens's
+        field at image-plane azimuth ``azimuth_deg`` (degrees, from ``+y`` toward ``+x``). Its rays are this lens's
+        rotated: a point or direction ``(x, y, z)`` of this lens's trace at that azimuth is ``(x c - y s, x s + y c,
+        z)`` in the new lens's (``c, s = cos, sin(azimuth)``); e.g. after ``rotated(90)`` the field along ``+y`` is this
+        lens's field along ``+x``, and an image point ``(x, y)`` here is ``(-y, x)`` there. A centred lens is its own
+        rotation."""
+        return SequentialLens(self.prescription, image_shift_mm=self.image_shift_mm, index_offsets=self.index_offsets,
+                              misalignments={i: m.rotated(azimuth_deg) if isinstance(m, Misalignment) else
+                                             tuple(one.rotated(azimuth_deg) for one in m)
+                                             for i, m in self.misalignments.items()})
+
+    def _to_local(self, i: int, points: torch.Tensor) -> torch.Tensor:
+        """Points ``(R, 3)`` of the lens's frame in surface ``i``'s nominal frame (its misalignment undone; the
+        identity for an aligned surface)."""
+        if i not in self._frames:
+            return points
+        A, b = self._frames[i]
+        return (points - b) @ A
 
     @property
     def primary_wavelength_um(self) -> float:
@@ -275,7 +349,8 @@ class SequentialLens:
         return -h1 / ubar
 
     def paraxial(self, wavelength_um: float | None = None) -> ParaxialData:
-        """First-order data at ``wavelength_um`` (default the primary); see :class:`ParaxialData`."""
+        """First-order data at ``wavelength_um`` (default the primary); see :class:`ParaxialData`. Those of the centred
+        lens: misalignments are left out."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         p = self.prescription
         surfs = p.surfaces
@@ -323,7 +398,8 @@ class SequentialLens:
 
     def seidel_surfaces(self, field: float, wavelength_um: float | None = None) -> torch.Tensor:
         """Seidel sums ``(S_I .. S_V)`` (mm) of each surface at ``field`` (deg or mm): ``(N, 5)``, float64; the marginal
-        ray at the entrance pupil's rim, the chief ray through the stop's centre; sum over the surfaces for the lens's."""
+        ray at the entrance pupil's rim, the chief ray through the stop's centre; sum over the surfaces for the lens's. The
+        centred lens's: misalignments are left out."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         p = self.prescription
         z_ep = self._entrance_pupil_z(lam)
@@ -435,7 +511,9 @@ class SequentialLens:
               upto: int | None = None, opl_start: torch.Tensor | None = None, vignette: bool = True) -> RayBundle:
         """Trace rays from ``starts`` ``(R, 3)`` along ``directions`` ``(R, 3)`` (object space, air) through the
         surfaces (up to index ``upto`` included, 0-based); OPL counted from ``opl_start`` (default: the plane through
-        the origin normal to each ray's direction, ``n (P . d)``). ``vignette``: clip by the semi-diameters."""
+        the origin normal to each ray's direction, ``n (P . d)``). ``vignette``: clip by the semi-diameters (a
+        misaligned surface's in its own frame). Points and directions are in the lens's frame, after any
+        misalignment."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         P = starts.to(torch.float64)
         d = directions.to(torch.float64)
@@ -450,7 +528,14 @@ class SequentialLens:
         surfs = self.prescription.surfaces
         stop = self.prescription.stop_index
         for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
-            X, N, t, ok, rho = self._intersect(P, d, s, float(self._z[i]), valid)
+            frame = self._frames.get(i)
+            if frame is None:
+                X, N, t, ok, rho = self._intersect(P, d, s, float(self._z[i]), valid)
+            else:  # in the surface's nominal frame (its motion undone), then back: distances and angles kept
+                A, b = frame
+                X, N, t, ok, rho = self._intersect((P - b) @ A, d @ A, s, float(self._z[i]), valid)
+                X = X @ A.T + b
+                N = N @ A.T
             if s.semi_diameter_mm is not None and i != stop:
                 within = rho <= s.semi_diameter_mm**2 * (1 + 1e-12)
                 ratio = torch.maximum(ratio, torch.sqrt(rho.clamp(min=0)) / s.semi_diameter_mm)
@@ -488,7 +573,8 @@ class SequentialLens:
             method: str = "real"):
         """Rays of ``field`` (deg or mm) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
         opl_start)``. ``method``: ``"real"`` (each ray meets the stop surface at ``(px, py)`` times the stop's radius,
-        Newton on real rays) or ``"paraxial"`` (through the paraxial entrance pupil at ``(px, py)`` times its radius)."""
+        in the stop's own frame if it is decentred or tilted; Newton on real rays) or ``"paraxial"`` (through the
+        paraxial entrance pupil at ``(px, py)`` times its radius)."""
         if method not in AIM_METHODS:
             raise ValueError(f"ray aiming {method!r} is not known; one of {', '.join(AIM_METHODS)}")
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
@@ -516,7 +602,7 @@ class SequentialLens:
         def at_stop(xv, yv):
             P, d, o = self._beam(field, xv, yv, lam, z_start)
             b = self.trace(P, d, lam, upto=k, opl_start=o, vignette=False)
-            return b.points[:, :2], b.valid
+            return self._to_local(k, b.points)[:, :2], b.valid  # in the stop's own frame if it is misaligned
 
         h = FD_STEP * r_ep
         for _ in range(AIM_ITERATIONS):
@@ -655,7 +741,7 @@ class SequentialLens:
         from dataclasses import replace
 
         seq = SequentialLens(replace(self.prescription, fields=tuple(fields)), image_shift_mm=self.image_shift_mm,
-                             index_offsets=self.index_offsets)
+                             index_offsets=self.index_offsets)  # paraxial: the centred lens's
         return list(seq.paraxial(wavelength_um).image_heights_mm)
 
 

@@ -197,11 +197,12 @@ class WavefrontTable:
         return out[:, 0], out[:, 1]
 
 
-def _chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> float:
-    """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``y`` (mm)."""
+def _chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
+    """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``(x, y)`` (mm; ``x`` is 0
+    for a centred lens, and taken as exactly 0 there)."""
     zero = torch.zeros(1, dtype=torch.float64)
     w = seq.wavefront(alpha, zero, zero, lam)
-    return float(w.chief_mm[1])
+    return (0.0 if seq.is_centred else float(w.chief_mm[0])), float(w.chief_mm[1])
 
 
 def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: int):
@@ -212,10 +213,10 @@ def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: 
     Y, X = torch.meshgrid(coords, coords, indexing="ij")
     inside = X**2 + Y**2 <= (1 + 2 * (coords[1] - coords[0])) ** 2
     paraxial = scale_mm * math.tan(math.radians(alpha))
-    chief = _chief_point_mm(seq, alpha, seq.primary_wavelength_um)
+    chief_x, chief = _chief_point_mm(seq, alpha, seq.primary_wavelength_um)
     out = []
     for lam in lams:
-        w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(0.0, chief), vignette=False)
+        w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(chief_x, chief), vignette=False)
         W = torch.zeros(grid, grid, dtype=torch.float64)
         V = torch.zeros(grid, grid, dtype=torch.bool)
         T = torch.zeros(grid, grid, dtype=torch.bool)
@@ -228,7 +229,7 @@ def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: 
         if not bool(disc.any()):
             raise ValueError(f"field {alpha:.4g} deg at {lam:g} um: every ray is vignetted")
         pts = w.image_mm[w.valid][:, :2]
-        spot = float(torch.hypot(pts[:, 0], pts[:, 1] - paraxial).max())
+        spot = float(torch.hypot(pts[:, 0] - chief_x, pts[:, 1] - paraxial).max())
         out.append((_inpaint(W, T), ratio, spot, disc))
     return out, chief - paraxial
 
@@ -322,6 +323,8 @@ class SequentialPSF(PSFProvider):
         if not (math.isfinite(amax) and 0 <= amax < 90):
             raise ValueError(f"max_field_deg={amax!r} is not allowed: a field angle from 0 to below 90 degrees")
         object.__setattr__(self, "max_field_deg", amax)
+        if not self.lens.is_centred:  # not rotationally symmetric: no mirror groups in a blur
+            object.__setattr__(self, "mirror_symmetric", False)
         par = self.lens.paraxial()
         if not (math.isfinite(par.working_f_number) and par.working_f_number > 0):
             raise ValueError("the lens has no finite working F-number (its image is at infinity)")
@@ -492,6 +495,8 @@ class SequentialPSF(PSFProvider):
         so the support lies symmetrically about the grid's centre) and laid in the middle of the grid, the light
         beyond the support spread evenly over it (``pedestal``) or the support renormalised; ``table``: another
         wavefront table on this one's wavelengths (default :meth:`table`; e.g. the aberration-free pupil)."""
+        if not self.lens.is_centred:
+            _check_misaligned(phi_rad, distortion)
         k = min(n, int(support_px))
         k = min(n, k + (n - k) % 2)
         small, captured = psfs_from_table(
@@ -514,9 +519,23 @@ class SequentialPSF(PSFProvider):
              "sampling": self.sampling, "numerics": self.numerics.to_dict()}
         if getattr(self.lens, "index_offsets", None):  # a manufactured copy's glass errors (absent: as before)
             d["index_offsets"] = {str(k): v for k, v in self.lens.index_offsets.items()}
+        if not self.lens.is_centred:  # a manufactured copy's decentres and tilts (absent: as before)
+            d["lens_cache_key"] = self.lens.cache_key()
         if self.table_max_nodes != TABLE_MAX_NODES:
             d["table_max_nodes"] = self.table_max_nodes
         return json.dumps(d, sort_keys=True, default=str)
+
+
+def _check_misaligned(phi_rad, distortion: bool) -> None:
+    """A misaligned lens (not rotationally symmetric) has PSFs along its ``+y`` field only (image azimuth ``pi/2``;
+    other azimuths are :meth:`SequentialLens.rotated`'s ``+y``), about the chief ray's point (its boresight shift is
+    not a radial distortion)."""
+    phi = torch.as_tensor(phi_rad, dtype=torch.float64)
+    if phi.numel() and bool(((phi - math.pi / 2).abs() > 1e-12).any()):
+        raise ValueError("a decentred or tilted lens's PSFs are defined along its +y field only (image azimuth 90 "
+                         "deg): take the other azimuths from SequentialLens.rotated")
+    if distortion:
+        raise ValueError("a decentred or tilted lens's PSFs are about the chief ray's point only (distortion=False)")
 
 
 def _paraxial_image_heights(seq: SequentialLens, lam: float, z_img: float, tan_field: float):

@@ -15,8 +15,9 @@ import torch
 
 from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
-from lenssim.model.surface_tolerances import (NOT_SUPPORTED, SURFACE_GRADES, SurfaceTolerances,
-                                              perturbed_prescription)
+from lenssim.model.misalignment import Misalignment
+from lenssim.model.surface_tolerances import (SURFACE_GRADES, SurfaceTolerances, copy_misalignments, lens_elements,
+                                              lens_surfaces, perturbed_prescription)
 from lenssim.model.tolerances import GRADES
 from lenssim.optics.sequential import SequentialLens
 from lenssim.sequential_metrics import evaluate_sequential
@@ -59,8 +60,8 @@ def test_grades_reuse_the_singlet_grades_and_name_a_thickness():
                                                                                         index=2e-4)
 
 
-@pytest.mark.parametrize("d, match", [({"decentre_um": 10}, "decentre and tilt need a tracer"),
-                                      ({"tilt_arcmin": 1}, "decentre and tilt need a tracer"),
+@pytest.mark.parametrize("d, match", [({"decentre_um": 10}, "unknown key(s) ['decentre_um']"),
+                                      ({"surface_tilt_arcmin": -1}, "surface_tilt_arcmin=-1 is not allowed"),
                                       ({"radius_front_pct": 1}, "unknown key(s) ['radius_front_pct']"),
                                       ({"radius_pct": -1}, "radius_pct=-1 is not allowed"),
                                       ({"grade": "best"}, "grade 'best' is not known")])
@@ -221,7 +222,7 @@ def test_cli_writes_three_files(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("extra, toml, match", [
-    ((), "[tolerances]\ndecentre_um = 10\n", "decentre and tilt need a tracer without rotational symmetry"),
+    ((), "[tolerances]\ndecentre_um = 10\n", "unknown key(s) ['decentre_um']"),
     ((), "[tolerances]\nradius_pct = 1\nwobble = 2\n", "unknown key(s) ['wobble']"),
     (("--design", "end_to_end_paper"), None, "--design describe"),
     (("--yield", "mse_r<=0.1"), None, "--yield belong(s) to the paper's singlet"),
@@ -240,10 +241,6 @@ def test_cli_refuses_in_one_line(tmp_path, capsys, extra, toml, match):
     err = capsys.readouterr().err
     assert match in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
-
-
-def test_not_supported_message_is_the_one_line():
-    assert NOT_SUPPORTED == "decentre and tilt need a tracer without rotational symmetry: not supported for --lens yet"
 
 
 def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singlet, tmp_path):
@@ -277,3 +274,119 @@ def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singl
     other = LensToleranceRun(psf, tol, 3, 2, SNR, 0.937, SMALL, angles_deg=(0.0, 3.0), chunk_copies=1)
     with pytest.raises(FileExistsError, match="not the finished result"):
         run_lens_tolerance_resumable(other, out, show_progress=False)
+
+
+def test_grades_take_the_singlets_decentres_and_tilts():
+    for name, t in GRADES.items():
+        s = SURFACE_GRADES[name]
+        assert (s.surface_decentre_um, s.surface_tilt_arcmin, s.element_tilt_arcmin) == (
+            t.asphere_decentre_um, t.asphere_tilt_arcmin, t.lens_tilt_arcmin)
+    assert SURFACE_GRADES["commercial"].element_decentre_um == 25.0
+
+
+def test_elements_are_runs_of_glass():
+    cooke = read_lens("cooke_triplet")  # the stop (surface 5) in air between elements 2 and 3
+    assert lens_elements(cooke) == ((0, 1), (2, 3), (5, 6)) and 4 not in lens_surfaces(cooke)
+    gauss = read_lens("double_gauss")  # two cemented doublets: one element each
+    assert lens_elements(gauss) == ((0, 1), (2, 4), (6, 8), (9, 10))
+
+
+def test_copy_misalignments_compose_the_surface_and_element_motions():
+    cooke = read_lens("cooke_triplet")
+    only = SurfaceTolerances(surface_tilt_arcmin=3.0, element_decentre_um=25.0)
+    pert = only.sample(cooke, 4, seed=3)
+    m = copy_misalignments(cooke, pert, 2)
+    assert set(m) == set(lens_surfaces(cooke))
+    z = cooke.vertex_z_mm
+    for e, (a, b) in enumerate(lens_elements(cooke)):
+        dx, dy = (pert.element_decentre_mm[2, e] * 1.0).tolist()
+        for k in range(a, b + 1):
+            own, elem = m[k]
+            assert own.pivot_z_mm is None and own.decentre_x_mm == 0 and own.tilt_deg > 0  # the surface's wedge
+            assert (elem.decentre_x_mm, elem.decentre_y_mm, elem.pivot_z_mm) == (dx, dy, z[a]) and elem.tilt_deg == 0
+    # the draws of the earlier terms are those of a run without the new ones (common random numbers)
+    old = SurfaceTolerances(radius_pct=1.0).sample(cooke, 4, seed=3)
+    new = replace(SURFACE_GRADES["commercial"], thickness_um=0.0, conic_pct=0.0, index=0.0, despace_um=0.0,
+                  radius_pct=1.0).sample(cooke, 4, seed=3)
+    assert torch.equal(old.radius_rel, new.radius_rel)
+
+
+def test_a_singlet_decentred_with_its_stop_only_moves_the_image(singlet):
+    """Lens and stop translated across a collimated beam: the image is translated by the same amount and nothing
+    else changes, so every registered criterion is the nominal's; a tilt of the same lens is not a translation."""
+    p, seq = singlet
+    kw = dict(rho0=0.937, angles_deg=(0.0, 3.0), numerics=SMALL, criteria=("mse_s", "mse_r", "rms_w"))
+    nominal = evaluate_sequential(_provider(p, seq), SNR, **kw)
+    moved = SequentialLens(p, misalignments={0: Misalignment(decentre_x_mm=0.05, decentre_y_mm=-0.08),
+                                             1: Misalignment(decentre_x_mm=0.05, decentre_y_mm=-0.08)})
+    z = SequentialLens(p).wavefront(3.0, torch.zeros(1), torch.zeros(1)).chief_mm
+    assert torch.allclose(moved.wavefront(3.0, torch.zeros(1), torch.zeros(1)).chief_mm,
+                          z + torch.tensor([0.05, -0.08, 0.0], dtype=torch.float64), atol=1e-12)
+    got = evaluate_sequential(_provider(p, moved), SNR, **kw)
+    for k in ("mse_s", "mse_r", "rms_w"):
+        assert torch.allclose(got[k], nominal[k], rtol=1e-7, atol=0), k
+    tilted = SequentialLens(p, misalignments={0: Misalignment(tilt_x_deg=0.5), 1: Misalignment(tilt_x_deg=0.5,
+                                                                                             pivot_z_mm=0.0)})
+    off = evaluate_sequential(_provider(p, tilted), SNR, **kw)
+    assert float(off["mse_s"][0]) > float(nominal["mse_s"][0]) * 1.01
+
+
+def _full_plane_mse(psf_centered, m, rho0, sigma2, H_ref=None):
+    """mse_s and mse_r_nominal by their definitions over the whole m x m DFT grid (no quarter-plane symmetry)."""
+    from lenssim.optics.image_model import image_psd_quarter
+
+    n = psf_centered.shape[-1]
+    pad = torch.zeros(m, m, dtype=torch.float64)
+    o = m // 2 - n // 2
+    pad[o:o + n, o:o + n] = psf_centered
+    H = torch.fft.fft2(torch.fft.ifftshift(pad))
+    q = image_psd_quarter(m, rho0, dtype=torch.float64)
+    k = torch.arange(m)
+    fold = torch.minimum(k, m - k)
+    P = q[fold[:, None], fold[None, :]]
+    mse_s = sigma2 + ((1 - H).abs().square() * P).mean()
+    G = H_ref.conj() * P / (H_ref.abs().square() * P + sigma2)
+    mse_rn = ((1 - G * H).abs().square() * P + G.abs().square() * sigma2).mean()
+    return float(mse_s), float(mse_rn)
+
+
+def test_an_asymmetric_psf_is_scored_over_the_whole_frequency_plane():
+    """A tilted back surface (a wedge) makes the PSF asymmetric about its meridian: evaluate_sequential's two
+    quarters equal the definitions summed over the full DFT grid."""
+    p = read_lens(LENS_FILE)
+    wedge = SequentialLens(p, misalignments={1: Misalignment(tilt_x_deg=0.3, tilt_y_deg=0.4)})
+    psf, ref = _provider(p, wedge), _provider(p, SequentialLens(p))
+    snr = (27.6,)
+    got = evaluate_sequential(psf, snr, rho0=0.937, angles_deg=(2.0,), numerics=SMALL, reference=ref,
+                              criteria=("mse_s", "mse_r_nominal"))
+    n = got["psf_grid_px"]
+    m = n * SMALL.oversample
+    a, phi = torch.tensor([2.0], dtype=torch.float64), torch.tensor([math.pi / 2], dtype=torch.float64)
+    P = psf.psfs_at_angles(a, phi, n, n, distortion=False, complex_dtype=torch.complex128)[0, 0]
+    assert not torch.allclose(P, P.flip(-1).roll(1, -1), atol=1e-4)  # not mirror-symmetric
+    R = ref.psfs_at_angles(a, phi, n, n, distortion=False, complex_dtype=torch.complex128)[0, 0]
+    pad = torch.zeros(m, m, dtype=torch.float64)
+    o = m // 2 - n // 2
+    pad[o:o + n, o:o + n] = R
+    sigma2 = 10 ** (-27.6 / 10)
+    mse_s, mse_rn = _full_plane_mse(P, m, 0.937, sigma2, torch.fft.fft2(torch.fft.ifftshift(pad)))
+    assert float(got["mse_s"][0]) == pytest.approx(mse_s, rel=1e-10)
+    assert float(got["mse_r_nominal"][0]) == pytest.approx(mse_rn, rel=1e-10)
+
+
+def test_a_decentred_copy_is_averaged_over_four_azimuths(singlet):
+    from lenssim.sequential_tolerance import copy_criteria, nominal_criteria
+
+    p, seq = singlet
+    psf = _provider(p, seq)
+    kw = dict(rho0=0.937, angles_deg=(0.0, 3.0), numerics=SMALL)
+    nominal, _, _ = nominal_criteria(psf, SNR, **kw)
+    pert = SurfaceTolerances(surface_tilt_arcmin=30.0).sample(p, 1, seed=0)
+    row = copy_criteria(psf, nominal, pert, 0, SNR, **kw)
+    lens = manufactured_lens(seq, pert, 0)
+    assert not lens.is_centred
+    each = [evaluate_sequential(copy_provider(psf, lens.rotated(a)), SNR, criteria=("mse_s", "mse_r_nominal"),
+                                reference=nominal, **kw) for a in (0, 90, 180, 270)]
+    assert torch.allclose(row["mse_s"], sum(e["mse_s"] for e in each) / 4, rtol=1e-12, atol=0)
+    assert len({round(float(e["mse_s"][0]), 12) for e in each}) > 1  # the azimuths differ
+    assert (row["mse_r_nominal"] >= row["mse_r"] * (1 - 1e-12)).all()
