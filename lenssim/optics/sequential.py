@@ -60,8 +60,9 @@ __all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_M
            "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError"]
 
 AIM_METHODS = ("real", "paraxial")
-AIM_ITERATIONS = 20
-"""Most Newton steps of the real-ray aiming (each a real trace of the bundle and two of its neighbours)."""
+AIM_ITERATIONS = 60
+"""Most Newton steps of the real-ray aiming (each a real trace of the bundle and two of its neighbours; the loop
+stops as soon as every ray has converged, usually in a few steps: rays grazing a steep rim can take tens)."""
 AIM_TOLERANCE = 1e-9
 """Aiming converged: every ray meets the stop within this fraction of the stop's radius of its target."""
 NEWTON_ITERATIONS = 12
@@ -572,7 +573,10 @@ class SequentialLens:
     def aim(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
             method: str = "real"):
         """Rays of ``field`` (deg or mm) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
-        opl_start)``. ``method``: ``"real"`` (each ray meets the stop surface at ``(px, py)`` times the stop's radius,
+        opl_start)`` (a start of NaN, not traced, where the aiming did not converge for a point beyond the unit disc or
+        a ray that would not pass the lens's semi-diameters; for a ray within the disc that would pass it is a
+        :class:`RayTraceError`). ``method``: ``"real"`` (each ray meets the stop surface at
+        ``(px, py)`` times the stop's radius,
         in the stop's own frame if it is decentred or tilted; Newton on real rays) or ``"paraxial"`` (through the
         paraxial entrance pupil at ``(px, py)`` times its radius)."""
         if method not in AIM_METHODS:
@@ -624,8 +628,16 @@ class SequentialLens:
             s0, ok = at_stop(x, y)
             bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * par.stop_radius_mm)
             if bool(bad.any()):
-                raise RayTraceError(f"field {field:g}: ray aiming at the stop (surface {k + 1}) did not converge in "
-                                    f"{AIM_ITERATIONS} steps for {int(bad.sum())} of {bad.numel()} pupil points")
+                # tolerated, and not traced: a point beyond the unit disc (a table's margin for interpolation), or a
+                # ray that would not pass the lens where the search stopped (grazing a rim it is vignetted by)
+                P, d, o = self._beam(field, x, y, lam, z_start)
+                passes = self.trace(P, d, lam, opl_start=o, vignette=False).passed
+                fatal = bad & (px.square() + py.square() <= 1.0) & passes
+                if bool(fatal.any()):
+                    raise RayTraceError(f"field {field:g}: ray aiming at the stop (surface {k + 1}) did not converge "
+                                        f"in {AIM_ITERATIONS} steps for {int(fatal.sum())} of {bad.numel()} pupil "
+                                        "points")
+                x = torch.where(bad, torch.full_like(x, math.nan), x)
         return self._beam(field, x, y, lam, z_start)
 
     # -- wavefront ---------------------------------------------------------------------------------------------------

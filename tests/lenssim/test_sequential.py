@@ -215,3 +215,25 @@ def test_the_shipped_lenses_pass_their_axial_beam(name):
     from lenssim.io.prescription_file import read_lens
 
     SequentialLens(read_lens(name)).check_aperture()
+
+
+def test_aiming_that_does_not_converge_beyond_the_pupil_leaves_the_ray_untraced(monkeypatch):
+    """The double Gauss at 6.205 deg: two rays of a wavefront table's margin (pupil radius 1.05, far outside a
+    semi-diameter) need more than 20 Newton steps (once a RayTraceError that stopped every PSF of this lens). Cut
+    short, a point beyond the unit disc is left untraced (NaN, not valid), and a point within it is still an error."""
+    import lenssim.optics.sequential as seq_mod
+
+    from lenssim.io.prescription_file import read_lens
+
+    lens = SequentialLens(read_lens("double_gauss"))
+    px = torch.tensor([-0.21945074326026714, 0.21945074326026714, 0.0], dtype=torch.float64)
+    py = torch.tensor([1.0297304106827916, 1.0297304106827916, 0.5], dtype=torch.float64)
+    w = lens.wavefront(6.205, px, py, vignette=False)  # the margin's rays miss a surface extended (ratio 8-9)
+    assert torch.isfinite(w.opd_waves[2]) and (w.aperture_ratio[:2] > 5).all()
+    monkeypatch.setattr(seq_mod, "AIM_ITERATIONS", 20)
+    w20 = lens.wavefront(6.205, px, py, vignette=False)
+    assert torch.isnan(w20.opd_waves[:2]).all() and not w20.valid[:2].any()
+    assert w20.opd_waves[2] == w.opd_waves[2]
+    monkeypatch.setattr(seq_mod, "AIM_ITERATIONS", 1)
+    with pytest.raises(seq_mod.RayTraceError, match="did not converge"):
+        lens.wavefront(6.205, px[2:] * 1.9, py[2:] * 1.9)
