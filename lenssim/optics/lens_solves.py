@@ -1,0 +1,106 @@
+"""Solves that hold what a designer holds fixed while free parameters move (issue 30, item 2).
+
+:func:`solve_design` applies a design's free parameters (:mod:`lenssim.model.lens_parameters`) to a prescription,
+then restores, in order:
+
+* ``efl``: the paraxial focal length (primary wavelength) of the file, by the curvature of one surface (default the
+  last curved surface). The system's power is affine in any one surface's curvature (the ``y-nu`` trace: the marginal
+  ray's height at that surface does not depend on its curvature, its slope after it is affine in it, and every later
+  refraction and transfer is linear), so two paraxial traces give the exact curvature; the result is checked by a
+  third (relative error below :data:`SOLVE_TOLERANCE`), and a design whose power does not depend on that surface (the
+  marginal ray at its vertex height 0) cannot be solved;
+* ``fnum``: the F-number (focal length / entrance-pupil diameter) of the file, by the entrance-pupil diameter;
+* the image plane (``image``): where the file puts it (``"file"``: the last thickness as the design leaves it, plus
+  ``focus_um``), or at the design's paraxial focus (``"paraxial"``, plus ``focus_um``).
+
+A design no solve can satisfy is a :class:`SolveError` saying which and why (the callers mark it invalid with that
+reason; never a silent fallback).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from ..model.lens_parameters import LensParameter, apply_parameters
+from ..model.prescription import Prescription
+from .sequential import SequentialLens
+
+__all__ = ["solve_design", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
+
+HOLDS = ("efl", "fnum")
+"""What a design may hold: the focal length (by a surface's curvature) and the F-number (by the entrance pupil)."""
+IMAGE_PLANES = ("file", "paraxial")
+SOLVE_TOLERANCE = 1e-9
+"""Relative error of a held focal length after its solve."""
+
+
+class SolveError(ValueError):
+    """A design whose solve cannot hold what is asked (one line: which solve and why)."""
+
+
+def default_solve_surface(p: Prescription) -> int:
+    """The 0-based index of the last curved surface (the focal length's solve by default)."""
+    curved = [i for i, s in enumerate(p.surfaces) if s.curvature_per_mm != 0]
+    if not curved:
+        raise SolveError("the focal length cannot be held: the lens has no curved surface")
+    return curved[-1]
+
+
+def _efl(p: Prescription) -> float:
+    return SequentialLens(p).paraxial().efl_mm
+
+
+def solve_design(p: Prescription, values: dict, *, hold=(), solve_surface: int | None = None,
+                 image: str = "file") -> tuple[Prescription, float]:
+    """The prescription of the design ``values`` (``{LensParameter or name: value}``) on the lens ``p`` with the
+    ``hold`` solves (:data:`HOLDS`) and the image plane ``image`` (:data:`IMAGE_PLANES`): ``(prescription,
+    image_shift_mm)`` (the shift from the returned prescription's own image distance). ``solve_surface``: the
+    0-based surface whose curvature holds the focal length (default :func:`default_solve_surface`); it must not be a
+    free parameter. Errors: :class:`SolveError` (a solve that cannot hold), ``ValueError`` / ``PrescriptionError``
+    (an invalid design)."""
+    hold = tuple(hold)
+    for h in hold:
+        if h not in HOLDS:
+            raise ValueError(f"hold {h!r} is not allowed: one of {', '.join(HOLDS)}")
+    if image not in IMAGE_PLANES:
+        raise ValueError(f"image plane {image!r} is not allowed: one of {', '.join(IMAGE_PLANES)}")
+    k = default_solve_surface(p) if solve_surface is None and "efl" in hold else solve_surface
+    if "efl" in hold:
+        moved = {q.index if isinstance(q, LensParameter) else None for q in values}
+        bends = [q.index for q in values if isinstance(q, LensParameter) and q.kind == "bending"]
+        if k in moved or any(a <= k <= b for a, b in bends):
+            raise ValueError(f"surface {k + 1} holds the focal length: it cannot also be a free parameter (choose "
+                             "another solve surface)")
+    q, shift = apply_parameters(p, values)
+    par0 = SequentialLens(p).paraxial()
+    if "efl" in hold:
+        target = par0.efl_mm
+        c0 = q.surfaces[k].curvature_per_mm
+        step = max(abs(c0), 1.0 / abs(target)) * 1e-2
+
+        def at(c):
+            surfs = list(q.surfaces)
+            surfs[k] = replace(surfs[k], curvature_per_mm=c)
+            return replace(q, surfaces=tuple(surfs))
+
+        phi0, phi1 = 1.0 / _efl(at(c0)), 1.0 / _efl(at(c0 + step))
+        slope = (phi1 - phi0) / step
+        if not math.isfinite(slope) or abs(slope) * abs(target) < 1e-12:
+            raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: the system's power does "
+                             "not depend on it")
+        c = c0 + (1.0 / target - phi0) / slope
+        q = at(c)
+        got = _efl(q)
+        if not (math.isfinite(got) and abs(got / target - 1) <= SOLVE_TOLERANCE):
+            raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: {got:.6g} mm instead "
+                             f"of {target:.6g} mm")
+    if "fnum" in hold:
+        efl = SequentialLens(q).paraxial().efl_mm
+        epd = abs(efl) / par0.f_number
+        if not (math.isfinite(epd) and epd > 0):
+            raise SolveError(f"the F-number cannot be held: focal length {efl:.6g} mm")
+        q = replace(q, entrance_pupil_diameter_mm=epd)
+    if image == "paraxial":
+        shift += SequentialLens(q).paraxial().image_z_mm - q.image_z_mm
+    return q, shift
