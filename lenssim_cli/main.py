@@ -13,10 +13,10 @@ from lenssim import LensError, __version__
 from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
-from . import camera, lens, optics, tolerance
+from . import camera, design, lens, optics, tolerance
 from .common import check_arguments
 
-COMMAND_MODULES = (optics, tolerance, camera, lens)
+COMMAND_MODULES = (optics, tolerance, camera, lens, design)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
@@ -35,7 +35,7 @@ DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the re
 
 optics:  evaluate, sweep, optimum, reproduce, study, designs, demo, tolerance
 camera:  simulate, psnr-table, fig8
-lens:    inspect                           (lenssim COMMAND --help for each)"""
+lens:    inspect, tradeoff                 (lenssim COMMAND --help for each)"""
 
 
 class OneLineParser(argparse.ArgumentParser):

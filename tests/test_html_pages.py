@@ -5,6 +5,7 @@ installs Debian's `chromium` when missing)."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 import shutil
 import subprocess
 
@@ -70,3 +71,25 @@ def test_the_reproduce_page_renders_with_every_image_and_both_tables(reproduced)
     r = render(reproduced / "index.html")
     assert r["total"] == 4 and r["loaded"] == 4 and r["tables"] == 2
     assert "RMS_W optimum" in r["dom"] and "Table 1" in r["dom"]
+
+
+@pytest.fixture(scope="module")
+def traded(tmp_path_factory):
+    out = tmp_path_factory.mktemp("trade") / "out"
+    lens = Path(__file__).parent / "data" / "lenses" / "test_singlet.toml"
+    assert main(["tradeoff", "--lens", str(lens), "--vary", "S1.conic=-1:0:1", "--image", "paraxial", "--pixel-pitch",
+                 "5", "--snr", "27.6", "--levels", "3", "--quiet", "--out", str(out)]) == 0
+    return out
+
+
+def test_the_tradeoff_page_is_self_contained(traded):
+    text = (traded / "index.html").read_text()
+    assert text.count("data:image/png;base64,") == 1 and "<table>" in text
+    assert not re.search(r'src="(?!data:)', text)
+
+
+@needs_chromium
+def test_the_tradeoff_page_renders_with_its_figure_and_table(traded):
+    r = render(traded / "index.html")
+    assert r["total"] == 1 and r["loaded"] == 1 and r["tables"] == 1
+    assert "unconstrained optima" in r["dom"] and "S1.conic" in r["dom"]

@@ -26,7 +26,7 @@ from ..model.lens_parameters import LensParameter, apply_parameters
 from ..model.prescription import Prescription
 from .sequential import SequentialLens
 
-__all__ = ["solve_design", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
+__all__ = ["solve_design", "check_solves", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
 
 HOLDS = ("efl", "fnum")
 """What a design may hold: the focal length (by a surface's curvature) and the F-number (by the entrance pupil)."""
@@ -47,6 +47,23 @@ def default_solve_surface(p: Prescription) -> int:
     return curved[-1]
 
 
+def check_solves(p: Prescription, params, *, hold=(), solve_surface: int | None = None) -> int | None:
+    """Before any design: the surface (0-based) whose curvature holds the focal length (None without ``efl`` in
+    ``hold``), which none of the free ``params`` (:class:`LensParameter` s) may move; one-line ``ValueError``."""
+    for h in hold:
+        if h not in HOLDS:
+            raise ValueError(f"hold {h!r} is not allowed: one of {', '.join(HOLDS)}")
+    if "efl" not in hold:
+        return solve_surface
+    k = default_solve_surface(p) if solve_surface is None else solve_surface
+    moved = {q.index for q in params if isinstance(q, LensParameter) and q.kind not in ("bending", "focus")}
+    bends = [q.index for q in params if isinstance(q, LensParameter) and q.kind == "bending"]
+    if k in moved or any(a <= k <= b for a, b in bends):
+        raise ValueError(f"surface {k + 1} holds the focal length: it cannot also be a free parameter (choose "
+                         "another solve surface)")
+    return k
+
+
 def _efl(p: Prescription) -> float:
     return SequentialLens(p).paraxial().efl_mm
 
@@ -60,18 +77,9 @@ def solve_design(p: Prescription, values: dict, *, hold=(), solve_surface: int |
     free parameter. Errors: :class:`SolveError` (a solve that cannot hold), ``ValueError`` / ``PrescriptionError``
     (an invalid design)."""
     hold = tuple(hold)
-    for h in hold:
-        if h not in HOLDS:
-            raise ValueError(f"hold {h!r} is not allowed: one of {', '.join(HOLDS)}")
     if image not in IMAGE_PLANES:
         raise ValueError(f"image plane {image!r} is not allowed: one of {', '.join(IMAGE_PLANES)}")
-    k = default_solve_surface(p) if solve_surface is None and "efl" in hold else solve_surface
-    if "efl" in hold:
-        moved = {q.index if isinstance(q, LensParameter) else None for q in values}
-        bends = [q.index for q in values if isinstance(q, LensParameter) and q.kind == "bending"]
-        if k in moved or any(a <= k <= b for a, b in bends):
-            raise ValueError(f"surface {k + 1} holds the focal length: it cannot also be a free parameter (choose "
-                             "another solve surface)")
+    k = check_solves(p, values, hold=hold, solve_surface=solve_surface)
     q, shift = apply_parameters(p, values)
     par0 = SequentialLens(p).paraxial()
     if "efl" in hold:

@@ -1,0 +1,167 @@
+"""``lenssim tradeoff --lens LENS --vary NAME=LO:HI[:STEP] ...``: the paper's cost-performance trade-off on any lens
+(:mod:`lenssim_studies.lens_tradeoff`)."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+from .common import add_device_argument
+
+__all__ = ["register", "cmd_tradeoff", "parse_vary"]
+
+DEFAULT_GRID_VALUES = 9
+"""Values of a ``--vary NAME=LO:HI`` range without a step (LO and HI included)."""
+TRADEOFF_LEVELS = 30
+"""Cost levels of the front by default (the paper's 30)."""
+
+
+def parse_vary(text: str) -> tuple[str, tuple[float, ...]]:
+    """``NAME=LO:HI[:STEP]`` (LO and HI included; without STEP, :data:`DEFAULT_GRID_VALUES` values) or
+    ``NAME=V1,V2,...`` -> ``(NAME, values)``; a one-line ``ValueError`` otherwise."""
+    if "=" not in text:
+        raise ValueError(f"--vary {text!r} is not allowed: NAME=LO:HI[:STEP] or NAME=V1,V2,... (e.g. S7.conic=-2:0:0.25)")
+    name, spec = (t.strip() for t in text.split("=", 1))
+
+    def numbers(parts):
+        try:
+            return [float(v) for v in parts]
+        except ValueError:
+            raise ValueError(f"--vary {text!r} is not allowed: NAME=LO:HI[:STEP] or NAME=V1,V2,... with numbers") \
+                from None
+
+    if "," in spec:
+        values = tuple(numbers(spec.split(",")))
+    else:
+        parts = numbers(spec.split(":"))
+        if len(parts) not in (2, 3):
+            raise ValueError(f"--vary {text!r} is not allowed: NAME=LO:HI[:STEP] or NAME=V1,V2,... with numbers")
+        lo, hi = parts[:2]
+        if not (math.isfinite(lo) and math.isfinite(hi) and hi >= lo):
+            raise ValueError(f"--vary {text!r} is not allowed: finite LO <= HI")
+        if len(parts) == 2:
+            values = tuple(lo + (hi - lo) * k / (DEFAULT_GRID_VALUES - 1) for k in range(DEFAULT_GRID_VALUES))
+        else:
+            step = parts[2]
+            if not (math.isfinite(step) and step > 0):
+                raise ValueError(f"--vary {text!r} is not allowed: LO <= HI and a STEP > 0")
+            count = (hi - lo) / step
+            n = round(count)
+            if abs(count - n) > 1e-9 * max(1.0, count):
+                raise ValueError(f"--vary {text!r} is not allowed: HI - LO is not a whole number of STEPs")
+            if n + 1 > 100_000:
+                raise ValueError(f"--vary {text!r} is not allowed: {n + 1} values (at most 100000)")
+            values = tuple(lo + step * k for k in range(n + 1))
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"--vary {text!r} is not allowed: finite numbers")
+    return name, values
+
+
+def cmd_tradeoff(args) -> int:
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
+    from lenssim.optics.lens_solves import HOLDS
+    from lenssim.optics.sequential import SequentialLens
+    from lenssim.torch_utils import select_device
+    from lenssim_studies.html import image, markdown, table, write_page
+    from lenssim_studies.lens_tradeoff import LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json
+    from lenssim_studies.paper import PAPER_RHO0
+
+    if args.wavefront != "exact":
+        raise ValueError("--wavefront third_order is not supported with --lens yet: the trade-off of any lens uses "
+                         "real-ray wavefronts (exact)")
+    vary = [parse_vary(v) for v in args.vary]
+    hold = tuple(h.strip() for h in (args.hold or "").split(",") if h.strip())
+    for h in hold:
+        if h not in HOLDS:
+            raise ValueError(f"--hold {h!r} is not allowed: a comma-separated list of {', '.join(HOLDS)}")
+    if not 2 <= args.levels <= 1000:
+        raise ValueError(f"--levels {args.levels} is not allowed: 2 to 1000 cost levels")
+    snr = tuple(args.snr)
+    p = read_lens(args.lens)
+    SequentialLens(p).check_aperture()
+    aspherize = tuple(int(s.lstrip("Ss")) for s in args.aspherize or ())
+    for k in aspherize:
+        if not 1 <= k <= len(p.surfaces):
+            raise ValueError(f"--aspherize S{k} is not allowed: surfaces S1 to S{len(p.surfaces)}")
+    par = SequentialLens(p).paraxial()
+    pitch = (p.primary_wavelength_um * par.working_f_number / 2 if args.pixel_pitch is None else float(args.pixel_pitch))
+    if not (math.isfinite(pitch) and pitch > 0):
+        raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
+    run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch,
+                          "point" if args.pixel_pitch is None else "area",
+                          DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS, hold=hold, image=args.image,
+                          aspherize=aspherize, coarse=not args.accurate, levels=args.levels)
+    out = check_output_dir(args.out)
+    select_device(args.device)
+    t0 = time.perf_counter()
+    with output_lock(out):  # one run at a time writes this folder; a second run resumes the sweep
+        out.mkdir(parents=True, exist_ok=True)
+        print(f"{run.size} designs of {p.name or args.lens} ({' x '.join(str(n) for n in run.shape)}: "
+              f"{', '.join(run.names)})", file=sys.stderr)
+        ds = run_lens_tradeoff(run, out / "tradeoff.nc", show_progress=not args.quiet)
+        res = tradeoff_json(ds, run.levels)
+        res["lens"] = p.name or str(args.lens)
+        res["snr_db"] = list(snr)
+        res["hold"] = list(hold)
+        res["pixel_pitch_um"] = pitch
+        atomic_write_text(out / "tradeoff.json", json_text(res))
+        title = f"Trade-off of {p.name or args.lens}: {', '.join(run.names)}"
+        fig = tradeoff_figure(ds, res, out, title)
+        rows = []
+        for name, u in res["unconstrained"].items():
+            if u is not None:
+                rows.append([name, f"{u['value']:.5g}", f"{u['cost']:.4g}",
+                             ", ".join(f"{k} = {v:.6g}" for k, v in u["design"].items())])
+        text = (f"{res['designs']} designs, {res['invalid']} invalid (reasons in tradeoff.json); SNR "
+                f"{', '.join(f'{s:g}' for s in snr)} dB; pixels {pitch:.4g} um; holds: {', '.join(hold) or 'none'}.")
+        capped = int(ds["mtf50_capped"].values.sum())
+        if capped:
+            text += (f" MTF50 of {capped} design(s) is a lower bound (their MTF stays above 0.5 up to the sensor's "
+                     "Nyquist frequency at some field angle; mtf50_capped in tradeoff.nc).")
+        write_page(out / "index.html", title, [markdown(text), image(fig, "each criterion against the asphere cost: "
+                                                                        "grid designs, the best at each cost level"),
+                                               table(["criterion", "best value", "cost", "design"], rows,
+                                                     "unconstrained optima")])
+        print(text)
+        for r in rows:
+            print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
+    print(f"wrote {args.out}/ (tradeoff.nc, tradeoff.json, tradeoff.png/.svg, index.html) in "
+          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    from lenssim_studies.paper import PAPER_SNR_DB
+
+    t = sub.add_parser("tradeoff", help="any lens: every criterion against the asphere cost over a grid of its free "
+                                        "parameters, and the optima per cost level",
+                       description="The paper's cost-performance trade-off on any lens (docs/design-any-lens.md). "
+                                   "Free parameters by name: S5.curvature|radius|conic|thickness, S5.A4..A16 (even "
+                                   "aspheres; --aspherize S5 makes a surface one), E1.bending, focus_um (surfaces "
+                                   "numbered as in the file). A design that cannot be made is kept, marked invalid "
+                                   "with its reason. Resumes a killed run.")
+    t.add_argument("--lens", required=True, help="a .zmx or .toml prescription, or a shipped lens's name")
+    t.add_argument("--vary", action="append", required=True, metavar="NAME=LO:HI[:STEP]",
+                   help=f"a free parameter and its grid (inclusive; without STEP {DEFAULT_GRID_VALUES} values; or "
+                        "NAME=V1,V2,...); repeat for up to 3")
+    t.add_argument("--hold", help="what each design holds: a comma-separated list of efl (by the last curved "
+                                  "surface's curvature) and fnum (by the entrance pupil)")
+    t.add_argument("--image", choices=("file", "paraxial"), default="file",
+                   help="each design's image plane: the file's distance (default) or its paraxial focus")
+    t.add_argument("--aspherize", nargs="+", metavar="S5", help="surfaces made even aspheres (their A4..A16 free)")
+    t.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
+                   help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)}); mse_r is at the first")
+    t.add_argument("--levels", type=int, default=TRADEOFF_LEVELS, help=f"cost levels (default {TRADEOFF_LEVELS})")
+    t.add_argument("--wavefront", choices=("exact", "third_order"), default="exact",
+                   help="real-ray wavefronts (exact, default); third_order is not yet available for --lens")
+    t.add_argument("--pixel-pitch", type=float, metavar="UM",
+                   help="the sensor's pixel pitch (um; area samples) instead of the nominal lens's Nyquist pitch")
+    t.add_argument("--accurate", action="store_true", help="the default numerics and full wavefront tables "
+                                                           "(slower) instead of the fast ones")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.add_argument("--out", required=True, help="output folder (a second run resumes the sweep)")
+    add_device_argument(t)
+    t.set_defaults(func=cmd_tradeoff)

@@ -1,0 +1,409 @@
+"""The paper's cost-performance trade-off on any lens (issue 30, item 4): a resumable grid sweep of a prescription's
+free parameters, every criterion against the asphere cost, and the optima per cost level.
+
+A :class:`LensTradeoffRun` names the lens, the free parameters (:mod:`lenssim.model.lens_parameters`) with their
+grid values (up to :data:`MAX_GRID_PARAMETERS`), what the design holds (:mod:`lenssim.optics.lens_solves`), the
+sensor and the SNRs. Every design of the grid is solved, checked (its axial beam through every surface) and scored
+by :func:`lenssim.sequential_metrics.evaluate_sequential` (real-ray wavefronts: ``rms_w``, ``mse_s`` and ``mse_r``
+per SNR, ``strehl``, ``mtf50``) and priced by :func:`lenssim.optics.cost.prescription_costs` (``cost``: the sum over
+its aspheric surfaces of the paper's RMS slope departure). A design that cannot be made (crossing surfaces, a solve
+that cannot hold, a beam that misses a surface) is kept, marked invalid with the reason, and never scored.
+
+The optima per cost level (:func:`front`): for each level ``C`` (``levels`` of them, from 0 to the largest valid
+cost, evenly) the best valid design of the grid whose cost is at most ``C`` (where the unconstrained optimum costs
+more than ``C`` that is the best design on the iso-cost surface ``C_a = C`` to the grid's resolution: the paper's
+iso-cost optimum; the singlet's exact iso-cost curves are :mod:`lenssim_studies.tradeoff`). The sweep is chunked,
+each chunk a checksummed file (:mod:`lenssim_studies.chunks`): a killed run resumes and verifies what it kept.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import xarray as xr
+
+from lenssim import __version__
+from lenssim.criteria import CRITERIA
+from lenssim.io.files import atomic_write
+from lenssim.model.lens_parameters import LensParameter, parse_parameter
+from lenssim.model.numerics import Numerics
+from lenssim.model.prescription import Prescription
+from lenssim.model.spectrum import Spectrum
+from lenssim.optics.lens_solves import solve_design
+from lenssim.optics.sequential import SequentialLens
+from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
+from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
+from lenssim.validate import ModelValidityWarning
+
+from .chunks import _checksum, partial_folder, resume_chunks
+from .paper import PAPER_CAMERA
+
+__all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "TRADEOFF_CRITERIA",
+           "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES"]
+
+TRADEOFF_CRITERIA = ("rms_w", "mse_s", "mse_r", "strehl", "mtf50")
+"""What each design is scored on (field averages; ``mse_s`` and ``mse_r`` per SNR)."""
+MAX_GRID_PARAMETERS = 3
+"""A grid sweep's most free parameters (more: a grid's size grows as the power)."""
+MAX_GRID_DESIGNS = 20_000
+"""A grid's most designs (each traces its own wavefronts: seconds a design)."""
+CHUNK_DESIGNS = 8
+"""Designs per chunk file."""
+TRADEOFF_ANGLES = 5
+"""Field angles of each design's field average, from the axis to the lens's largest, evenly."""
+
+
+def sequential_provider(p: Prescription, seq: SequentialLens, *, pitch_um: float, sampling: str,
+                        max_field_deg: float, numerics: Numerics, coarse: bool) -> SequentialPSF:
+    """The PSFs of ``seq`` on the paper's sensor with pixels of ``pitch_um``, in the lens's own wavelengths (equal
+    weights); ``coarse``: the wavefront table at its initial field nodes only."""
+    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch_um, width_px=1, height_px=1)
+    light = Spectrum(p.wavelengths_um, (1.0,) * len(p.wavelengths_um),
+                     name=f"the lens's {len(p.wavelengths_um)} wavelength(s)")
+    return SequentialPSF(seq, sensor, light, (), max_field_deg=max_field_deg, sampling=sampling, numerics=numerics,
+                         table_max_nodes=TABLE_INITIAL_NODES if coarse else TABLE_MAX_NODES)
+
+
+@dataclass(frozen=True)
+class LensTradeoffRun:
+    """A trade-off of the lens ``prescription`` (as read from ``lens``): ``vary`` ``((name, values), ...)`` the free
+    parameters and their grid values (names as :func:`lenssim.model.lens_parameters.parse_parameter` reads them),
+    ``hold`` and ``image`` the solves, ``aspherize`` surfaces (1-based) made even aspheres, the SNRs (dB), the image
+    model's correlation, the pixel pitch (um; the same sensor for every design) and sampling, the numerics, whether
+    the wavefront tables are coarse, and the number of cost levels."""
+
+    prescription: Prescription
+    lens: str
+    vary: tuple[tuple[str, tuple[float, ...]], ...]
+    snr_db: tuple[float, ...]
+    rho0: float
+    pitch_um: float
+    sampling: str
+    numerics: Numerics
+    hold: tuple[str, ...] = ()
+    image: str = "file"
+    aspherize: tuple[int, ...] = ()
+    coarse: bool = True
+    levels: int = 30
+    angles: int = TRADEOFF_ANGLES
+
+    def __post_init__(self):
+        if not 1 <= len(self.vary) <= MAX_GRID_PARAMETERS:
+            raise ValueError(f"{len(self.vary)} free parameters are not allowed in a grid sweep: 1 to "
+                             f"{MAX_GRID_PARAMETERS}")
+        names = [self.parameter(n).name for n, _ in self.vary]
+        if len(set(names)) != len(names):
+            raise ValueError(f"a free parameter is named twice: {', '.join(names)}")
+        for n, v in self.vary:
+            if not v or not all(math.isfinite(x) for x in v):
+                raise ValueError(f"--vary {n}: its values must be finite numbers, at least one")
+        if self.size > MAX_GRID_DESIGNS:
+            raise ValueError(f"a grid of {self.size} designs is not allowed: at most {MAX_GRID_DESIGNS} (fewer values "
+                             "per parameter)")
+        from lenssim.optics.lens_solves import IMAGE_PLANES, check_solves
+
+        check_solves(self.prescription, [self.parameter(n) for n, _ in self.vary], hold=self.hold)
+        if self.image not in IMAGE_PLANES:
+            raise ValueError(f"image plane {self.image!r} is not allowed: one of {', '.join(IMAGE_PLANES)}")
+        if self.levels < 2:
+            raise ValueError(f"levels={self.levels} is not allowed: at least 2 cost levels")
+
+    def parameter(self, name: str) -> LensParameter:
+        return parse_parameter(self.prescription, name, aspherize=self.aspherize)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.parameter(n).name for n, _ in self.vary)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(len(v) for _, v in self.vary)
+
+    @property
+    def size(self) -> int:
+        return math.prod(self.shape)
+
+    def design(self, i: int) -> dict[str, float]:
+        """Design ``i`` of the grid (C order: the last parameter fastest) as ``{name: value}``."""
+        idx = np.unravel_index(i, self.shape)
+        return {name: float(v[j]) for name, (_, v), j in zip(self.names, self.vary, idx)}
+
+    def to_dict(self) -> dict:
+        return {"prescription": self.prescription.to_dict(), "lens": self.lens,
+                "vary": [[n, list(v)] for n, v in zip(self.names, (v for _, v in self.vary))],
+                "snr_db": list(self.snr_db), "rho0": self.rho0, "pitch_um": self.pitch_um, "sampling": self.sampling,
+                "numerics": self.numerics.to_dict(), "hold": list(self.hold), "image": self.image,
+                "aspherize": list(self.aspherize), "coarse": self.coarse, "levels": self.levels,
+                "angles": self.angles, "lenssim_version": __version__}
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    def chunks(self) -> list[tuple[int, int]]:
+        return [(k, min(k + CHUNK_DESIGNS, self.size)) for k in range(0, self.size, CHUNK_DESIGNS)]
+
+    @property
+    def max_field_deg(self) -> float:
+        return max(self.prescription.fields)
+
+
+def _score(run: LensTradeoffRun, i: int) -> dict:
+    """Design ``i``: its criteria, cost and validity (``reason``: '' if valid)."""
+    S = len(run.snr_db)
+    nan = {"rms_w": math.nan, "mse_s": [math.nan] * S, "mse_r": [math.nan] * S, "strehl": math.nan,
+           "mtf50": math.nan, "cost": math.nan, "efl_mm": math.nan}
+    values = {run.parameter(n): v for n, v in run.design(i).items()}
+    try:
+        q, shift = solve_design(run.prescription, values, hold=run.hold, image=run.image)
+        seq = SequentialLens(q, image_shift_mm=shift)
+        seq.check_aperture()
+        psf = sequential_provider(q, seq, pitch_um=run.pitch_um, sampling=run.sampling,
+                                  max_field_deg=run.max_field_deg, numerics=run.numerics, coarse=run.coarse)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ModelValidityWarning)
+            r = evaluate_sequential(psf, run.snr_db, rho0=run.rho0, numerics=run.numerics,
+                                    angles_deg=evaluation_angles(run.max_field_deg, run.angles),
+                                    criteria=TRADEOFF_CRITERIA + ("cost",))
+    except ValueError as exc:  # PrescriptionError, SolveError, RayTraceError, ...: the design is invalid
+        return nan | {"reason": str(exc).splitlines()[0][:300], "mtf50_capped": False}
+    capped = False
+    for w in caught:  # the MTF50 lower bound is recorded per design (mtf50_capped); anything else is passed on
+        if issubclass(w.category, ModelValidityWarning) and str(w.message).startswith("MTF50"):
+            capped = True
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    out = {k: torch.as_tensor(r[k], dtype=torch.float64).tolist() for k in TRADEOFF_CRITERIA}
+    out["cost"] = float(r["cost"])  # prescription_costs over each aspheric surface's clear aperture
+    out["efl_mm"] = seq.paraxial().efl_mm
+    bad = [k for k in TRADEOFF_CRITERIA + ("cost",) if not np.isfinite(np.asarray(out[k])).all()]
+    if bad:
+        return nan | {"reason": f"not finite: {', '.join(bad)}", "mtf50_capped": False}
+    return out | {"reason": "", "mtf50_capped": capped}
+
+
+_KEYS = TRADEOFF_CRITERIA + ("cost", "efl_mm", "mtf50_capped")
+
+
+def _compute_chunk(run: LensTradeoffRun, i: int, progress) -> dict:
+    k0, k1 = run.chunks()[i]
+    rows = []
+    for k in range(k0, k1):
+        rows.append(_score(run, k))
+        progress(1)
+    chunk = {key: np.asarray([r[key] for r in rows], dtype=np.float64) for key in _KEYS}
+    chunk["reason"] = np.asarray([r["reason"] for r in rows], dtype=np.str_)
+    return chunk
+
+
+def _write_chunk(path: Path, chunk: dict, run: LensTradeoffRun, i: int) -> None:
+    meta = {"_index": np.int64(i), "_digest": np.str_(run.digest()), "_checksum": np.str_(_checksum(chunk))}
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **chunk, **meta)
+    atomic_write(path, write)
+
+
+def _read_chunk(path: Path, run: LensTradeoffRun, i: int):
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
+        return f"cannot be read ({type(exc).__name__})"
+    keys = _KEYS + ("reason",)
+    if any(k not in data for k in keys + ("_index", "_digest", "_checksum")):
+        return "is incomplete (missing arrays or its stamp)"
+    if int(data["_index"]) != i:
+        return f"holds chunk {int(data['_index'])}, not chunk {i}"
+    if str(data["_digest"]) != run.digest():
+        return "belongs to another trade-off run"
+    chunk = {k: data[k] for k in keys}
+    if _checksum(chunk) != str(data["_checksum"]):
+        return "fails its checksum (corrupted)"
+    k0, k1 = run.chunks()[i]
+    if chunk["cost"].shape != (k1 - k0,):
+        return f"has {chunk['cost'].shape[0]} designs, not {k1 - k0}"
+    return chunk
+
+
+def _dataset(run: LensTradeoffRun, chunks: list[dict]) -> xr.Dataset:
+    shape = run.shape
+    dims = tuple(run.names)
+    coords = {n: np.asarray(v, dtype=np.float64) for n, (_, v) in zip(run.names, run.vary)}
+    coords["snr"] = np.asarray(run.snr_db, dtype=np.float64)
+    data = {}
+    for k in _KEYS:
+        v = np.concatenate([c[k] for c in chunks])
+        if k == "mtf50_capped":
+            data[k] = xr.Variable(dims, v.reshape(shape).astype(np.int8),
+                                  {"long_name": "1: the design's MTF50 stays above 0.5 up to Nyquist at some field "
+                                                "angle, counted there (a lower bound)"})
+            continue
+        per_snr = v.ndim == 2
+        data[k] = xr.Variable(dims + (("snr",) if per_snr else ()), v.reshape(shape + v.shape[1:]),
+                              {"units": CRITERIA[k].units if k in CRITERIA else ("mm" if k == "efl_mm" else "1"),
+                               "long_name": CRITERIA[k].description if k in CRITERIA else
+                               ("paraxial focal length" if k == "efl_mm" else
+                                "asphere cost C_a: sum of the aspheric surfaces' RMS slope departure")})
+    reason = np.concatenate([c["reason"] for c in chunks]).reshape(shape)
+    data["valid"] = xr.Variable(dims, reason == "", {"long_name": "the design could be made and scored"})
+    data["reason"] = xr.Variable(dims, reason.astype(str), {"long_name": "why a design is invalid ('' if valid)"})
+    ds = xr.Dataset(data, coords=coords)
+    ds.attrs = {"title": "lenssim trade-off of any lens", "lens": run.lens, "lenssim_version": __version__,
+                "config": json.dumps(run.to_dict(), sort_keys=True, default=str), "config_digest": run.digest()}
+    return ds
+
+
+def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_progress: bool = True,
+                      max_chunks: int | None = None) -> xr.Dataset | None:
+    """Run (or resume) the grid sweep and write ``out`` (NetCDF); ``None`` if ``max_chunks`` stopped it early."""
+    from lenssim.io.files import check_output_file
+
+    out = Path(out)
+    check_output_file(out, "trade-off output")
+    if out.exists():
+        try:
+            with xr.open_dataset(out, engine="scipy") as old:
+                same = old.attrs.get("config_digest") == run.digest()
+        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
+            same = False
+        if same:
+            return xr.load_dataset(out, engine="scipy")
+        raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this trade-off; choose another "
+                              "output or remove it")
+    part = out.with_name(out.name + ".partial")
+    with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
+                        f"{str(part)!r} holds chunks of a different trade-off; remove it or choose another output"):
+        ranges = run.chunks()
+        paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
+        chunks = resume_chunks(paths, kind="trade-off", read=lambda p, i: _read_chunk(p, run, i),
+                               write=lambda p, chunk, i: _write_chunk(p, chunk, run, i),
+                               compute=lambda i, progress: _compute_chunk(run, i, progress),
+                               weight=lambda i: ranges[i][1] - ranges[i][0], desc="designs", unit="design",
+                               show_progress=show_progress, max_chunks=max_chunks)
+        if chunks is None:
+            return None
+        ds = _dataset(run, chunks)
+        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+        shutil.rmtree(part)
+        return ds
+
+
+def _criteria_columns(ds: xr.Dataset) -> dict[str, tuple[np.ndarray, str]]:
+    """``{name: (values over the grid, flattened; sense)}``: ``rms_w``, ``mse_s`` and ``mse_r`` at each SNR (named
+    ``mse_r@27.6`` beyond the first SNR, as ``lenssim optimum`` names them), ``strehl``, ``mtf50``."""
+    out = {}
+    snr = [float(v) for v in ds["snr"].values]
+    for k in TRADEOFF_CRITERIA:
+        v = ds[k].values
+        sense = CRITERIA[k].sense
+        if "snr" in ds[k].dims:
+            for j, s in enumerate(snr):
+                out[k if j == 0 else f"{k}@{s:g}"] = (v[..., j].reshape(-1), sense)
+        else:
+            out[k] = (v.reshape(-1), sense)
+    return out
+
+
+def front(ds: xr.Dataset, levels: int) -> dict:
+    """The optima per cost level and unconstrained, per criterion (see the module docstring): ``{"levels": [...],
+    "optima": {criterion: [{"cost", "value", "design"} or None per level]}, "unconstrained": {criterion: {...}}}``;
+    a level no valid design reaches is None."""
+    valid = ds["valid"].values.reshape(-1)
+    cost = ds["cost"].values.reshape(-1)
+    names = [d for d in ds["valid"].dims]
+    grids = np.meshgrid(*(ds[n].values for n in names), indexing="ij")
+    designs = np.stack([g.reshape(-1) for g in grids], axis=-1)
+    top = float(cost[valid].max()) if valid.any() else 0.0
+    lv = [float(v) for v in np.linspace(0.0, top, levels)]
+    res = {"parameters": names, "levels": lv, "optima": {}, "unconstrained": {}}
+
+    def entry(i):
+        return {"cost": float(cost[i]), "design": {n: float(designs[i, j]) for j, n in enumerate(names)}}
+
+    for name, (v, sense) in _criteria_columns(ds).items():
+        score = v if sense == "min" else -v
+        ok = valid & np.isfinite(score)
+        if not ok.any():
+            res["optima"][name] = [None] * len(lv)
+            res["unconstrained"][name] = None
+            continue
+        best = int(np.flatnonzero(ok)[np.argmin(score[ok])])
+        res["unconstrained"][name] = entry(best) | {"value": float(v[best])}
+        row = []
+        for c in lv:
+            m = ok & (cost <= c * (1 + 1e-12) + 1e-15)
+            if not m.any():
+                row.append(None)
+                continue
+            i = int(np.flatnonzero(m)[np.argmin(score[m])])
+            row.append(entry(i) | {"value": float(v[i])})
+        res["optima"][name] = row
+    res["invalid"] = int((~valid).sum())
+    res["designs"] = int(valid.size)
+    return res
+
+
+def tradeoff_json(ds: xr.Dataset, levels: int) -> dict:
+    """``tradeoff.json``: :func:`front` and every invalid design with its reason."""
+    res = front(ds, levels)
+    names = res["parameters"]
+    reasons = ds["reason"].values.reshape(-1)
+    grids = np.meshgrid(*(ds[n].values for n in names), indexing="ij")
+    res["invalid_designs"] = [{"design": {n: float(g.reshape(-1)[i]) for n, g in zip(names, grids)},
+                               "reason": str(reasons[i])} for i in np.flatnonzero(reasons != "")]
+    return res
+
+
+def tradeoff_figure(ds: xr.Dataset, res: dict, out_dir: Path, title: str) -> Path:
+    """Every criterion against the cost: each valid design a dot, the optima per cost level a line (png, svg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .figures import _save
+
+    cols = _criteria_columns(ds)
+    cost = ds["cost"].values.reshape(-1)
+    valid = ds["valid"].values.reshape(-1)
+    n = len(cols)
+    ncol = min(3, n)
+    nrow = math.ceil(n / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.3 * nrow), squeeze=False)
+    for ax, (name, (v, sense)) in zip(axes.flat, cols.items()):
+        ax.scatter(cost[valid], v[valid], s=8, color="0.6", label="grid designs")
+        ok = valid & np.isfinite(v)
+        order = np.argsort(cost[ok], kind="stable")
+        c_sorted, v_sorted = cost[ok][order], v[ok][order]
+        best = np.minimum.accumulate(v_sorted) if sense == "min" else np.maximum.accumulate(v_sorted)
+        ax.step(c_sorted, best, where="post", color="C1", label="best design at cost <= C_a (the front)")
+        u = res["unconstrained"][name]
+        if u is not None:
+            ax.plot([u["cost"]], [u["value"]], "o", color="C3", label="unconstrained optimum")
+        unit = CRITERIA[name.split("@")[0]].units
+        ax.set_xlabel("asphere cost C_a (RMS slope departure)")
+        base, _, at = name.partition("@")
+        if CRITERIA[base].per_snr:  # the first SNR's column carries the bare name (as lenssim optimum names it)
+            at = at or f"{float(ds['snr'].values[0]):g}"
+            label = f"{base} at {at} dB"
+        else:
+            label = base
+        ax.set_ylabel(label if unit.startswith("1") else f"{label} ({unit})")
+        ax.set_title(("lower" if sense == "min" else "higher") + " is better", fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out_dir, "tradeoff")
