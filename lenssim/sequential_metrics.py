@@ -78,7 +78,7 @@ def _grid_size(psf: SequentialPSF, support_px: int, numerics: Numerics) -> int:
     if n > numerics.max_fft_size:
         raise ResourceLimitError(f"the PSF needs a {n} x {n} pixel grid at {psf.sensor.pixel_pitch_um:g} um per pixel, "
                                  f"more than the largest allowed ({numerics.max_fft_size}; raise max_fft_size or use "
-                                 "larger pixels)")
+                                 "larger pixels)", "max_fft_size")
     return n
 
 

@@ -7,7 +7,7 @@ import math
 import sys
 import time
 
-from .common import add_device_argument
+from .common import add_device_argument, numerics_from_args
 
 __all__ = ["register", "cmd_tradeoff", "parse_vary"]
 
@@ -92,7 +92,8 @@ def cmd_tradeoff(args) -> int:
         raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
     run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch,
                           "point" if args.pixel_pitch is None else "area",
-                          DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS, hold=hold, image=args.image,
+                          numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS), hold=hold,
+                          image=args.image,
                           aspherize=aspherize, coarse=not args.accurate, levels=args.levels)
     out = check_output_dir(args.out)
     select_device(args.device)
@@ -161,6 +162,9 @@ def register(sub) -> None:
                    help="the sensor's pixel pitch (um; area samples) instead of the nominal lens's Nyquist pitch")
     t.add_argument("--accurate", action="store_true", help="the default numerics and full wavefront tables "
                                                            "(slower) instead of the fast ones")
+    from .optics import add_fft_limit_argument
+
+    add_fft_limit_argument(t)  # a design needing more is kept invalid, with the reason
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output folder (a second run resumes the sweep)")
     add_device_argument(t)

@@ -49,14 +49,16 @@ def default_solve_surface(p: Prescription) -> int:
 
 def check_solves(p: Prescription, params, *, hold=(), solve_surface: int | None = None) -> int | None:
     """Before any design: the surface (0-based) whose curvature holds the focal length (None without ``efl`` in
-    ``hold``), which none of the free ``params`` (:class:`LensParameter` s) may move; one-line ``ValueError``."""
+    ``hold``), whose curvature none of the free ``params`` (:class:`LensParameter` s) may move (its curvature or
+    radius, or an element's bending that includes it; its conic and asphere do not change the power); one-line
+    ``ValueError``."""
     for h in hold:
         if h not in HOLDS:
             raise ValueError(f"hold {h!r} is not allowed: one of {', '.join(HOLDS)}")
     if "efl" not in hold:
         return solve_surface
     k = default_solve_surface(p) if solve_surface is None else solve_surface
-    moved = {q.index for q in params if isinstance(q, LensParameter) and q.kind not in ("bending", "focus")}
+    moved = {q.index for q in params if isinstance(q, LensParameter) and q.kind in ("curvature", "radius")}
     bends = [q.index for q in params if isinstance(q, LensParameter) and q.kind == "bending"]
     if k in moved or any(a <= k <= b for a, b in bends):
         raise ValueError(f"surface {k + 1} holds the focal length: it cannot also be a free parameter (choose "

@@ -58,3 +58,13 @@ def test_evaluate_any_lens_refuses_in_one_line(capsys, argv, match):
 def test_sampling_without_lens_is_refused(capsys):
     assert main(["evaluate", "--design", "end_to_end_paper", "--sampling", "area"]) == 2
     assert "--sampling applies to --lens" in capsys.readouterr().err
+
+
+def test_a_psf_beyond_the_largest_grid_is_refused_in_one_line(tmp_path, capsys):
+    """The PSF's grid beyond --max-fft-size: one line naming the setting (it once raised a TypeError instead)."""
+    from lenssim_cli.main import main
+
+    lens = str(Path(__file__).parents[1] / "data" / "lenses" / "test_singlet.toml")
+    assert main(["evaluate", "--lens", lens, "--pixel-pitch", "0.5", "--max-fft-size", "64"]) == 2
+    err = capsys.readouterr().err
+    assert "pixel grid" in err and "--max-fft-size" in err and len(err.strip().splitlines()) == 1

@@ -112,7 +112,10 @@ def test_the_f_number_and_the_image_plane_are_held(cooke):
 
 def test_what_a_solve_cannot_hold_is_said(cooke):
     with pytest.raises(ValueError, match="surface 7 holds the focal length"):
-        solve_design(cooke, {parse_parameter(cooke, "S7.conic"): -0.5}, hold=("efl",))
+        solve_design(cooke, {parse_parameter(cooke, "S7.radius"): -40.0}, hold=("efl",))
+    q, _ = solve_design(cooke, {parse_parameter(cooke, "S7.conic"): -0.5}, hold=("efl",))  # no power: allowed
+    assert q.surfaces[6].conic == -0.5 and q.surfaces[6].curvature_per_mm == pytest.approx(
+        cooke.surfaces[6].curvature_per_mm, rel=1e-12)
     with pytest.raises(ValueError, match="surface 7 holds the focal length"):  # E3: surfaces 6-7
         solve_design(cooke, {parse_parameter(cooke, "E3.bending"): 0.2}, hold=("efl",))
     plate = replace(cooke, surfaces=tuple(replace(s, curvature_per_mm=0.0) for s in cooke.surfaces))
