@@ -66,7 +66,8 @@ def cmd_tradeoff(args) -> int:
     from lenssim.optics.sequential import SequentialLens
     from lenssim.torch_utils import select_device
     from lenssim_studies.html import image, markdown, table, write_page
-    from lenssim_studies.lens_tradeoff import LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json
+    from lenssim_studies.lens_tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
+                                               write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
     if args.wavefront != "exact":
@@ -108,6 +109,7 @@ def cmd_tradeoff(args) -> int:
         res["snr_db"] = list(snr)
         res["hold"] = list(hold)
         res["pixel_pitch_um"] = pitch
+        res["design_files"] = write_design_files(run, res, out / "designs")  # --lens on inspect, tolerance, ...
         atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Trade-off of {p.name or args.lens}: {', '.join(run.names)}"
         fig = tradeoff_figure(ds, res, out, title)
@@ -129,7 +131,8 @@ def cmd_tradeoff(args) -> int:
         print(text)
         for r in rows:
             print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
-    print(f"wrote {args.out}/ (tradeoff.nc, tradeoff.json, tradeoff.png/.svg, index.html) in "
+    print(f"wrote {args.out}/ (tradeoff.nc, tradeoff.json, tradeoff.png/.svg, index.html, designs/*.toml: each "
+          "optimum as a lens file for --lens) in "
           f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
 

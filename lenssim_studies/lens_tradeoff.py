@@ -47,7 +47,8 @@ from lenssim.validate import ModelValidityWarning
 from .chunks import _checksum, partial_folder, resume_chunks
 from .paper import PAPER_CAMERA
 
-__all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "TRADEOFF_CRITERIA",
+__all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "design_prescription",
+           "write_design_files", "TRADEOFF_CRITERIA",
            "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES"]
 
 TRADEOFF_CRITERIA = ("rms_w", "mse_s", "mse_r", "strehl", "mtf50")
@@ -407,3 +408,32 @@ def tradeoff_figure(ds: xr.Dataset, res: dict, out_dir: Path, title: str) -> Pat
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, out_dir, "tradeoff")
+
+
+def design_prescription(run: LensTradeoffRun, design: dict) -> Prescription:
+    """The prescription of one design of ``run`` (``{name: value}``), its solves applied and its image shift folded
+    into the last thickness (a file that stands alone: ``--lens`` on every command)."""
+    q, shift = solve_design(run.prescription, {run.parameter(k): v for k, v in design.items()}, hold=run.hold,
+                            image=run.image)
+    surfs = list(q.surfaces)
+    surfs[-1] = replace(surfs[-1], thickness_mm=surfs[-1].thickness_mm + shift)
+    label = ", ".join(f"{k} = {v:.6g}" for k, v in design.items())
+    return replace(q, surfaces=tuple(surfs), name=f"{q.name or run.lens} ({label})",
+                   notes=(q.notes + " " if q.notes else "") + f"lenssim tradeoff design: {label}; holds "
+                   f"{', '.join(run.hold) or 'none'}; image plane {run.image}.")
+
+
+def write_design_files(run: LensTradeoffRun, res: dict, folder: Path) -> dict[str, str]:
+    """Each criterion's unconstrained optimum as a TOML prescription ``folder/NAME.toml`` (``@`` written ``_at_``):
+    ``{criterion: file name}``."""
+    from lenssim.io.prescription_file import write_prescription_toml
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for name, u in res["unconstrained"].items():
+        if u is None:
+            continue
+        fname = name.replace("@", "_at_") + ".toml"
+        write_prescription_toml(design_prescription(run, u["design"]), folder / fname)
+        out[name] = f"{folder.name}/{fname}"
+    return out

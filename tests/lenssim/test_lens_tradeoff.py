@@ -130,6 +130,11 @@ def test_the_command_writes_its_outputs_and_refuses_in_one_line(tmp_path, capsys
     for name in ("mse_r", "rms_w", "mse_s"):
         assert {"cost", "value", "design"} <= set(res["unconstrained"][name])
         assert all(o is None or math.isfinite(o["value"]) for o in res["optima"][name])
+    f = out / res["design_files"]["mse_r"]  # each optimum as a lens file: --lens on every command
+    q = read_lens(str(f))
+    assert q.surfaces[0].conic == res["unconstrained"]["mse_r"]["design"]["S1.conic"]
+    assert SequentialLens(q).paraxial().image_z_mm == pytest.approx(q.image_z_mm, abs=1e-9)  # --image paraxial
+    assert main(["inspect", str(f), "--json"]) == 0
     capsys.readouterr()
     for extra, match in ((["--vary", "S9.conic=0:1"], "not a parameter of this lens"),
                          (["--vary", "S1.curvature=0.03:0.04", "--hold", "efl"], "surface 1 holds the focal length"),
