@@ -153,8 +153,9 @@ def register(sub) -> None:
                         "NAME=V1,V2,...); repeat for up to 3")
     t.add_argument("--hold", help="what each design holds: a comma-separated list of efl (by the last curved "
                                   "surface's curvature) and fnum (by the entrance pupil)")
-    t.add_argument("--image", choices=("file", "paraxial"), default="file",
-                   help="each design's image plane: the file's distance (default) or its paraxial focus")
+    t.add_argument("--image", choices=("file", "paraxial", "best"), default="file",
+                   help="each design's image plane: the file's distance (default), its paraxial focus, or its best "
+                        "focus (least RMS wavefront over the file's fields; slower)")
     t.add_argument("--aspherize", nargs="+", metavar="S5", help="surfaces made even aspheres (their A4..A16 free)")
     t.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)}); mse_r is at the first")

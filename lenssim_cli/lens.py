@@ -16,22 +16,6 @@ REFOCUS_CHOICES = ("file", "paraxial", "best")
 wavefront error."""
 
 
-def _best_focus_shift(seq_cls, prescription, fields, start_mm: float, half_range_mm: float) -> float:
-    from scipy.optimize import minimize_scalar
-
-    from lenssim.optics.sequential import pupil_grid
-
-    px, py = pupil_grid(24)
-
-    def mean_rms(shift):
-        seq = seq_cls(prescription, image_shift_mm=float(shift))
-        return sum(seq.wavefront(f, px, py).rms_waves() for f in fields) / len(fields)
-
-    res = minimize_scalar(mean_rms, bounds=(start_mm - half_range_mm, start_mm + half_range_mm), method="bounded",
-                          options={"xatol": 1e-6})
-    return float(res.x)
-
-
 def refocused_lens(p, refocus: str):
     """The :class:`lenssim.optics.sequential.SequentialLens` of prescription ``p`` with its image plane where
     ``refocus`` (:data:`REFOCUS_CHOICES`) puts it, and the shift (mm) from the file's plane."""
@@ -42,9 +26,9 @@ def refocused_lens(p, refocus: str):
     if refocus == "paraxial":
         shift = seq.paraxial().image_z_mm - p.image_z_mm
     elif refocus == "best":
-        par = seq.paraxial()
-        depth = 40 * (seq.primary_wavelength_um * 1e-3) * par.working_f_number**2  # +-10 focal depths (4 lambda N^2)
-        shift = _best_focus_shift(SequentialLens, p, p.fields, par.image_z_mm - p.image_z_mm, depth)
+        from lenssim.optics.lens_solves import best_focus_shift
+
+        shift = best_focus_shift(p)
     return SequentialLens(p, image_shift_mm=shift), shift
 
 

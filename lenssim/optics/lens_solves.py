@@ -11,7 +11,8 @@ then restores, in order:
   marginal ray at its vertex height 0) cannot be solved;
 * ``fnum``: the F-number (focal length / entrance-pupil diameter) of the file, by the entrance-pupil diameter;
 * the image plane (``image``): where the file puts it (``"file"``: the last thickness as the design leaves it, plus
-  ``focus_um``), or at the design's paraxial focus (``"paraxial"``, plus ``focus_um``).
+  ``focus_um``), at the design's paraxial focus (``"paraxial"``, plus ``focus_um``), or at its best focus (``"best"``:
+  the least RMS wavefront averaged over the file's fields, :func:`best_focus_shift`, plus ``focus_um``).
 
 A design no solve can satisfy is a :class:`SolveError` saying which and why (the callers mark it invalid with that
 reason; never a silent fallback).
@@ -26,11 +27,20 @@ from ..model.lens_parameters import LensParameter, apply_parameters
 from ..model.prescription import Prescription
 from .sequential import SequentialLens
 
-__all__ = ["solve_design", "check_solves", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
+__all__ = ["solve_design", "check_solves", "best_focus_shift", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
 
 HOLDS = ("efl", "fnum")
 """What a design may hold: the focal length (by a surface's curvature) and the F-number (by the entrance pupil)."""
-IMAGE_PLANES = ("file", "paraxial")
+IMAGE_PLANES = ("file", "paraxial", "best")
+BEST_FOCUS_PUPIL_GRID = 24
+"""Pupil samples across the diameter of the best focus's RMS wavefront (per field)."""
+BEST_FOCUS_RANGE_DEPTHS = 10
+"""The best focus is searched within this many focal depths (``4 lambda N_w^2``) of the paraxial focus first."""
+BEST_FOCUS_EXPANSIONS = 8
+"""Where the least lies at the search range's edge, the search is repeated about it, twice as wide, this many times
+at most (a lens with strong spherical aberration focuses best far from its paraxial focus)."""
+BEST_FOCUS_EDGE_MM = 1e-5
+"""A best focus closer than this (mm) to the search range's edge is taken as lying beyond it."""
 SOLVE_TOLERANCE = 1e-9
 """Relative error of a held focal length after its solve."""
 
@@ -64,6 +74,36 @@ def check_solves(p: Prescription, params, *, hold=(), solve_surface: int | None 
         raise ValueError(f"surface {k + 1} holds the focal length: it cannot also be a free parameter (choose "
                          "another solve surface)")
     return k
+
+
+def best_focus_shift(p: Prescription, fields=None) -> float:
+    """The image plane's shift (mm) from ``p``'s own that minimises the RMS wavefront (primary wavelength) averaged
+    over ``fields`` (default the file's): a bounded scalar search within :data:`BEST_FOCUS_RANGE_DEPTHS` focal depths
+    of the paraxial focus (to 1e-6 mm), widened about its edge while the least lies there
+    (:data:`BEST_FOCUS_EXPANSIONS`); :class:`SolveError` if it never settles."""
+    from scipy.optimize import minimize_scalar
+
+    from .sequential import pupil_grid
+
+    fields = tuple(p.fields if fields is None else fields)
+    seq = SequentialLens(p)
+    par = seq.paraxial()
+    depth = BEST_FOCUS_RANGE_DEPTHS * 4 * (seq.primary_wavelength_um * 1e-3) * par.working_f_number**2
+    start = par.image_z_mm - p.image_z_mm
+    px, py = pupil_grid(BEST_FOCUS_PUPIL_GRID)
+
+    def mean_rms(shift):
+        at = SequentialLens(p, image_shift_mm=float(shift))
+        return sum(at.wavefront(f, px, py).rms_waves() for f in fields) / len(fields)
+
+    for _ in range(BEST_FOCUS_EXPANSIONS + 1):
+        lo, hi = start - depth, start + depth
+        x = float(minimize_scalar(mean_rms, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6}).x)
+        if min(x - lo, hi - x) > BEST_FOCUS_EDGE_MM:
+            return x
+        start, depth = x, 2 * depth  # the least lies beyond the range: search again about the edge, twice as wide
+    raise SolveError(f"no best focus within {depth / 2:.4g} mm of {start:.6g} mm from the file's image plane: the mean "
+                     "RMS wavefront keeps falling")
 
 
 def _efl(p: Prescription) -> float:
@@ -113,4 +153,6 @@ def solve_design(p: Prescription, values: dict, *, hold=(), solve_surface: int |
         q = replace(q, entrance_pupil_diameter_mm=epd)
     if image == "paraxial":
         shift += SequentialLens(q).paraxial().image_z_mm - q.image_z_mm
+    elif image == "best":
+        shift += best_focus_shift(q)
     return q, shift
