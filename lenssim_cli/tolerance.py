@@ -94,20 +94,11 @@ def surface_tolerances_from_args(args):
     ``--off TERM`` and ``--no-focus-compensation`` (for ``--lens``)."""
     import dataclasses
 
-    from lenssim.io.files import read_toml
     from lenssim.model.surface_tolerances import SurfaceTolerances, surface_grade
 
-    from .common import DEFAULT_GRADE
+    from .common import graded_tolerances
 
-    name = args.grade or DEFAULT_GRADE
-    t = surface_grade(name)
-    if args.tolerances:
-        table = read_toml(args.tolerances, "tolerances file")
-        unknown = sorted(set(table) - {"tolerances"})
-        if unknown or "tolerances" not in table:
-            raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
-                             + (f"; unknown table(s) {unknown}" if unknown else ""))
-        t = SurfaceTolerances.from_dict({"grade": name, **table["tolerances"]})
+    t = graded_tolerances(args, surface_grade, SurfaceTolerances.from_dict)
     terms = [f.name for f in dataclasses.fields(t) if f.name != "focus_compensated"]
     for term in getattr(args, "off", None) or ():
         if term not in terms:

@@ -18,7 +18,8 @@ from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
-__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks"]
+__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
+           "read_stamped_chunk", "finished_result"]
 
 
 @contextmanager
@@ -137,3 +138,58 @@ def _checksum(chunk: dict) -> str:
         h.update(f"{k}|{a.dtype}|{a.shape}|".encode())
         h.update(a.tobytes())
     return h.hexdigest()
+
+
+def write_stamped_chunk(path: Path, chunk: dict, digest: str, index: int) -> None:
+    """``chunk``'s arrays written atomically to ``path`` (``.npz``) with its index, the run's digest and a SHA-256 of
+    the arrays (what :func:`read_stamped_chunk` verifies)."""
+    from lenssim.io.files import atomic_write
+
+    meta = {"_index": np.int64(index), "_digest": np.str_(digest), "_checksum": np.str_(_checksum(chunk))}
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **chunk, **meta)
+    atomic_write(path, write)
+
+
+def read_stamped_chunk(path: Path, keys, digest: str, index: int, *, run: str, rows_key: str, rows: int, what: str):
+    """The arrays ``keys`` of chunk ``index`` at ``path`` if it is intact and this run's (digest ``digest``, ``rows``
+    entries of ``what`` in ``rows_key``), else the reason it is not trusted (``run`` names the run in it)."""
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
+        return f"cannot be read ({type(exc).__name__})"
+    keys = tuple(keys)
+    if any(k not in data for k in keys + ("_index", "_digest", "_checksum")):
+        return "is incomplete (missing arrays or its stamp)"
+    if int(data["_index"]) != index:
+        return f"holds chunk {int(data['_index'])}, not chunk {index}"
+    if str(data["_digest"]) != digest:
+        return f"belongs to another {run}"
+    chunk = {k: data[k] for k in keys}
+    if _checksum(chunk) != str(data["_checksum"]):
+        return "fails its checksum (corrupted)"
+    if chunk[rows_key].shape[:1] != (rows,):
+        return f"has {chunk[rows_key].shape[0]} {what}, not {rows}"
+    return chunk
+
+
+def finished_result(out: Path, digest: str, run: str):
+    """Before a resumable run writes ``out`` (NetCDF): the dataset already there if it is this run's finished result
+    (its ``config_digest``), None if there is none; any other file is refused (``FileExistsError``, ``run`` naming the
+    run), never overwritten."""
+    import xarray as xr
+
+    if not out.exists():
+        return None
+    try:
+        with xr.open_dataset(out, engine="scipy") as old:
+            same = old.attrs.get("config_digest") == digest
+    except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
+        same = False
+    if same:
+        return xr.load_dataset(out, engine="scipy")
+    raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this {run}; choose another output "
+                          "or remove it")

@@ -28,7 +28,7 @@ from lenssim.optics.sequential_psf import SequentialPSF
 from lenssim.sequential_tolerance import (CRITERIA, copy_criteria, lens_tolerance_dataset, nominal_criteria,
                                           tolerance_angles)
 
-from .chunks import _checksum, partial_folder, resume_chunks
+from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 
 __all__ = ["LensToleranceRun", "run_lens_tolerance_resumable", "CHUNK_COPIES"]
 
@@ -75,34 +75,14 @@ class LensToleranceRun:
 
 
 def _write_chunk(path: Path, chunk: dict, run: LensToleranceRun, i: int) -> None:
-    meta = {"_index": np.int64(i), "_digest": np.str_(run.digest()), "_checksum": np.str_(_checksum(chunk))}
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **chunk, **meta)
-    atomic_write(path, write)
+    write_stamped_chunk(path, chunk, run.digest(), i)
 
 
 def _read_chunk(path: Path, run: LensToleranceRun, i: int):
     """The chunk's arrays if ``path`` holds chunk ``i`` of this run intact, else the reason it does not."""
-    try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
-        return f"cannot be read ({type(exc).__name__})"
-    if any(k not in data for k in _ROW_KEYS + ("_index", "_digest", "_checksum")):
-        return "is incomplete (missing arrays or its stamp)"
-    if int(data["_index"]) != i:
-        return f"holds chunk {int(data['_index'])}, not chunk {i}"
-    if str(data["_digest"]) != run.digest():
-        return "belongs to another tolerance run"
-    chunk = {k: data[k] for k in _ROW_KEYS}
-    if _checksum(chunk) != str(data["_checksum"]):
-        return "fails its checksum (corrupted)"
     k0, k1 = run.chunks()[i]
-    if chunk["efl_mm"].shape != (k1 - k0,):
-        return f"has {chunk['efl_mm'].shape[0]} copies, not {k1 - k0}"
-    return chunk
+    return read_stamped_chunk(path, _ROW_KEYS, run.digest(), i, run="tolerance run", rows_key="efl_mm",
+                              rows=k1 - k0, what="copies")
 
 
 def run_lens_tolerance_resumable(run: LensToleranceRun, out: str | os.PathLike, *, show_progress: bool = True,
@@ -115,16 +95,9 @@ def run_lens_tolerance_resumable(run: LensToleranceRun, out: str | os.PathLike, 
 
     out = Path(out)
     check_output_file(out, "tolerance output")
-    if out.exists():
-        try:
-            with xr.open_dataset(out, engine="scipy") as old:
-                same = old.attrs.get("config_digest") == run.digest()
-        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
-            same = False
-        if same:
-            return xr.load_dataset(out, engine="scipy")
-        raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this tolerance run; choose "
-                              "another output or remove it")
+    done = finished_result(out, run.digest(), "tolerance run")
+    if done is not None:
+        return done
     angles = run.angles
     kw = dict(rho0=run.rho0, angles_deg=angles, numerics=run.numerics)
     pert = run.tolerances.sample(run.psf.lens.prescription, run.n_copies, seed=run.seed)

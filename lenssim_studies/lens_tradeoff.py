@@ -44,7 +44,7 @@ from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, 
 from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
 from lenssim.validate import ModelValidityWarning
 
-from .chunks import _checksum, partial_folder, resume_chunks
+from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "design_prescription",
@@ -206,34 +206,14 @@ def _compute_chunk(run: LensTradeoffRun, i: int, progress) -> dict:
 
 
 def _write_chunk(path: Path, chunk: dict, run: LensTradeoffRun, i: int) -> None:
-    meta = {"_index": np.int64(i), "_digest": np.str_(run.digest()), "_checksum": np.str_(_checksum(chunk))}
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **chunk, **meta)
-    atomic_write(path, write)
+    write_stamped_chunk(path, chunk, run.digest(), i)
 
 
 def _read_chunk(path: Path, run: LensTradeoffRun, i: int):
-    try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
-        return f"cannot be read ({type(exc).__name__})"
-    keys = _KEYS + ("reason",)
-    if any(k not in data for k in keys + ("_index", "_digest", "_checksum")):
-        return "is incomplete (missing arrays or its stamp)"
-    if int(data["_index"]) != i:
-        return f"holds chunk {int(data['_index'])}, not chunk {i}"
-    if str(data["_digest"]) != run.digest():
-        return "belongs to another trade-off run"
-    chunk = {k: data[k] for k in keys}
-    if _checksum(chunk) != str(data["_checksum"]):
-        return "fails its checksum (corrupted)"
+    """The chunk's arrays if ``path`` holds chunk ``i`` of this run intact, else the reason it does not."""
     k0, k1 = run.chunks()[i]
-    if chunk["cost"].shape != (k1 - k0,):
-        return f"has {chunk['cost'].shape[0]} designs, not {k1 - k0}"
-    return chunk
+    return read_stamped_chunk(path, _KEYS + ("reason",), run.digest(), i, run="trade-off run", rows_key="cost",
+                              rows=k1 - k0, what="designs")
 
 
 def _dataset(run: LensTradeoffRun, chunks: list[dict]) -> xr.Dataset:
@@ -271,16 +251,9 @@ def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_prog
 
     out = Path(out)
     check_output_file(out, "trade-off output")
-    if out.exists():
-        try:
-            with xr.open_dataset(out, engine="scipy") as old:
-                same = old.attrs.get("config_digest") == run.digest()
-        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
-            same = False
-        if same:
-            return xr.load_dataset(out, engine="scipy")
-        raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this trade-off; choose another "
-                              "output or remove it")
+    done = finished_result(out, run.digest(), "trade-off")
+    if done is not None:
+        return done
     part = out.with_name(out.name + ".partial")
     with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
                         f"{str(part)!r} holds chunks of a different trade-off; remove it or choose another output"):

@@ -35,7 +35,8 @@ from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
 from lenssim.validate import check_int
 
-from .chunks import _checksum, partial_folder, resume_chunks
+from .chunks import (_checksum, finished_result, partial_folder, read_stamped_chunk, resume_chunks,
+                     write_stamped_chunk)
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
@@ -144,35 +145,14 @@ def _chunk_task(run: ToleranceRun, digest: str, index: int, device: str, threads
 
 
 def _write_chunk(path: Path, chunk: dict, run: ToleranceRun, i: int) -> None:
-    meta = {"_index": np.int64(i), "_digest": np.str_(run.digest()), "_checksum": np.str_(_checksum(chunk))}
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **chunk, **meta)
-    atomic_write(path, write)
+    write_stamped_chunk(path, chunk, run.digest(), i)
 
 
 def _read_chunk(path: Path, run: ToleranceRun, i: int):
     """The chunk's arrays if ``path`` holds chunk ``i`` of this run intact, else the reason it does not."""
-    try:
-        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:  # noqa: BLE001 - any unreadable file is a bad chunk
-        return f"cannot be read ({type(exc).__name__})"
-    keys = AS_BUILT_CRITERIA() + ("fft_size",)
-    if any(k not in data for k in keys + ("_index", "_digest", "_checksum")):
-        return "is incomplete (missing arrays or its stamp)"
-    if int(data["_index"]) != i:
-        return f"holds chunk {int(data['_index'])}, not chunk {i}"
-    if str(data["_digest"]) != run.digest():
-        return "belongs to another tolerance run"
-    chunk = {k: data[k] for k in keys}
-    if _checksum(chunk) != str(data["_checksum"]):
-        return "fails its checksum (corrupted)"
     k0, k1 = run.chunks()[i]
-    if chunk["cost"].shape != (k1 - k0,):
-        return f"has {chunk['cost'].shape[0]} lenses, not {k1 - k0}"
-    return chunk
+    return read_stamped_chunk(path, AS_BUILT_CRITERIA() + ("fft_size",), run.digest(), i, run="tolerance run",
+                              rows_key="cost", rows=k1 - k0, what="lenses")
 
 
 def _dataset(run: ToleranceRun, chunks: list[dict]) -> xr.Dataset:
@@ -216,16 +196,9 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     from lenssim.io.files import check_output_file
 
     check_output_file(out, "tolerance output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
-    if out.exists():
-        try:
-            with xr.open_dataset(out, engine="scipy") as old:
-                same = old.attrs.get("config_digest") == run.digest()
-        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
-            same = False
-        if same:
-            return xr.load_dataset(out, engine="scipy")
-        raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this tolerance run; choose "
-                              "another output or remove it")
+    done = finished_result(out, run.digest(), "tolerance run")
+    if done is not None:
+        return done
     run.check_fft_sizes()
     part = out.with_name(out.name + ".partial")
     if part.exists():
