@@ -42,14 +42,13 @@ with a clearance of some 10-25 um), not from a published table.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, fields, replace
 
 import torch
 
 from .misalignment import Misalignment
 from .prescription import Prescription
-from .tolerances import GRADES, TOLERANCE_SIGMAS
+from .tolerances import GRADES, TOLERANCE_SIGMAS, check_limits
 
 __all__ = ["SurfaceTolerances", "SurfacePerturbations", "SURFACE_GRADES", "THICKNESS_UM", "ELEMENT_DECENTRE_UM",
            "surface_grade", "perturbed_prescription", "lens_surfaces", "lens_elements", "copy_misalignments"]
@@ -100,15 +99,7 @@ class SurfaceTolerances:
     focus_compensated: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.focus_compensated, bool):
-            raise ValueError(f"tolerances: focus_compensated={self.focus_compensated!r} is not allowed: true or false")
-        for f in fields(self):
-            if f.name == "focus_compensated":
-                continue
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"tolerances: {f.name}={v!r} is not allowed: a finite number >= 0")
-            object.__setattr__(self, f.name, float(v))
+        check_limits(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> "SurfaceTolerances":

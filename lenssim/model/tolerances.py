@@ -50,6 +50,20 @@ FIGURE_TERMS = ("power", "astig_0", "astig_45", "coma_x", "coma_y", "spherical")
 ARCMIN_RAD = math.pi / (180 * 60)
 
 
+def check_limits(t) -> None:
+    """A tolerances dataclass's fields, in place: ``focus_compensated`` a bool, every other field a finite number
+    >= 0 (made a float); one-line ``ValueError`` naming the field otherwise."""
+    if not isinstance(t.focus_compensated, bool):
+        raise ValueError(f"tolerances: focus_compensated={t.focus_compensated!r} is not allowed: true or false")
+    for f in fields(t):
+        if f.name == "focus_compensated":
+            continue
+        v = getattr(t, f.name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            raise ValueError(f"tolerances: {f.name}={v!r} is not allowed: a finite number >= 0")
+        object.__setattr__(t, f.name, float(v))
+
+
 @dataclass(frozen=True, kw_only=True)
 class Tolerances:
     """Limits of the error terms (module docstring); every term 0 by default (a perfect lens)."""
@@ -68,15 +82,7 @@ class Tolerances:
     focus_compensated: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.focus_compensated, bool):
-            raise ValueError(f"tolerances: focus_compensated={self.focus_compensated!r} is not allowed: true or false")
-        for f in fields(self):
-            if f.name == "focus_compensated":
-                continue
-            v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ValueError(f"tolerances: {f.name}={v!r} is not allowed: a finite number >= 0")
-            object.__setattr__(self, f.name, float(v))
+        check_limits(self)
         if self.figure_exponent <= 0:
             raise ValueError(f"tolerances: figure_exponent={self.figure_exponent!r} is not allowed: > 0")
 
