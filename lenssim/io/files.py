@@ -463,6 +463,10 @@ def output_lock(path, *, what: str = "output"):
         fh.close()
 
 
+MAX_TOML_BYTES = 16 * 2**20
+"""The largest TOML file read (settings, tolerances, lens prescriptions are kilobytes); read no further."""
+
+
 def read_toml(path, what: str) -> dict:
     """The TOML file ``path`` as a dict; ``what`` names it in the errors (:class:`InputFileError` for a file that
     cannot be read, :func:`check_input_file`; ``ValueError`` for invalid TOML)."""
@@ -470,7 +474,12 @@ def read_toml(path, what: str) -> dict:
 
     check_input_file(path, what)
     try:
-        return tomllib.loads(Path(path).read_text())
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
+        if len(raw) > MAX_TOML_BYTES:
+            raise ValueError(f"{what} {str(path)!r} is larger than {MAX_TOML_BYTES // 2**20} MiB: not a settings or lens "
+                             "file (those are a few kilobytes)")
+        return tomllib.loads(raw.decode("utf-8"))
     except OSError as exc:
         raise InputFileError(describe_os_error(exc, path, what)) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

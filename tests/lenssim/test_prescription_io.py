@@ -413,3 +413,14 @@ def test_read_lens_names_the_shipped_lenses_when_the_name_is_unknown(tmp_path):
     write_prescription_toml(read_lens("double_gauss"), local)
     assert read_lens(local) == read_lens("double_gauss")
     assert math.isinf(read_lens("double_gauss").object_distance_mm)
+
+
+def test_a_toml_file_past_the_size_limit_is_refused_before_it_is_parsed(tmp_path, monkeypatch):
+    import lenssim.io.files as files
+    from lenssim.io.prescription_file import read_lens
+
+    f = tmp_path / "big.toml"
+    f.write_text("# " + "x" * 2000 + "\n")
+    monkeypatch.setattr(files, "MAX_TOML_BYTES", 1024)
+    with pytest.raises(ValueError, match="larger than 0 MiB: not a settings or lens file"):
+        read_lens(str(f))
