@@ -70,9 +70,6 @@ def cmd_tradeoff(args) -> int:
                                                write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
-    if args.wavefront != "exact":
-        raise ValueError("--wavefront third_order is not supported with --lens yet: the trade-off of any lens uses "
-                         "real-ray wavefronts (exact)")
     vary = [parse_vary(v) for v in args.vary]
     hold = tuple(h.strip() for h in (args.hold or "").split(",") if h.strip())
     for h in hold:
@@ -91,11 +88,12 @@ def cmd_tradeoff(args) -> int:
     pitch = (p.primary_wavelength_um * par.working_f_number / 2 if args.pixel_pitch is None else float(args.pixel_pitch))
     if not (math.isfinite(pitch) and pitch > 0):
         raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
-    run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch,
-                          "point" if args.pixel_pitch is None else "area",
+    # the third-order route is the paper's image model: the PSF sampled at points of the pixel grid
+    sampling = "point" if args.pixel_pitch is None or args.wavefront == "third_order" else "area"
+    run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch, sampling,
                           numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS), hold=hold,
                           image=args.image,
-                          aspherize=aspherize, coarse=not args.accurate, levels=args.levels)
+                          aspherize=aspherize, coarse=not args.accurate, levels=args.levels, wavefront=args.wavefront)
     out = check_output_dir(args.out)
     select_device(args.device)
     t0 = time.perf_counter()
@@ -109,6 +107,9 @@ def cmd_tradeoff(args) -> int:
         res["snr_db"] = list(snr)
         res["hold"] = list(hold)
         res["pixel_pitch_um"] = pitch
+        res["sampling"] = sampling
+        res["wavefront"] = args.wavefront
+        res["angles_deg"] = list(run.evaluation_angles)
         res["design_files"] = write_design_files(run, res, out / "designs")  # --lens on inspect, tolerance, ...
         atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Trade-off of {p.name or args.lens}: {', '.join(run.names)}"
@@ -119,7 +120,9 @@ def cmd_tradeoff(args) -> int:
                 rows.append([name, f"{u['value']:.5g}", f"{u['cost']:.4g}",
                              ", ".join(f"{k} = {v:.6g}" for k, v in u["design"].items())])
         text = (f"{res['designs']} designs, {res['invalid']} invalid (reasons in tradeoff.json); SNR "
-                f"{', '.join(f'{s:g}' for s in snr)} dB; pixels {pitch:.4g} um; holds: {', '.join(hold) or 'none'}.")
+                f"{', '.join(f'{s:g}' for s in snr)} dB; pixels {pitch:.4g} um ({sampling} samples); holds: "
+                f"{', '.join(hold) or 'none'}; wavefront {args.wavefront} at {len(run.evaluation_angles)} field "
+                "angles.")
         capped = int(ds["mtf50_capped"].values.sum())
         if capped:
             text += (f" MTF50 of {capped} design(s) is a lower bound (their MTF stays above 0.5 up to the sensor's "
@@ -161,9 +164,12 @@ def register(sub) -> None:
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)}); mse_r is at the first")
     t.add_argument("--levels", type=int, default=TRADEOFF_LEVELS, help=f"cost levels (default {TRADEOFF_LEVELS})")
     t.add_argument("--wavefront", choices=("exact", "third_order"), default="exact",
-                   help="real-ray wavefronts (exact, default); third_order is not yet available for --lens")
+                   help="exact (default): real-ray wavefronts at 5 field angles; third_order: the Seidel wavefront of "
+                        "the surfaces (the paper's route: fast, no ray traced) at the file's field angles, point "
+                        "samples")
     t.add_argument("--pixel-pitch", type=float, metavar="UM",
-                   help="the sensor's pixel pitch (um; area samples) instead of the nominal lens's Nyquist pitch")
+                   help="the sensor's pixel pitch (um; area samples, point samples with third_order) instead of the "
+                        "nominal lens's Nyquist pitch")
     t.add_argument("--accurate", action="store_true", help="the default numerics and full wavefront tables "
                                                            "(slower) instead of the fast ones")
     from .optics import add_fft_limit_argument

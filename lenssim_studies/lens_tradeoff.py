@@ -42,6 +42,7 @@ from lenssim.optics.lens_solves import solve_design
 from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
+from lenssim.sequential_third_order import evaluate_third_order
 from lenssim.validate import ModelValidityWarning
 
 from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
@@ -49,7 +50,7 @@ from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "design_prescription",
            "write_design_files", "TRADEOFF_CRITERIA",
-           "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES"]
+           "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES", "WAVEFRONTS"]
 
 TRADEOFF_CRITERIA = ("rms_w", "mse_s", "mse_r", "strehl", "mtf50")
 """What each design is scored on (field averages; ``mse_s`` and ``mse_r`` per SNR)."""
@@ -60,7 +61,9 @@ MAX_GRID_DESIGNS = 20_000
 CHUNK_DESIGNS = 8
 """Designs per chunk file."""
 TRADEOFF_ANGLES = 5
-"""Field angles of each design's field average, from the axis to the lens's largest, evenly."""
+"""Field angles of each design's field average (the exact route), from the axis to the lens's largest, evenly."""
+WAVEFRONTS = ("exact", "third_order")
+"""How each design's wavefront is obtained (:attr:`LensTradeoffRun.wavefront`)."""
 
 
 def sequential_provider(p: Prescription, seq: SequentialLens, *, pitch_um: float, sampling: str,
@@ -96,6 +99,10 @@ class LensTradeoffRun:
     coarse: bool = True
     levels: int = 30
     angles: int = TRADEOFF_ANGLES
+    wavefront: str = "exact"
+    """``exact`` (real-ray OPD, :func:`lenssim.sequential_metrics.evaluate_sequential`, at :attr:`angles` field angles
+    evenly) or ``third_order`` (the Seidel wavefront, :func:`lenssim.sequential_third_order.evaluate_third_order`, at
+    the prescription's own field angles, point samples: the paper's route)."""
 
     def __post_init__(self):
         if not 1 <= len(self.vary) <= MAX_GRID_PARAMETERS:
@@ -117,6 +124,15 @@ class LensTradeoffRun:
             raise ValueError(f"image plane {self.image!r} is not allowed: one of {', '.join(IMAGE_PLANES)}")
         if self.levels < 2:
             raise ValueError(f"levels={self.levels} is not allowed: at least 2 cost levels")
+        if self.wavefront not in WAVEFRONTS:
+            raise ValueError(f"wavefront {self.wavefront!r} is not allowed: one of {', '.join(WAVEFRONTS)}")
+        if self.wavefront == "third_order":
+            from lenssim.optics.seidel_wavefront import check_third_order_parameters
+
+            check_third_order_parameters([self.parameter(n) for n, _ in self.vary])
+            if self.sampling != "point":
+                raise ValueError("the third-order route samples the PSF at points (the paper's image model): "
+                                 f"sampling {self.sampling!r} is not allowed with it")
 
     def parameter(self, name: str) -> LensParameter:
         return parse_parameter(self.prescription, name, aspherize=self.aspherize)
@@ -139,12 +155,15 @@ class LensTradeoffRun:
         return {name: float(v[j]) for name, (_, v), j in zip(self.names, self.vary, idx)}
 
     def to_dict(self) -> dict:
-        return {"prescription": self.prescription.to_dict(), "lens": self.lens,
-                "vary": [[n, list(v)] for n, v in zip(self.names, (v for _, v in self.vary))],
-                "snr_db": list(self.snr_db), "rho0": self.rho0, "pitch_um": self.pitch_um, "sampling": self.sampling,
-                "numerics": self.numerics.to_dict(), "hold": list(self.hold), "image": self.image,
-                "aspherize": list(self.aspherize), "coarse": self.coarse, "levels": self.levels,
-                "angles": self.angles, "lenssim_version": __version__}
+        out = {"prescription": self.prescription.to_dict(), "lens": self.lens,
+               "vary": [[n, list(v)] for n, v in zip(self.names, (v for _, v in self.vary))],
+               "snr_db": list(self.snr_db), "rho0": self.rho0, "pitch_um": self.pitch_um, "sampling": self.sampling,
+               "numerics": self.numerics.to_dict(), "hold": list(self.hold), "image": self.image,
+               "aspherize": list(self.aspherize), "coarse": self.coarse, "levels": self.levels,
+               "angles": self.angles, "lenssim_version": __version__}
+        if self.wavefront != "exact":  # the exact route's digests as before this option
+            out["wavefront"] = self.wavefront
+        return out
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -155,6 +174,14 @@ class LensTradeoffRun:
     @property
     def max_field_deg(self) -> float:
         return max(self.prescription.fields)
+
+    @property
+    def evaluation_angles(self) -> tuple[float, ...]:
+        """The field angles (deg) each design's criteria average over: the prescription's own for ``third_order`` (the
+        paper's sampling), :attr:`angles` evenly from the axis to the largest for ``exact``."""
+        if self.wavefront == "third_order":
+            return tuple(float(a) for a in self.prescription.fields)
+        return evaluation_angles(self.max_field_deg, self.angles)
 
 
 def _score(run: LensTradeoffRun, i: int) -> dict:
@@ -167,13 +194,17 @@ def _score(run: LensTradeoffRun, i: int) -> dict:
         q, shift = solve_design(run.prescription, values, hold=run.hold, image=run.image)
         seq = SequentialLens(q, image_shift_mm=shift)
         seq.check_aperture()
-        psf = sequential_provider(q, seq, pitch_um=run.pitch_um, sampling=run.sampling,
-                                  max_field_deg=run.max_field_deg, numerics=run.numerics, coarse=run.coarse)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ModelValidityWarning)
-            r = evaluate_sequential(psf, run.snr_db, rho0=run.rho0, numerics=run.numerics,
-                                    angles_deg=evaluation_angles(run.max_field_deg, run.angles),
-                                    criteria=TRADEOFF_CRITERIA + ("cost",))
+            if run.wavefront == "third_order":
+                r = evaluate_third_order(seq, run.snr_db, pitch_um=run.pitch_um, rho0=run.rho0,
+                                         angles_deg=run.evaluation_angles, numerics=run.numerics,
+                                         criteria=TRADEOFF_CRITERIA + ("cost",))
+            else:
+                psf = sequential_provider(q, seq, pitch_um=run.pitch_um, sampling=run.sampling,
+                                          max_field_deg=run.max_field_deg, numerics=run.numerics, coarse=run.coarse)
+                r = evaluate_sequential(psf, run.snr_db, rho0=run.rho0, numerics=run.numerics,
+                                        angles_deg=run.evaluation_angles, criteria=TRADEOFF_CRITERIA + ("cost",))
     except ValueError as exc:  # PrescriptionError, SolveError, RayTraceError, ...: the design is invalid
         return nan | {"reason": str(exc).splitlines()[0][:300], "mtf50_capped": False}
     capped = False

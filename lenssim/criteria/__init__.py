@@ -175,8 +175,9 @@ def quality_criteria() -> tuple[str, ...]:
     return tuple(k for k, c in lens_criteria().items() if c.role == "quality")
 
 
-def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:
-    """``RMS_w(alpha)`` ``(*, A)`` in waves at the spectrum's reference wavelength, from ``(*, A, K, T)``.
+def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool = False, terms=None) -> torch.Tensor:
+    """``RMS_w(alpha)`` ``(*, A)`` in waves at the spectrum's reference wavelength, from ``(*, A, K, T)``
+    (``terms``: their monomial table, default :data:`lenssim.optics.aberrations.TERMS`).
 
     Over a spectrum: the weighted mean square over the wavelengths (``W_k lambda_k / lambda_ref`` in
     reference waves).
@@ -185,8 +186,8 @@ def wavefront_rms_per_field(camera, coeffs: torch.Tensor, piston_removed: bool =
 
     spec = camera.spectrum
     if len(spec) == 1:
-        return rms_wavefront(coeffs[..., 0, :], piston_removed)
-    ms = sum(w * rms_wavefront(coeffs[..., k, :] * (lam / spec.reference_um), piston_removed) ** 2
+        return rms_wavefront(coeffs[..., 0, :], piston_removed, terms)
+    ms = sum(w * rms_wavefront(coeffs[..., k, :] * (lam / spec.reference_um), piston_removed, terms) ** 2
              for k, (lam, w) in enumerate(zip(spec.wavelengths_um, spec.weights)))
     return torch.sqrt(ms)
 

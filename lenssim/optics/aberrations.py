@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import torch
 
@@ -256,7 +257,16 @@ _MOMENTS = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in TERMS] 
 _MEANS = torch.tensor([_disc_mean(t.a, t.b) for t in TERMS], dtype=torch.float64)
 
 
-def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False) -> torch.Tensor:
+@lru_cache(maxsize=8)
+def _moments(terms: tuple) -> tuple[torch.Tensor, torch.Tensor]:
+    """Disc means of the products of ``terms``' monomials and of each monomial (even in ``rho_t``)."""
+    if any(t.c for t in terms):
+        raise ValueError("rms_wavefront takes monomials even in rho_t (c = 0)")
+    M = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in terms] for ti in terms], dtype=torch.float64)
+    return M, torch.tensor([_disc_mean(t.a, t.b) for t in terms], dtype=torch.float64)
+
+
+def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False, terms=None) -> torch.Tensor:
     """RMS of ``W`` over the unit pupil disc (waves), closed form.
 
     ``<W^2> = c^T M c`` with ``M_ij`` the disc mean of the product of monomials ``i`` and ``j``
@@ -266,13 +276,20 @@ def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False) -> torch.T
         <W>   = a/3 + c/4 + d/2
 
     The paper's ``RMS_w`` is ``sqrt(<W^2>)`` (no piston removal); ``piston_removed=True`` gives
-    the standard deviation ``sqrt(<W^2> - <W>^2)``. Input ``(*, T)``, output ``(*)``.
+    the standard deviation ``sqrt(<W^2> - <W>^2)``. Input ``(*, T)``, output ``(*)``. ``terms``: the coefficients'
+    monomial table (default :data:`TERMS`; monomials even in ``rho_t``).
     """
-    _check_coeffs(coeffs)
-    M = _MOMENTS.to(dtype=coeffs.dtype, device=coeffs.device)
+    if terms is None:
+        _check_coeffs(coeffs)
+        M, means = _MOMENTS, _MEANS
+    else:
+        check_shape(coeffs, f"* {len(terms)}", "coeffs (waves)")
+        check_finite("coeffs", coeffs.detach())
+        M, means = _moments(tuple(terms))
+    M = M.to(dtype=coeffs.dtype, device=coeffs.device)
     m2 = torch.einsum("...i,ij,...j->...", coeffs, M, coeffs)
     if piston_removed:
-        m1 = coeffs @ _MEANS.to(dtype=coeffs.dtype, device=coeffs.device)
+        m1 = coeffs @ means.to(dtype=coeffs.dtype, device=coeffs.device)
         m2 = m2 - m1 * m1
     return torch.sqrt(torch.clamp(m2, min=0))
 

@@ -140,7 +140,7 @@ def test_the_command_writes_its_outputs_and_refuses_in_one_line(tmp_path, capsys
                          (["--vary", "S1.curvature=0.03:0.04", "--hold", "efl"], "surface 1 holds the focal length"),
                          (["--vary", "S1.conic=0:1", "--hold", "bfl"], "--hold 'bfl' is not allowed"),
                          (["--vary", "S1.A4=0:1e-5"], "surface 1 is not an even asphere"),
-                         (["--vary", "S1.conic=0:1", "--wavefront", "third_order"], "third_order is not supported")):
+                         (["--vary", "S1.conic=0:1", "--levels", "1"], "--levels 1 is not allowed")):
         bad = tmp_path / "bad"
         assert main(["tradeoff", "--lens", LENS_FILE, *extra, "--out", str(bad)]) == 2
         err = capsys.readouterr().err
