@@ -131,33 +131,95 @@ def cmd_sweep(args) -> int:
 def cmd_optimum(args) -> int:
     import xarray as xr
 
-    from lenssim_studies.tradeoff import find_optimum
-
     from lenssim.io.files import check_input_file
+    from lenssim_studies.lens_optimum import TRADEOFF_FILE, check_max_cost, is_lens_tradeoff
 
-    path = check_input_file(args.file, "sweep file")
+    max_cost = check_max_cost(args.max_cost)
+    if args.write_lens is not None:
+        _check_lens_output(args.write_lens)
+    path = Path(args.file)
+    folder = None
+    if path.is_dir():  # a trade-off's output folder
+        folder = path
+        path = path / TRADEOFF_FILE
+        if not path.exists():
+            raise ValueError(f"folder {str(args.file)!r} holds no {TRADEOFF_FILE}: give a sweep file, or a `lenssim "
+                             "tradeoff` output folder or its tradeoff.nc")
+    path = check_input_file(path, "sweep or trade-off file")
     try:
         ds = xr.load_dataset(path, engine="scipy")
     except Exception:  # noqa: BLE001 - whatever the reader says, the file is not a sweep
-        raise ValueError(f"{str(path)!r} is not a sweep file (NetCDF written by `lenssim sweep`)") from None
+        raise ValueError(f"{str(path)!r} is not a sweep file or a trade-off (NetCDF written by `lenssim sweep` or "
+                         "`lenssim tradeoff`)") from None
+    if is_lens_tradeoff(ds):
+        return _tradeoff_optimum(args, ds, path, folder if folder is not None else path.parent, max_cost)
     if "config_digest" not in ds.attrs:
         raise ValueError(f"{str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
+    if args.write_lens is not None:
+        raise ValueError("--write-lens takes a trade-off of any lens (`lenssim tradeoff --lens`): a sweep's designs "
+                         "are the paper's singlet, not a prescription")
+    from lenssim_studies.lens_optimum import find_sweep_optimum
     from lenssim_studies.sweep import verify_sweep
 
     verify_sweep(ds, path)
-    r = find_optimum(ds, args.criterion, args.snr)
+    r = find_sweep_optimum(ds, args.criterion, args.snr, max_cost)
     if args.json:
         print(json_text(r))
     else:
         snr_txt = f" at {r['snr_db']:g} dB" if r["snr_db"] is not None else ""
+        cost_txt = f" at cost <= {max_cost:g}" if max_cost is not None else ""
         where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
-        print(f"best {r['criterion']}{snr_txt}: {where}  (value {r['value']:.6g})"
+        print(f"best {r['criterion']}{snr_txt}{cost_txt}: {where}  (value {r['value']:.6g})"
               + ("  [on the grid boundary]" if r["on_grid_boundary"] else ""))
         for k, c in lens_criteria().items():  # every criterion the sweep holds, at that design
             if k in r and k != r["criterion"] or isinstance(r.get(k), dict):
                 v = r[k]
                 print(f"  {c.label}: " + (", ".join(f"{x:.5g} @ {snr} dB" for snr, x in v.items()) if isinstance(v, dict)
                                           else f"{v:.5g} [{c.units}]"))
+    return 0
+
+
+def _check_lens_output(path) -> None:
+    """Before any work: ``--write-lens`` names a new ``.toml`` file in a writable folder."""
+    from lenssim.io.files import check_output_file
+
+    if Path(path).suffix.lower() != ".toml":
+        raise ValueError(f"--write-lens {str(path)!r} is not allowed: a lens file named *.toml")
+    check_output_file(path, "lens file")
+    if Path(path).exists():
+        raise FileExistsError(f"{str(path)!r} exists; choose another lens file or remove it")
+
+
+def _tradeoff_optimum(args, ds, path: Path, folder: Path, max_cost) -> int:
+    """``lenssim optimum`` of a trade-off of any lens (:mod:`lenssim_studies.lens_optimum`)."""
+    from lenssim_studies.lens_optimum import OPTIMUM_CRITERIA, find_lens_optimum, write_optimum_lens
+
+    r = find_lens_optimum(ds, args.criterion, args.snr, max_cost, folder=folder)
+    written = None
+    if args.write_lens is not None:
+        _check_lens_output(args.write_lens)  # again: the file may have appeared meanwhile
+        written = str(write_optimum_lens(ds, r["design"], args.write_lens, where=repr(str(path))))
+    if args.json:
+        print(json_text(r | {"lens_written": written}))
+        return 0
+    snr_txt = f" at {r['snr_db']:g} dB" if r["snr_db"] is not None else ""
+    cost_txt = f" at cost <= {max_cost:g}" if max_cost is not None else ""
+    where = ", ".join(f"{k} = {v:g}" for k, v in r["design"].items())
+    print(f"best {r['criterion']}{snr_txt}{cost_txt}: {where}  (value {r['value']:#.3g}, cost {r['cost']:#.3g})"
+          + ("  [on the grid boundary]" if r["on_grid_boundary"] else ""))
+    crits = lens_criteria()
+    for k in OPTIMUM_CRITERIA:  # every criterion at that design, each per-SNR one at every SNR
+        c, v = crits[k], r[k]
+        print(f"  {c.label}: " + (", ".join(f"{x:.5g} @ {snr} dB" for snr, x in v.items()) if isinstance(v, dict)
+                                  else f"{v:.5g} [{c.units}]"))
+    if r["on_grid_boundary"]:
+        edge = r["boundary_parameters"]
+        print(f"  at the edge of the grid of {', '.join(edge)}: widen "
+              + ("its --vary range" if len(edge) == 1 else "their --vary ranges"))
+    print(f"  {r['valid_designs']} of {r['designs']} designs valid"
+          + (f"; lens file {r['lens_file']}" if r["lens_file"] else ""))
+    if written is not None:
+        print(f"wrote {written} (this design as a lens file for --lens)", file=sys.stderr)
     return 0
 
 
@@ -359,10 +421,17 @@ def register(sub) -> None:
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(func=cmd_sweep)
 
-    o = sub.add_parser("optimum", help="best grid design of a sweep")
-    o.add_argument("file", help="sweep NetCDF file")
-    o.add_argument("--criterion", required=True, help=", ".join(lens_criteria()))
-    o.add_argument("--snr", type=float, help=f"SNR in dB for SNR-dependent criteria (default {REFERENCE_SNR_DB:g})")
+    o = sub.add_parser("optimum", help="best grid design of a sweep, or of a trade-off of any lens (lenssim "
+                                       "tradeoff --lens)")
+    o.add_argument("file", help="sweep NetCDF file, or a trade-off: its output folder or its tradeoff.nc")
+    o.add_argument("--criterion", required=True, help=f"{', '.join(lens_criteria())} (a trade-off: rms_w, mse_s, "
+                   "mse_r, strehl, mtf50, cost, or NAME@SNR as tradeoff.json names them)")
+    o.add_argument("--snr", type=float, help=f"SNR in dB for SNR-dependent criteria (default {REFERENCE_SNR_DB:g} for "
+                   "a sweep, the run's first --snr for a trade-off)")
+    o.add_argument("--max-cost", type=float, metavar="C", help="the best design whose asphere cost C_a is at most C "
+                   "(the iso-cost optimum to the grid's resolution); a sweep or a trade-off")
+    o.add_argument("--write-lens", metavar="FILE.toml", help="a trade-off only: write the chosen design as a lens file "
+                   "(its solves applied; --lens on every command); an existing file is refused")
     o.add_argument("--json", action="store_true")
     o.set_defaults(func=cmd_optimum)
 
