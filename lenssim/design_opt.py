@@ -59,21 +59,30 @@ class DifferentiableCriterion:
     def design(self, x: torch.Tensor) -> Design:
         return Design(dict(zip(self.names, x.unbind(0))))
 
+    terms = None
+    """The coefficients' monomial table (None: :data:`lenssim.optics.aberrations.TERMS`)."""
+
+    def coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        """The wavefront coefficients ``(A, K, T)`` (waves) of design ``x`` at the camera's field angles and
+        wavelengths, differentiable in ``x``."""
+        return spectral_coefficients(self.camera, self.design(x))
+
     def fix_sizes(self, x: torch.Tensor) -> None:
         """Choose the FFT size per field angle at design ``x`` (with a 25% margin for the way ahead)."""
-        c = spectral_coefficients(self.camera, self.design(x.detach())).to(torch.float64)
-        self.sizes = [int(v) for v in fft_size(self.camera, c * 1.25, self.numerics)]
+        c = self.coefficients(x.detach()).to(torch.float64)
+        self.sizes = [int(v) for v in fft_size(self.camera, c * 1.25, self.numerics, terms=self.terms)]
 
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         if self.sizes is None:
             self.fix_sizes(x)
         self.evaluations += 1
-        coeffs = spectral_coefficients(self.camera, self.design(x)).to(self.dtype)  # (A, K, T)
+        coeffs = self.coefficients(x).to(self.dtype)  # (A, K, T)
         over = self.numerics.oversample
         total = 0
         for a, n in enumerate(self.sizes):
             m = n * over
-            H = otf_quarter_spectrum(self.camera, coeffs[a:a + 1], n, oversample=over, numerics=self.numerics)
+            H = otf_quarter_spectrum(self.camera, coeffs[a:a + 1], n, oversample=over, numerics=self.numerics,
+                                     terms=self.terms)
             psd = image_psd_quarter(m, self.rho0, model=self.psd_model, dtype=self.dtype)
             w = quarter_weights(m, psd.dtype, psd.device)
             ctx = OTFContext(H, H.real.square() + H.imag.square(), psd, w, psd * w, self.sigma2, n, self.camera,
@@ -97,10 +106,25 @@ class IsoCostResult:
     iterations: int
     evaluations: int
     history: list = field(default_factory=list)
+    stopped: str = ""
+    """Why the descent stopped: ``gradient`` (the tangential gradient per typical step below ``tol`` relative to the
+    value: converged), ``step`` (no step of at least 1e-3 typical steps lowers the value: converged to that
+    resolution, or held by a bound), ``steps`` (the step budget ran out: not converged)."""
+    gradient: float = float("nan")
+    """The last tangential gradient per typical step, relative to the value."""
 
 
 def _cost(quality, x, points):
+    """``C_a`` at ``x``, differentiable: the quality's own ``cost(x, points)`` where it has one (any lens,
+    :mod:`lenssim.lens_design_opt`), else the singlet's :func:`lenssim.optics.cost.slope_departure_cost`."""
+    if hasattr(quality, "cost"):
+        return quality.cost(x, points)
     return slope_departure_cost(quality.lens, quality.design(x), points)
+
+
+def _scale_of(quality) -> torch.Tensor:
+    """Each coordinate's typical step: the quality's own ``scale`` where it has one, else the singlet's grid steps."""
+    return quality.scale if hasattr(quality, "scale") else _scale(quality.names)
 
 
 def _project_to_level(quality, x, level, points, iters=6):
@@ -116,7 +140,7 @@ def _project_to_level(quality, x, level, points, iters=6):
     return x.detach()
 
 
-def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, steps: int = 30,
+def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float | None, *, steps: int = 30,
                          step0: float = 2.0, tol: float = 1e-7, cost_points: int = DEFAULT_NUMERICS.cost_points,
                          bounds=None) -> IsoCostResult:
     """Optimise ``quality`` (minimised, or maximised if its criterion's sense is ``"max"``) along
@@ -126,46 +150,61 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float, *, 
     Stops when the tangential gradient (per grid step) is below ``tol`` relative to the value, or
     after ``steps`` accepted steps. Designs are kept inside ``bounds`` ``{name: (lo, hi)}`` (a parameter
     left out is unbounded; the paper's scenario passes its grid, ``lenssim_studies.paper.PAPER_GRID``).
+    ``level`` None: plain descent without the cost constraint (the unconstrained optimum).
     """
-    SCALE = _scale(quality.names)
+    SCALE = _scale_of(quality)
     bounds = dict(bounds or {})
     x = torch.as_tensor(x0, dtype=torch.float64).clone()
-    x = _project_to_level(quality, x, level, cost_points)
+    free = level is None
+    if not free:
+        x = _project_to_level(quality, x, level, cost_points)
     quality.fix_sizes(x)
     lo = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[0] for n in quality.names], dtype=torch.float64)
     hi = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[1] for n in quality.names], dtype=torch.float64)
     step = step0
     history = []
     it = 0
+    stopped, rel = "steps", float("nan")
     for it in range(1, steps + 1):
         xx = x.clone().requires_grad_(True)
         q = quality.objective(xx)
         (gq,) = torch.autograd.grad(q, xx)
-        xc = x.clone().requires_grad_(True)
-        (gc,) = torch.autograd.grad(_cost(quality, xc, cost_points), xc)
-        gq_u, gc_u = gq * SCALE, gc * SCALE  # gradients per grid step
-        nrm = gc_u / gc_u.norm()
-        tangent = gq_u - gq_u.dot(nrm) * nrm
+        gq_u = gq * SCALE  # the gradient per grid step
+        if free:
+            tangent = gq_u
+        else:
+            xc = x.clone().requires_grad_(True)
+            (gc,) = torch.autograd.grad(_cost(quality, xc, cost_points), xc)
+            gc_u = gc * SCALE
+            nrm = gc_u / gc_u.norm()
+            tangent = gq_u - gq_u.dot(nrm) * nrm
         qv = q.item()
-        history.append((float(x[0]), float(x[1]), quality.criterion.sign * qv))
+        history.append(tuple(float(v) for v in x) + (quality.criterion.sign * qv,))
+        rel = float(tangent.norm()) / abs(qv) if qv else float(tangent.norm())
         if tangent.norm() <= tol * abs(qv):
+            stopped = "gradient"
             break
-        direction = -tangent / tangent.norm() * SCALE  # in (s, Q) units, one grid step long
+        direction = -tangent / tangent.norm() * SCALE  # in the parameters' units, one typical step long
         accepted = False
         while step >= 1e-3:
             trial = torch.maximum(torch.minimum(x + step * direction, hi), lo)
-            trial = _project_to_level(quality, trial, level, cost_points)
-            trial = torch.maximum(torch.minimum(trial, hi), lo)
-            with torch.no_grad():
-                qt = quality.objective(trial)
-            if qt.item() < qv:
+            try:  # a trial design that cannot be made (any lens: crossing surfaces, a solve that fails) is not taken
+                if not free:
+                    trial = _project_to_level(quality, trial, level, cost_points)
+                    trial = torch.maximum(torch.minimum(trial, hi), lo)
+                with torch.no_grad():
+                    qt = quality.objective(trial).item()
+            except ValueError:
+                qt = float("inf")
+            if qt < qv:
                 x, accepted = trial, True
                 step *= 1.5
                 break
             step *= 0.5
         if not accepted:
+            stopped = "step"
             break
     with torch.no_grad():
         v = float(quality(x))
     return IsoCostResult(dict(zip(quality.names, (float(t) for t in x))), v, _cost(quality, x, cost_points).item(),
-                         level, it, quality.evaluations, history)
+                         level, it, quality.evaluations, history, stopped, rel)

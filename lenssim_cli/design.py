@@ -15,6 +15,8 @@ DEFAULT_GRID_VALUES = 9
 """Values of a ``--vary NAME=LO:HI`` range without a step (LO and HI included)."""
 TRADEOFF_LEVELS = 30
 """Cost levels of the front by default (the paper's 30)."""
+GRADIENT_LEVELS = 5
+"""Cost levels of the gradient route (--optimise) by default (each level a descent from every start)."""
 
 
 def parse_vary(text: str) -> tuple[str, tuple[float, ...]]:
@@ -75,8 +77,13 @@ def cmd_tradeoff(args) -> int:
     for h in hold:
         if h not in HOLDS:
             raise ValueError(f"--hold {h!r} is not allowed: a comma-separated list of {', '.join(HOLDS)}")
-    if not 2 <= args.levels <= 1000:
-        raise ValueError(f"--levels {args.levels} is not allowed: 2 to 1000 cost levels")
+    levels = (GRADIENT_LEVELS if args.optimise else TRADEOFF_LEVELS) if args.levels is None else args.levels
+    if not (1 if args.optimise else 2) <= levels <= (100 if args.optimise else 1000):
+        raise ValueError(f"--levels {levels} is not allowed: " + ("1 to 100 cost levels with --optimise"
+                                                                   if args.optimise else "2 to 1000 cost levels"))
+    if args.optimise and args.wavefront != "third_order":
+        raise ValueError("--optimise runs on the third-order wavefront: add --wavefront third_order (the gradient "
+                         "through real-ray wavefronts is not available)")
     snr = tuple(args.snr)
     p = read_lens(args.lens)
     SequentialLens(p).check_aperture()
@@ -90,10 +97,12 @@ def cmd_tradeoff(args) -> int:
         raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
     # the third-order route is the paper's image model: the PSF sampled at points of the pixel grid
     sampling = "point" if args.pixel_pitch is None or args.wavefront == "third_order" else "area"
+    numerics = numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS)
+    if args.optimise:
+        return _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, levels)
     run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch, sampling,
-                          numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS), hold=hold,
-                          image=args.image,
-                          aspherize=aspherize, coarse=not args.accurate, levels=args.levels, wavefront=args.wavefront)
+                          numerics, hold=hold, image=args.image, aspherize=aspherize, coarse=not args.accurate,
+                          levels=levels, wavefront=args.wavefront)
     out = check_output_dir(args.out)
     select_device(args.device)
     t0 = time.perf_counter()
@@ -162,7 +171,16 @@ def register(sub) -> None:
     t.add_argument("--aspherize", nargs="+", metavar="S5", help="surfaces made even aspheres (their A4..A16 free)")
     t.add_argument("--snr", type=float, nargs="+", default=list(PAPER_SNR_DB),
                    help=f"SNRs in dB (default: {' '.join(f'{v:g}' for v in PAPER_SNR_DB)}); mse_r is at the first")
-    t.add_argument("--levels", type=int, default=TRADEOFF_LEVELS, help=f"cost levels (default {TRADEOFF_LEVELS})")
+    t.add_argument("--levels", type=int, help=f"cost levels (default {TRADEOFF_LEVELS}; {GRADIENT_LEVELS} with "
+                                              "--optimise)")
+    t.add_argument("--optimise", metavar="CRITERION",
+                   help="instead of a grid: iso-cost projected gradient descent of CRITERION (mse_r, mse_s, strehl, "
+                        "mtf50; at the first --snr) at each cost level and unconstrained, from several starts, for "
+                        "any number of --vary LO:HI ranges (the bounds); needs --wavefront third_order")
+    t.add_argument("--starts", type=int, default=4, help="--optimise: starts per level, the file's design and random "
+                                                         "ones in the bounds (default 4)")
+    t.add_argument("--seed", type=int, default=0, help="--optimise: the random starts' seed (default 0)")
+    t.add_argument("--steps", type=int, default=30, help="--optimise: most descent steps per start (default 30)")
     t.add_argument("--wavefront", choices=("exact", "third_order"), default="exact",
                    help="exact (default): real-ray wavefronts at 5 field angles; third_order: the Seidel wavefront of "
                         "the surfaces (the paper's route: fast, no ray traced) at the file's field angles, point "
@@ -179,3 +197,63 @@ def register(sub) -> None:
     t.add_argument("--out", required=True, help="output folder (a second run resumes the sweep)")
     add_device_argument(t)
     t.set_defaults(func=cmd_tradeoff)
+
+
+def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, levels) -> int:
+    """``tradeoff --optimise``: the front by iso-cost projected gradient descent (:mod:`lenssim_studies.lens_gradient`)."""
+    from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
+    from lenssim.torch_utils import select_device
+    from lenssim_studies.html import image, markdown, table, write_page
+    from lenssim_studies.lens_gradient import (LensGradientRun, gradient_figure, gradient_json, run_lens_gradient,
+                                               score_optima, write_gradient_designs)
+    from lenssim_studies.paper import PAPER_RHO0
+
+    bounds = []
+    for name, values in vary:
+        if len(values) < 2 or not max(values) > min(values):
+            raise ValueError(f"--vary {name}: --optimise needs a range LO:HI (its bounds), LO < HI")
+        bounds.append((name, min(values), max(values)))
+    run = LensGradientRun(p, str(args.lens), tuple(bounds), args.optimise, snr, PAPER_RHO0, pitch, numerics,
+                          hold=hold, image=args.image, aspherize=aspherize, levels=levels, starts=args.starts,
+                          seed=args.seed, steps=args.steps)
+    out = check_output_dir(args.out)
+    select_device(args.device)
+    t0 = time.perf_counter()
+    with output_lock(out):  # one run at a time writes this folder; a second run resumes the descents
+        out.mkdir(parents=True, exist_ok=True)
+        print(f"{levels + 1} descents x {run.starts} starts of {p.name or args.lens} ({', '.join(run.names)}; "
+              f"{args.optimise} at {snr[0]:g} dB, third order)", file=sys.stderr)
+        ds = run_lens_gradient(run, out / "gradient.nc", show_progress=not args.quiet)
+        res = gradient_json(run, ds)
+        res["scores"] = score_optima(run, res)  # every criterion at each optimum
+        res |= {"lens": p.name or str(args.lens), "snr_db": list(snr), "hold": list(hold), "pixel_pitch_um": pitch,
+                "sampling": "point", "wavefront": "third_order", "angles_deg": list(p.fields)}
+        res["design_files"] = write_gradient_designs(run, res, out / "designs")
+        atomic_write_text(out / "tradeoff.json", json_text(res))
+        title = f"Gradient trade-off of {p.name or args.lens}: {args.optimise} over {', '.join(run.names)}"
+        fig = gradient_figure(run, res, out, title)
+        conv = [[("unconstrained" if c["level"] is None else f"{c['level']:.4g}"), str(c["start"]), c["stopped"],
+                 str(c["iterations"]), str(c["evaluations"]),
+                 f"{c['value']:.5g}" if "value" in c else "-", f"{c['cost']:.4g}" if "cost" in c else "-"]
+                for c in res["convergence"]]
+        n_conv = sum(c["stopped"] in ("gradient", "step") for c in res["convergence"])
+        text = (f"{len(res['convergence'])} descents ({levels} cost levels and unconstrained, {run.starts} starts "
+                f"each), {n_conv} converged (tangential gradient below tolerance, or no step of 1e-3 typical steps "
+                f"lowers the value), the others stopped by --steps {run.steps} or an invalid start. SNR "
+                f"{snr[0]:g} dB; pixels {pitch:.4g} um (point samples); holds: {', '.join(hold) or 'none'}; "
+                f"third-order wavefront at {len(p.fields)} field angles.")
+        u = res["unconstrained"][args.optimise]
+        rows = [[("unconstrained" if lv is None else f"{lv:.4g}"), f"{o['value']:.5g}", f"{o['cost']:.4g}",
+                 ", ".join(f"{k} = {v:.6g}" for k, v in o["design"].items())]
+                for lv, o in list(zip(res["levels"], res["optima"][args.optimise])) + [(None, u)] if o is not None]
+        write_page(out / "index.html", title, [
+            markdown(text), image(fig, f"{args.optimise} against the asphere cost: each start's end point, the best "
+                                       "per cost level"),
+            table(["level C_a", args.optimise, "cost", "design"], rows, "optima"),
+            table(["level", "start", "stopped", "steps", "evaluations", args.optimise, "cost"], conv, "convergence")])
+        print(text)
+        for r in rows:
+            print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
+    print(f"wrote {args.out}/ (gradient.nc, tradeoff.json, tradeoff.png/.svg, index.html, designs/*.toml) in "
+          f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
