@@ -114,6 +114,12 @@ class IsoCostResult:
     """The last tangential gradient per typical step, relative to the value."""
 
 
+SCALED_PROJECTION_ITERATIONS = 30
+"""Newton steps of the projection onto a cost level in scaled coordinates (any lens)."""
+MAX_PROJECTION_STEP = 2.0
+"""Longest Newton step of that projection, in typical steps (a trust region)."""
+
+
 def _cost(quality, x, points):
     """``C_a`` at ``x``, differentiable: the quality's own ``cost(x, points)`` where it has one (any lens,
     :mod:`lenssim.lens_design_opt`), else the singlet's :func:`lenssim.optics.cost.slope_departure_cost`."""
@@ -128,15 +134,31 @@ def _scale_of(quality) -> torch.Tensor:
 
 
 def _project_to_level(quality, x, level, points, iters=6):
-    """Newton steps along the cost gradient back onto ``C_a = level``."""
-    for _ in range(iters):
+    """Newton steps along the cost gradient back onto ``C_a = level``: the least step in the coordinates scaled by each
+    parameter's typical step where the quality has its own ``scale`` (any lens: parameters of different units), in
+    the singlet's raw ``(s, Q)`` otherwise (the steps its pinned results were found with)."""
+    S = quality.scale if hasattr(quality, "scale") else None
+    for _ in range(iters if S is None else SCALED_PROJECTION_ITERATIONS):
         xx = x.detach().requires_grad_(True)
         c = _cost(quality, xx, points)
         (g,) = torch.autograd.grad(c, xx)
         err = c.item() - level
         if abs(err) <= 1e-10 * max(level, 1e-12):
             break
-        x = x.detach() - err * g / g.dot(g)
+        if S is None:
+            x = x.detach() - err * g / g.dot(g)
+            continue
+        gu = g * S
+        if not (bool(torch.isfinite(gu).all()) and float(gu.dot(gu)) > 0):
+            raise ValueError(f"the cost has no gradient at {quality.design(x)} (C_a = {c.item():.3g}): the level "
+                             f"{level:.3g} cannot be reached from there")
+        step = -err * gu / gu.dot(gu)
+        n = float(step.norm())
+        if n > MAX_PROJECTION_STEP:  # a trust region: the cost is far from linear over many typical steps
+            step = step * (MAX_PROJECTION_STEP / n)
+        x = x.detach() + step * S
+    if S is not None and abs(_cost(quality, x.detach(), points).item() - level) > 1e-6 * max(level, 1e-12):
+        raise ValueError(f"the level C_a = {level:.3g} was not reached from {quality.design(x)}")
     return x.detach()
 
 

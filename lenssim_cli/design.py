@@ -132,6 +132,12 @@ def cmd_tradeoff(args) -> int:
                 f"{', '.join(f'{s:g}' for s in snr)} dB; pixels {pitch:.4g} um ({sampling} samples); holds: "
                 f"{', '.join(hold) or 'none'}; wavefront {args.wavefront} at {len(run.evaluation_angles)} field "
                 "angles.")
+        gain = res["end_to_end_vs_rms_w"].get("mse_r")
+        if gain is not None:
+            text += (f" Designed for the restored image instead of the wavefront (the RMS_W optimum, cost "
+                     f"{gain['rms_w_optimum']['cost']:.3g}) at {snr[0]:g} dB: mse_r x{gain['mse_r_ratio']:.3f} at "
+                     f"no more cost; its mse_r for {100 * gain['cost_saving']:.0f}% less asphere cost "
+                     "(end_to_end_vs_rms_w in tradeoff.json).")
         capped = int(ds["mtf50_capped"].values.sum())
         if capped:
             text += (f" MTF50 of {capped} design(s) is a lower bound (their MTF stays above 0.5 up to the sensor's "

@@ -117,9 +117,13 @@ class LensGradientRun:
                                        numerics=self.numerics)
 
     def start_points(self) -> torch.Tensor:
-        """``(starts, P)``: the file's design clipped into the bounds, then uniform draws in them (seeded)."""
+        """``(starts, P)``: the file's design clipped into the bounds, then uniform draws in them (seeded). A free
+        conic or asphere coefficient that is exactly 0 in the file starts one typical step away (a sphere is the apex
+        of the cost's cone, where ``C_a`` has no gradient to climb to a level)."""
         file = torch.tensor(list(parameter_values(self.prescription, self.parameters).values()), dtype=torch.float64)
         file = torch.where(torch.isfinite(file), file, (self.lo + self.hi) / 2)
+        aspheric = torch.tensor([p.kind == "conic" or p.kind.startswith("A") for p in self.parameters])
+        file = torch.where(aspheric & (file == 0), (self.hi - self.lo) / TYPICAL_STEPS, file)
         file = torch.maximum(torch.minimum(file, self.hi), self.lo)
         g = torch.Generator().manual_seed(self.seed)
         draws = self.lo + (self.hi - self.lo) * torch.rand(self.starts - 1, len(self.bounds), generator=g,

@@ -48,7 +48,7 @@ from lenssim.validate import ModelValidityWarning
 from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 from .paper import PAPER_CAMERA
 
-__all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "tradeoff_json", "design_prescription",
+__all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "design_prescription",
            "write_design_files", "TRADEOFF_CRITERIA",
            "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES", "WAVEFRONTS"]
 
@@ -358,9 +358,49 @@ def front(ds: xr.Dataset, levels: int) -> dict:
     return res
 
 
+def end_to_end_gain(ds: xr.Dataset) -> dict:
+    """The paper's comparison on this grid, per SNR (``mse_r``, ``mse_r@33.6``, ...): the RMS_W optimum (the
+    sequential design) against the designs chosen for the restored image. ``equal_cost``: the best ``mse_r`` among
+    valid designs costing at most the RMS_W optimum (``mse_r_ratio``: its ``mse_r`` over the RMS_W optimum's, < 1 when
+    designing for the restored image pays); ``equal_quality``: the cheapest valid design restoring at least as well as
+    the RMS_W optimum (``cost_saving``: ``1 - its cost / the RMS_W optimum's``). Ties: the first in the grid's order.
+    Empty if no design is valid."""
+    valid = ds["valid"].values.reshape(-1)
+    cols = _criteria_columns(ds)
+    rms, _ = cols["rms_w"]
+    ok = valid & np.isfinite(rms)
+    if not ok.any():
+        return {}
+    cost = ds["cost"].values.reshape(-1)
+    names = [d for d in ds["valid"].dims]
+    grids = np.meshgrid(*(ds[n].values for n in names), indexing="ij")
+
+    def design(i):
+        return {n: float(g.reshape(-1)[i]) for n, g in zip(names, grids)}
+
+    w = int(np.flatnonzero(ok)[np.argmin(rms[ok])])
+    out = {}
+    for name, (v, _) in cols.items():
+        if name.split("@")[0] != "mse_r":
+            continue
+        good = valid & np.isfinite(v)
+        cheap = good & (cost <= cost[w] * (1 + 1e-12) + 1e-15)
+        e = int(np.flatnonzero(cheap)[np.argmin(v[cheap])])
+        better = good & (v <= v[w])
+        q = int(np.flatnonzero(better)[np.argmin(cost[better])])
+        out[name] = {"rms_w_optimum": {"design": design(w), "cost": float(cost[w]), "mse_r": float(v[w])},
+                     "equal_cost": {"design": design(e), "cost": float(cost[e]), "mse_r": float(v[e])},
+                     "mse_r_ratio": float(v[e] / v[w]),
+                     "equal_quality": {"design": design(q), "cost": float(cost[q]), "mse_r": float(v[q])},
+                     "cost_saving": float(1 - cost[q] / cost[w]) if cost[w] > 0 else 0.0}
+    return out
+
+
 def tradeoff_json(ds: xr.Dataset, levels: int) -> dict:
-    """``tradeoff.json``: :func:`front` and every invalid design with its reason."""
+    """``tradeoff.json``: :func:`front`, :func:`end_to_end_gain` (``end_to_end_vs_rms_w``) and every invalid design
+    with its reason."""
     res = front(ds, levels)
+    res["end_to_end_vs_rms_w"] = end_to_end_gain(ds)
     names = res["parameters"]
     reasons = ds["reason"].values.reshape(-1)
     grids = np.meshgrid(*(ds[n].values for n in names), indexing="ij")

@@ -146,3 +146,35 @@ def test_the_command_writes_its_outputs_and_refuses_in_one_line(tmp_path, capsys
         err = capsys.readouterr().err
         assert match in err and len(err.strip().splitlines()) == 1 and not bad.exists()
     assert torch.get_default_dtype() == torch.float32
+
+
+def test_the_end_to_end_gain_is_brute_force():
+    """end_to_end_gain on a random grid with invalid designs: the RMS_W optimum, the best mse_r at most its cost, the
+    cheapest design restoring at least as well, each found again by a plain loop."""
+    import numpy as np
+    import xarray as xr
+
+    from lenssim_studies.lens_tradeoff import end_to_end_gain
+
+    rng = np.random.default_rng(3)
+    shape, snr = (6, 7), [21.6, 27.6]
+    data = {k: (("a", "b"), rng.random(shape)) for k in ("rms_w", "strehl", "mtf50", "cost")}
+    data |= {k: (("a", "b", "snr"), rng.random(shape + (2,))) for k in ("mse_s", "mse_r")}
+    valid = rng.random(shape) > 0.2
+    data["valid"] = (("a", "b"), valid)
+    ds = xr.Dataset(data, coords={"a": np.arange(6.0), "b": np.arange(7.0) / 10, "snr": snr})
+    got = end_to_end_gain(ds)
+    assert set(got) == {"mse_r", "mse_r@27.6"}
+    cells = [(i, j) for i in range(6) for j in range(7) if valid[i, j]]
+    w = min(cells, key=lambda c: ds["rms_w"].values[c])
+    for k, name in enumerate(("mse_r", "mse_r@27.6")):
+        v = ds["mse_r"].values[..., k]
+        c = ds["cost"].values
+        e = min((x for x in cells if c[x] <= c[w]), key=lambda x: v[x])
+        q = min((x for x in cells if v[x] <= v[w]), key=lambda x: c[x])
+        g = got[name]
+        assert g["rms_w_optimum"]["design"] == {"a": float(w[0]), "b": w[1] / 10}
+        assert g["equal_cost"]["design"] == {"a": float(e[0]), "b": e[1] / 10} and g["mse_r_ratio"] == v[e] / v[w]
+        assert g["equal_quality"]["design"] == {"a": float(q[0]), "b": q[1] / 10}
+        assert g["cost_saving"] == pytest.approx(1 - c[q] / c[w], rel=1e-15)
+        assert g["mse_r_ratio"] <= 1 and g["cost_saving"] >= 0  # the RMS_W optimum is a candidate of both
