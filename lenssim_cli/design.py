@@ -98,6 +98,20 @@ def cmd_tradeoff(args) -> int:
     # the third-order route is the paper's image model: the PSF sampled at points of the pixel grid
     sampling = "point" if args.pixel_pitch is None or args.wavefront == "third_order" else "area"
     numerics = numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS)
+    tol = None
+    if args.robust is not None:
+        from lenssim_studies.lens_robustness import MAX_ROBUST_COPIES
+
+        from .tolerance import surface_tolerances_from_args
+
+        if args.optimise:
+            raise ValueError("--robust takes a grid trade-off: leave out --optimise (the gradient route's optima are "
+                             "lens files: run `lenssim tolerance --lens designs/NAME.toml` on them)")
+        if not 1 <= args.robust <= MAX_ROBUST_COPIES:
+            raise ValueError(f"--robust {args.robust} is not allowed: 1 to {MAX_ROBUST_COPIES} copies per design")
+        tol = surface_tolerances_from_args(args)
+    elif args.grade is not None or args.tolerances is not None:
+        raise ValueError("--grade and --tolerances set the Monte Carlo of --robust COPIES: give --robust too")
     if args.optimise:
         return _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, levels)
     run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch, sampling,
@@ -120,8 +134,25 @@ def cmd_tradeoff(args) -> int:
         res["wavefront"] = args.wavefront
         res["angles_deg"] = list(run.evaluation_angles)
         res["design_files"] = write_design_files(run, res, out / "designs")  # --lens on inspect, tolerance, ...
-        atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Trade-off of {p.name or args.lens}: {', '.join(run.names)}"
+        extra = []
+        if tol is not None:  # the as-built Monte Carlo at each optimum of mse_r along the front (resumable)
+            from lenssim_studies.lens_robustness import robust_front, robustness_figure
+
+            res["robustness"] = robust = robust_front(run, res, tol, copies=args.robust, seed=args.seed,
+                                                      out_dir=out / "robust", show_progress=not args.quiet)
+            rfig = robustness_figure(robust, out, f"As built along the front: {p.name or args.lens}")
+            rrows = [[f"{d['cost']:.4g}", ", ".join(f"{k} = {v:.6g}" for k, v in d["design"].items()),
+                      f"{d['nominal']:.5g}", f"{d['mean']:.5g}", f"{d['p90']:.5g}",
+                      f"{d['nominal_restoration_mean']:.4g}"] for d in robust["designs"]]
+            n, r = robust["designs"][robust["nominal_optimum"]], robust["designs"][robust["robust_optimum"]]
+            rtext = (f"As built ({args.robust} copies per optimum of mse_r, the same seed {args.seed} for each; "
+                     f"real-ray Monte Carlo at {robust['snr_db']:g} dB): nominal optimum C_a {n['cost']:.3g}, "
+                     f"p90 mse_r {n['p90']:.4g}; robust optimum (best p90) C_a {r['cost']:.3g}, p90 {r['p90']:.4g}.")
+            extra = [markdown(rtext), image(rfig, "mse_r of each optimum along the front, nominal and as built"),
+                     table(["cost", "design", "nominal mse_r", "as built: mean", "p90", "design's filter: mean"],
+                           rrows, "as built along the front")]
+        atomic_write_text(out / "tradeoff.json", json_text(res))
         fig = tradeoff_figure(ds, res, out, title)
         rows = []
         for name, u in res["unconstrained"].items():
@@ -145,8 +176,10 @@ def cmd_tradeoff(args) -> int:
         write_page(out / "index.html", title, [markdown(text), image(fig, "each criterion against the asphere cost: "
                                                                         "grid designs, the best at each cost level"),
                                                table(["criterion", "best value", "cost", "design"], rows,
-                                                     "unconstrained optima")])
+                                                     "unconstrained optima")] + extra)
         print(text)
+        if extra:
+            print(rtext)
         for r in rows:
             print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
     print(f"wrote {args.out}/ (tradeoff.nc, tradeoff.json, tradeoff.png/.svg, index.html, designs/*.toml: each "
@@ -185,7 +218,16 @@ def register(sub) -> None:
                         "any number of --vary LO:HI ranges (the bounds); needs --wavefront third_order")
     t.add_argument("--starts", type=int, default=4, help="--optimise: starts per level, the file's design and random "
                                                          "ones in the bounds (default 4)")
-    t.add_argument("--seed", type=int, default=0, help="--optimise: the random starts' seed (default 0)")
+    t.add_argument("--seed", type=int, default=0, help="--optimise: the random starts' seed; --robust: the Monte "
+                                                       "Carlo's (default 0)")
+    t.add_argument("--robust", type=int, metavar="COPIES",
+                   help="the as-built Monte Carlo (real rays, per-surface tolerances as `tolerance --lens`) of "
+                        "COPIES copies at each optimum of mse_r along the front: the nominal restoration penalty and "
+                        "the robust optimum (best p90 mse_r); resumable, in OUT/robust/")
+    from lenssim.model.tolerances import GRADES
+
+    t.add_argument("--grade", choices=sorted(GRADES), help="--robust: the tolerance grade (default commercial)")
+    t.add_argument("--tolerances", metavar="FILE", help="--robust: a [tolerances] table over the grade")
     t.add_argument("--steps", type=int, default=30, help="--optimise: most descent steps per start (default 30)")
     t.add_argument("--wavefront", choices=("exact", "third_order"), default="exact",
                    help="exact (default): real-ray wavefronts at 5 field angles; third_order: the Seidel wavefront of "

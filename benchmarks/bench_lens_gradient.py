@@ -1,0 +1,106 @@
+"""Speed of the gradient route of the trade-off on any lens (issue 30): gradient evaluations and descent steps per
+second for the Cooke triplet with 6 free parameters (third-order wavefront, its 3 field angles and 3 wavelengths),
+against the paper singlet's end-to-end autograd gradient (lenssim.design_opt.DifferentiableCriterion at its 15 field
+angles) run side by side in the same process.
+
+    python benchmarks/bench_lens_gradient.py [--starts 4] [--steps 10] [--repeats 3]
+
+Prints one line per measurement and a JSON summary on the last line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import torch
+
+from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
+from lenssim.io.prescription_file import read_lens
+from lenssim.lens_design_opt import LensThirdOrderCriterion
+from lenssim.model.lens_parameters import parameter_values, parse_parameter
+from lenssim.model.numerics import FAST_NUMERICS
+from lenssim.optics.sequential import SequentialLens
+from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
+
+COOKE_PARAMETERS = ("E1.bending", "E2.bending", "S1.conic", "S6.conic", "S7.conic", "S7.A4")
+COOKE_BOUNDS = ((0.3, 1.3), (-0.6, 0.4), (-1.0, 1.0), (-1.0, 1.0), (-2.0, 0.5), (-3e-6, 3e-6))
+"""About the file's design (E1 bending 0.80, E2 bending -0.08, spherical); S7's conic and A4 over the region
+docs/design-any-lens.md's grid explored, widened."""
+LEVEL = 3.5e-4
+"""The cost level (C_a) descended on: the grid's rms_w optimum's cost (docs/design-any-lens.md)."""
+
+
+def _time(fn, repeats: int) -> float:
+    fn()  # warm-up (FFT plans, the FFT sizes fixed)
+    t = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return (time.perf_counter() - t) / repeats
+
+
+def _gradient(f, x):
+    def run():
+        xx = x.clone().requires_grad_(True)
+        torch.autograd.grad(f.objective(xx), xx)
+    return run
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--starts", type=int, default=4)
+    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    torch.set_num_threads(torch.get_num_threads())
+    p = read_lens("cooke_triplet")
+    pars = [parse_parameter(p, n, aspherize=(7,)) for n in COOKE_PARAMETERS]
+    seq = SequentialLens(p)
+    pitch = p.primary_wavelength_um * seq.paraxial().working_f_number / 2
+    scale = [(hi - lo) / 20 for lo, hi in COOKE_BOUNDS]
+    f = LensThirdOrderCriterion(p, pars, 27.6, "mse_r", rho0=PAPER_RHO0, pitch_um=pitch, angles_deg=p.fields,
+                                scale=scale, hold=("efl",), numerics=FAST_NUMERICS)
+    x0 = torch.tensor(list(parameter_values(p, pars).values()), dtype=torch.float64)
+    base = DifferentiableCriterion(PAPER_CAMERA, 27.6, "mse_r", rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
+    xb = torch.tensor([-0.775, -2.4], dtype=torch.float64)
+    t_base = _time(_gradient(base, xb), args.repeats)
+    t_grad = _time(_gradient(f, x0), args.repeats)
+    print(f"baseline: paper singlet, 2 parameters, 15 angles, 1 wavelength: one gradient {t_base:.3f} s")
+    print(f"Cooke triplet, 6 parameters, {len(p.fields)} angles, {len(p.wavelengths_um)} wavelengths: one gradient "
+          f"{t_grad:.3f} s ({t_grad / t_base:.2f}x the baseline); FFT sizes {f.sizes}")
+    level = LEVEL
+    g = torch.Generator().manual_seed(0)
+    lo = torch.tensor([b[0] for b in COOKE_BOUNDS], dtype=torch.float64)
+    hi = torch.tensor([b[1] for b in COOKE_BOUNDS], dtype=torch.float64)
+    x0 = torch.where(x0 == 0, (hi - lo) / 20, x0)  # as LensGradientRun.start_points: off the cost's apex
+    starts = [torch.maximum(torch.minimum(x0, hi), lo)] + [lo + (hi - lo) * torch.rand(6, generator=g, dtype=torch.float64)
+                                                          for _ in range(args.starts - 1)]
+    bounds = {n: b for n, b in zip(f.names, COOKE_BOUNDS)}
+    steps = evals = 0
+    t = time.perf_counter()
+    results = []
+    for x in starts:
+        fs = LensThirdOrderCriterion(p, pars, 27.6, "mse_r", rho0=PAPER_RHO0, pitch_um=pitch, angles_deg=p.fields,
+                                     scale=scale, hold=("efl",), numerics=FAST_NUMERICS)
+        try:
+            r = optimise_on_iso_cost(fs, x, level, steps=args.steps, cost_points=FAST_NUMERICS.cost_points,
+                                     bounds=bounds)
+        except ValueError as exc:
+            results.append({"stopped": "invalid", "reason": str(exc)[:120]})
+            continue
+        steps += r.iterations
+        evals += r.evaluations
+        results.append({"stopped": r.stopped, "iterations": r.iterations, "value": r.value, "cost": r.cost})
+    wall = time.perf_counter() - t
+    print(f"{len(starts)} starts on C_a = {level:.3g}: {steps} descent steps, {evals} criterion evaluations in "
+          f"{wall:.1f} s: {steps / wall:.3f} steps/s")
+    for r in results:
+        print("  ", r)
+    print(json.dumps({"baseline_gradient_s": t_base, "cooke_gradient_s": t_grad, "ratio": t_grad / t_base,
+                      "steps": steps, "evaluations": evals, "wall_s": wall, "steps_per_s": steps / wall,
+                      "threads": torch.get_num_threads(), "results": results}))
+
+
+if __name__ == "__main__":
+    main()
