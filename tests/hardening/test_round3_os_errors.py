@@ -115,6 +115,8 @@ COMMANDS = {  # the inputs wired to check_input_file: argv for a hostile PATH
 @pytest.mark.parametrize("path, match", INPUTS)
 @pytest.mark.parametrize("what", COMMANDS)
 def test_hostile_inputs_are_refused_by_the_command_line(hostile, capsys, what, path, match):
+    if what == "sweep file" and path == "adir":  # `lenssim optimum` reads a folder: a trade-off's output folder
+        match = "holds no tradeoff.nc"
     refused_os(COMMANDS[what](path), capsys, hostile, path, match)
 
 
