@@ -530,11 +530,22 @@ def cmd_psnr_table(args) -> int:
         ideal, source = _load(photo, select_device(args.device), max(PHOTO_KEEP_BYTES - kept, 0))
         kept += ideal.nbytes() if ideal.in_memory else 0
         opened.append((ideal, source))
-    for ideal, source in opened:
+    plans = []
+    for ideal, source in opened:  # every crop of every photo and lens placed (or refused) before the first simulation
         size = _crop_size(args, ideal, source)
+        angles = boxes = None
         if args.designs:  # the paper's camera's crops
             angles = _angles(args, ideal, size, camera.geometry, TABLE_ANGLES_DEG, source)
             boxes = [crop_at_field_angle(ideal.shape, a, size, camera.geometry) for a in angles]
+        lens_jobs = []
+        for ns in lenses:  # any lens: the photo spans its field (or --pixel-pitch), its own crop angles
+            ns.scheme = (PAPER_SCHEME.window, PAPER_SCHEME.stride, PAPER_SCHEME.core)  # the windows psnr-table uses
+            psf = lens_psf_from_args(ns, ideal.shape)
+            lens_angles = _angles(args, ideal, size, psf.geometry, _lens_angles(psf), source)
+            lens_jobs.append((ns, psf, lens_angles,
+                              [crop_at_field_angle(ideal.shape, a, size, psf.geometry) for a in lens_angles]))
+        plans.append((ideal, source, angles, boxes, lens_jobs))
+    for ideal, source, angles, boxes, lens_jobs in plans:
         for name in args.designs:
             d = named[name]
             nominal = LensPSF(camera, d)
@@ -556,12 +567,8 @@ def cmd_psnr_table(args) -> int:
                                      "psnr_restored_calibrated_db": sum(r.scores[method]["psnr_db"] for r in cal) / len(cal),
                                      "ssim_restored_calibrated": sum(r.scores[method]["ssim"] for r in cal) / len(cal)})
                 print(f"{source} | {name} | ISO {iso}: restored {rows[-1]['psnr_restored_db']:.2f} dB", file=sys.stderr)
-        for ns in lenses:  # any lens: the photo spans its field (or --pixel-pitch), its own crop angles
-            ns.scheme = (PAPER_SCHEME.window, PAPER_SCHEME.stride, PAPER_SCHEME.core)  # the windows psnr-table uses
-            psf = lens_psf_from_args(ns, ideal.shape)
+        for ns, psf, angles, boxes in lens_jobs:
             name = lens_label(ns)
-            angles = _angles(args, ideal, size, psf.geometry, _lens_angles(psf), source)
-            boxes = [crop_at_field_angle(ideal.shape, a, size, psf.geometry) for a in angles]
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,), sensor=psf.sensor,
                                          progress=bar.update)

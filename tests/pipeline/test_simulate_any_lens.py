@@ -135,3 +135,24 @@ def test_fig8_mosaic_of_any_lens(lens_file, tmp_path, capsys):
                                                                      (2.0, 100), (2.0, 25)]
     assert tiles[0]["design"] == "Test plano-convex singlet"
     assert tiles[0]["psnr_restored_db"] < tiles[1]["psnr_restored_db"] < tiles[2]["psnr_restored_db"]
+
+
+def test_psnr_table_places_every_crop_of_every_photo_before_any_work(lens_file, tmp_path, capsys, monkeypatch):
+    """With a fixed pixel pitch a smaller photo spans less field: an --angles the second photo cannot hold is refused
+    in one line before the first photo is simulated (it was refused after the first photo's work)."""
+    import numpy as np
+    from PIL import Image
+
+    import pipeline
+
+    small = tmp_path / "small.png"
+    Image.fromarray((np.random.default_rng(0).random((160, 160, 3)) * 255).astype(np.uint8)).save(small)
+    calls = []
+    monkeypatch.setattr(pipeline, "simulate_crops", lambda *a, **k: calls.append(1) or (_ for _ in ()).throw(
+        AssertionError("simulated before every crop was placed")))
+    argv = ["psnr-table", "skimage:camera", str(small), "--lens", str(lens_file), "--pixel-pitch", "5", "--crop", "64",
+            "--angles", "0", "2", "--isos", "100", "--out", str(tmp_path / "t")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "field angle=2.0 is not allowed" in err and len(err.strip().splitlines()) == 1
+    assert not calls and not (tmp_path / "t").exists()
