@@ -193,3 +193,22 @@ def finished_result(out: Path, digest: str, run: str):
         return xr.load_dataset(out, engine="scipy")
     raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this {run}; choose another output "
                           "or remove it")
+
+
+def open_resumable(out: Path, digest: str, output: str, run: str):
+    """Before a resumable run: ``out`` checked as an output file (``output`` names it in messages), and its finished
+    result if it is this run's (:func:`finished_result`; ``run`` names the run), else None."""
+    from lenssim.io.files import check_output_file
+
+    check_output_file(out, output)
+    return finished_result(out, digest, run)
+
+
+def finish_resumable(out: Path, ds, part: Path) -> None:
+    """A resumable run's end: its dataset written atomically to ``out`` (NetCDF), then its chunk folder removed."""
+    import shutil
+
+    from lenssim.io.files import atomic_write
+
+    atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+    shutil.rmtree(part)

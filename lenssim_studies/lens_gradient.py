@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,12 +25,11 @@ import torch
 import xarray as xr
 
 from lenssim import __version__
-from lenssim.io.files import atomic_write
 from lenssim.model.lens_parameters import LensParameter, parameter_values, parse_parameter
 from lenssim.model.numerics import Numerics
 from lenssim.model.prescription import Prescription
 
-from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 
 __all__ = ["LensGradientRun", "run_lens_gradient", "gradient_json", "STOP_REASONS", "MAX_STARTS", "MAX_STEPS",
            "TYPICAL_STEPS"]
@@ -185,11 +183,8 @@ def run_lens_gradient(run: LensGradientRun, out: str | os.PathLike, *, show_prog
     """Run (or resume) every descent and write ``out`` (NetCDF: per ``level`` (NaN: unconstrained) and ``start``, the
     design reached, its value, cost, iterations, evaluations, why it stopped); ``None`` if ``max_chunks`` stopped it
     early."""
-    from lenssim.io.files import check_output_file
-
     out = Path(out)
-    check_output_file(out, "gradient output")
-    done = finished_result(out, run.digest(), "gradient run")
+    done = open_resumable(out, run.digest(), "gradient output", "gradient run")
     if done is not None:
         return done
     part = out.with_name(out.name + ".partial")
@@ -243,8 +238,7 @@ def run_lens_gradient(run: LensGradientRun, out: str | os.PathLike, *, show_prog
         ds.attrs = {"title": "lenssim gradient trade-off of any lens", "lens": run.lens, "criterion": run.criterion,
                     "lenssim_version": __version__, "config": json.dumps(run.to_dict(), sort_keys=True, default=str),
                     "config_digest": run.digest()}
-        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-        shutil.rmtree(part)
+        finish_resumable(out, ds, part)
         return ds
 
 

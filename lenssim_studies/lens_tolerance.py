@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,14 +20,13 @@ import torch
 import xarray as xr
 
 from lenssim import __version__
-from lenssim.io.files import atomic_write
 from lenssim.model.numerics import Numerics
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential_psf import SequentialPSF
 from lenssim.sequential_tolerance import (CRITERIA, copy_criteria, lens_tolerance_dataset, nominal_criteria,
                                           tolerance_angles)
 
-from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 
 __all__ = ["LensToleranceRun", "run_lens_tolerance_resumable", "CHUNK_COPIES"]
 
@@ -91,11 +89,8 @@ def run_lens_tolerance_resumable(run: LensToleranceRun, out: str | os.PathLike, 
     dataset is :func:`lenssim.sequential_tolerance.lens_tolerance_dataset`'s, with the run's ``config_digest``; an
     existing ``out`` is returned if it is this run's finished result, refused otherwise. ``attrs``: more attributes
     of the dataset (descriptive: not part of the digest)."""
-    from lenssim.io.files import check_output_file
-
     out = Path(out)
-    check_output_file(out, "tolerance output")
-    done = finished_result(out, run.digest(), "tolerance run")
+    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run")
     if done is not None:
         return done
     angles = run.angles
@@ -132,6 +127,5 @@ def run_lens_tolerance_resumable(run: LensToleranceRun, out: str | os.PathLike, 
                                     angles_deg=angles, rho0=run.rho0, coarse=run.coarse)
         ds.attrs.update(attrs or {})
         ds.attrs["config_digest"] = run.digest()
-        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-        shutil.rmtree(part)
+        finish_resumable(out, ds, part)
         return ds

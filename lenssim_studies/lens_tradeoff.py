@@ -22,7 +22,6 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -33,7 +32,6 @@ import xarray as xr
 
 from lenssim import __version__
 from lenssim.criteria import CRITERIA
-from lenssim.io.files import atomic_write
 from lenssim.model.lens_parameters import LensParameter, parse_parameter
 from lenssim.model.numerics import Numerics
 from lenssim.model.prescription import Prescription
@@ -45,7 +43,7 @@ from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
 from lenssim.sequential_third_order import evaluate_third_order
 from lenssim.validate import ModelValidityWarning
 
-from .chunks import finished_result, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
 from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "design_prescription",
@@ -278,11 +276,8 @@ def _dataset(run: LensTradeoffRun, chunks: list[dict]) -> xr.Dataset:
 def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_progress: bool = True,
                       max_chunks: int | None = None) -> xr.Dataset | None:
     """Run (or resume) the grid sweep and write ``out`` (NetCDF); ``None`` if ``max_chunks`` stopped it early."""
-    from lenssim.io.files import check_output_file
-
     out = Path(out)
-    check_output_file(out, "trade-off output")
-    done = finished_result(out, run.digest(), "trade-off")
+    done = open_resumable(out, run.digest(), "trade-off output", "trade-off")
     if done is not None:
         return done
     part = out.with_name(out.name + ".partial")
@@ -298,8 +293,7 @@ def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_prog
         if chunks is None:
             return None
         ds = _dataset(run, chunks)
-        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-        shutil.rmtree(part)
+        finish_resumable(out, ds, part)
         return ds
 
 

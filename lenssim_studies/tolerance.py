@@ -16,7 +16,6 @@ import hashlib
 import json
 import math
 import os
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +26,6 @@ import xarray as xr
 
 from lenssim import __version__
 from lenssim.criteria import CRITERIA
-from lenssim.io.files import atomic_write
 from lenssim.model.camera import Camera
 from lenssim.model.design import Design
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
@@ -35,7 +33,7 @@ from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
 from lenssim.validate import check_int
 
-from .chunks import (_checksum, finished_result, partial_folder, read_stamped_chunk, resume_chunks,
+from .chunks import (_checksum, finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks,
                      write_stamped_chunk)
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
@@ -193,10 +191,8 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     dev = select_device(device)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
-    from lenssim.io.files import check_output_file
 
-    check_output_file(out, "tolerance output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
-    done = finished_result(out, run.digest(), "tolerance run")
+    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run")
     if done is not None:
         return done
     run.check_fft_sizes()
@@ -227,8 +223,7 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
         if chunks is None:
             return None
         ds = _dataset(run, chunks)
-        atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
-        shutil.rmtree(part)
+        finish_resumable(out, ds, part)
         return ds
 
 
