@@ -55,14 +55,88 @@ def _check_common(args) -> None:
     for a in getattr(args, "angles", None) or []:
         if not (math.isfinite(a) and a >= 0):
             raise ValueError(f"--angles {a:g} is not allowed: field angles are finite and >= 0 degrees")
+    _, table = chain_from_args(args)
     isos = getattr(args, "isos", None)
     for iso in isos or []:
-        PAPER_CAMERA.sensor.full_well_for_iso(iso)
+        _iso_well(table, iso, args)
     if getattr(args, "iso", None) is not None and getattr(args, "full_well", None) is not None:
         raise ValueError(f"--iso {args.iso} and --full-well {args.full_well:g} both set the full well; give one")
     if getattr(args, "iso", None) is not None:
-        PAPER_CAMERA.sensor.full_well_for_iso(args.iso)
+        _iso_well(table, args.iso, args)
     select_device(args.device)
+
+
+_CHAIN_OPTIONS = ("sensor", "cfa", "demosaic", "exposure_ms", "restore_on", "white_balance", "raw_out")
+
+
+def add_chain_arguments(p, raw_out: bool = False) -> None:
+    """The camera chain's options (issue 31): a sensor preset or file, its CFA, demosaicing, exposure, where to
+    restore."""
+    from lenssim.io.sensor_file import DEFAULT_SENSOR, sensor_names
+    from pipeline.camera_chain import DEFAULT_EXPOSURE_MS, RESTORE_PLACES, WHITE_BALANCE_METHODS
+    from pipeline.cfa import CFA_PATTERNS, DEMOSAIC_METHODS
+
+    g = p.add_argument_group("camera chain", "a real sensor and its ISP in place of the paper's photon-noise model "
+                             "(any of these options turns it on)")
+    g.add_argument("--sensor", metavar="PRESET|FILE.toml",
+                   help=f"sensor preset ({', '.join(sensor_names())}; default {DEFAULT_SENSOR}) or a TOML file with a "
+                        "[sensor] table: full well per ISO, read noise, dark current, ADC, black/white level, PRNU, "
+                        "DSNU, QE, CFA (the optics stay sampled at the lens camera's pixel pitch)")
+    g.add_argument("--cfa", choices=("none",) + CFA_PATTERNS, help="Bayer colour filter array (default: the sensor's)")
+    g.add_argument("--demosaic", choices=list(DEMOSAIC_METHODS), help="demosaicing method (default Malvar2004)")
+    g.add_argument("--exposure-ms", type=float, metavar="MS",
+                   help=f"exposure time (ms; sets the dark electrons; default {DEFAULT_EXPOSURE_MS:g})")
+    g.add_argument("--restore-on", choices=RESTORE_PLACES,
+                   help="restore the demosaicked RGB image (default) or each CFA plane of the mosaic")
+    g.add_argument("--white-balance", choices=WHITE_BALANCE_METHODS, help="white-balance gains (default illuminant)")
+    if raw_out:
+        g.add_argument("--raw-out", action="store_true",
+                       help="also write the simulated mosaic as 16-bit DNGs (crop_*_raw.dng; sensor_raw.dng with "
+                            "--full-frame): needs a CFA and an ADC (a sensor with bit_depth)")
+
+
+def chain_from_args(args, optics_sensor=None):
+    """The camera chain the options ask for (None: none given, the paper's model) and the sensor whose ISO table sets
+    the full wells. Checked before any work: a mosaic restoration or a demosaicing method needs a CFA; ``--raw-out``
+    a CFA and an ADC."""
+    from dataclasses import replace
+
+    from lenssim.io.sensor_file import DEFAULT_SENSOR, load_sensor
+    from pipeline.camera_chain import DEFAULT_EXPOSURE_MS, CameraChain
+
+    if not any(getattr(args, k, None) not in (None, False) for k in _CHAIN_OPTIONS):
+        return None, PAPER_CAMERA.sensor if optics_sensor is None else optics_sensor
+    sensor = load_sensor(args.sensor or DEFAULT_SENSOR) if args.sensor or optics_sensor is None else optics_sensor
+    if args.cfa is not None:
+        sensor = replace(sensor, cfa=args.cfa)
+    if sensor.cfa == "none" and (args.demosaic or args.restore_on == "mosaic"):
+        raise ValueError(f"--{'demosaic' if args.demosaic else 'restore-on mosaic'} needs a colour filter array: give "
+                         "--cfa RGGB (or BGGR, GRBG, GBRG) or a --sensor with one")
+    if args.exposure_ms is not None and not (math.isfinite(args.exposure_ms) and args.exposure_ms > 0):
+        raise ValueError(f"--exposure-ms {args.exposure_ms:g} is not allowed: a finite time > 0 ms")
+    if getattr(args, "raw_out", False) and (sensor.cfa == "none" or sensor.bit_depth is None):
+        raise ValueError("--raw-out writes a Bayer mosaic in DN: it needs a CFA (--cfa) and an ADC (a --sensor with "
+                         "bit_depth, e.g. sony_imx477)")
+    chain = CameraChain(sensor, demosaic=args.demosaic or "Malvar2004", restore_on=args.restore_on or "rgb",
+                        exposure_ms=DEFAULT_EXPOSURE_MS if args.exposure_ms is None else args.exposure_ms,
+                        white_balance=args.white_balance or "illuminant")
+    return chain, sensor
+
+
+def _check_chain_photo(chain, shape, source) -> None:
+    if chain is not None and chain.cfa is not None and shape[1] != 3:
+        raise ValueError(f"the {chain.cfa} colour filter array samples an RGB photo; {source!r} has {shape[1]} "
+                         "channel(s): give an RGB photo or --cfa none")
+
+
+def _iso_well(sensor, iso, args) -> float:
+    """The full well (e-) of ``sensor`` at ``iso``; refused in one line naming the sensor's ISOs."""
+    try:
+        return sensor.full_well_for_iso(iso)
+    except ValueError:
+        where = f" of --sensor {args.sensor}" if getattr(args, "sensor", None) else ""
+        raise ValueError(f"ISO {iso} is not allowed: one of {', '.join(map(str, sensor.isos))} (the ISO table{where}; "
+                         "or give --full-well)") from None
 
 
 def _inputs(photos) -> list[str]:
@@ -216,11 +290,13 @@ def cmd_simulate(args) -> int:
             raise ValueError("--as-built takes the third-order wavefront (the as-built model's), not --wavefront exact")
         tol = tolerances_from_args(args)
         built = AsBuiltPSF(camera, design, tol.sample(1, seed=args.as_built))
+    chain, table = chain_from_args(args, None if camera is None else camera.sensor)
     if args.full_well is not None:
         fwc = check_full_well(args.full_well, "--full-well")
     else:
-        args.iso = DEFAULT_ISO if args.iso is None else args.iso
-        fwc = PAPER_CAMERA.sensor.full_well_for_iso(args.iso) if camera is None else camera.sensor.full_well_for_iso(args.iso)
+        args.iso = (DEFAULT_ISO if DEFAULT_ISO in table.isos or not table.isos else table.isos[0]) \
+            if args.iso is None else args.iso
+        fwc = _iso_well(table, args.iso, args)
     scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows == "fitted")
     if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
         raise ValueError(f"--rl {args.rl} is not allowed: a number of Richardson-Lucy iterations from 1 to "
@@ -238,13 +314,17 @@ def cmd_simulate(args) -> int:
     out = check_output_dir(args.out, inputs)
     if header is not None:
         _check_photo_shape(args, header.shape, header.path, psf)
+        _check_chain_photo(chain, header.shape, header.path)
     t0 = time.perf_counter()
     # the whole frame (checked against the memory limit above) is decoded once; crops of a photo too large to keep
     # read only the rows or tiles they reach
     ideal, source = _load(args.photo, select_device(args.device), math.inf if whole else None)
+    meta = ideal.metadata or {}  # a RAW photo's pattern, levels and white balance, for metrics.json
     if psf is None:
         psf = lens_psf_from_args(args, ideal.shape)
     _check_photo_shape(args, ideal.shape, source, psf)
+    _check_chain_photo(chain, ideal.shape, source)
+    args.chain = chain
     size = _crop_size(args, ideal, source)
     geometry = psf.geometry
     angles = _angles(args, ideal, size, geometry, DEFAULT_ANGLES_DEG if lens_file is None else
@@ -257,10 +337,11 @@ def cmd_simulate(args) -> int:
         ideal = Photo.of(gentle_denoise(ideal.load(), args.denoise), source)
     if args.full_frame:
         ideal = ideal.load()
-    report = {"source": source, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
+    report = {"source": source, **meta, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
               "blur_windows": args.blur_windows,
-              "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0]}
+              "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0],
+              **_chain_report(chain, _sensor(psf))}
     if lens_file is None:
         params = design.complete().floats()
         report.update({"design": design.name or "custom", "parameters": params, **params,
@@ -286,20 +367,23 @@ def cmd_simulate(args) -> int:
         else:
             with _window_bar("blur + restore crops") as bar:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
-                                         sensor=_sensor(psf), progress=bar.update)
+                                         sensor=_sensor(psf), progress=bar.update, chain=chain)
         report["crops"] = []
         for a, r in zip(angles, results):
             tag = f"crop_{a:g}deg"
             for kind in ("ideal", "sensor") + methods:
                 if kind in r.images:
                     write_image(stage / f"{tag}_{_file_kind(kind)}.png", linear_to_srgb(r.images[kind].clamp(0, 1)))
+            if getattr(args, "raw_out", False):
+                _write_raw(stage / f"{tag}_raw.dng", r.images["raw"], chain, r.box[0], r.box[2])
             report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3),
                                     "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
                                     "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
                                     "psnr_restored_db": r.scores[methods[0]]["psnr_db"],
                                     **({"psnr_restored_calibrated_db": r.scores[methods[1]]["psnr_db"]}
                                        if built is not None else {})})
-        title = f"{source}: {report['optics']}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well"
+        title = f"{source}: {report['optics']}, " + (f"ISO {args.iso}, " if args.iso else "") + f"{fwc:g} e- full well" \
+            + ("" if chain is None else f"; {chain.label()}")
         shown = [m for m in methods if m in results[0].images]
         mosaic_figure(results, shown, stage / "mosaic.png", title=title)
         atomic_write_text(stage / "metrics.json", json_text(report))
@@ -356,7 +440,7 @@ def _as_built_crops(ideal, nominal, built, fwc, boxes, args, specs, scheme, came
     from pipeline import simulate_crops
 
     runs = {tag: simulate_crops(ideal, built, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
-                                sensor=camera.sensor, restoration_psf=prov)
+                                sensor=camera.sensor, restoration_psf=prov, chain=args.chain)
             for tag, prov in (("nominal", nominal), ("calibrated", built))}
     results = runs["nominal"]
     for r, c in zip(results, runs["calibrated"]):
@@ -375,6 +459,41 @@ def _file_kind(kind: str) -> str:
         return f"{_file_kind(base)}_{tag}"
     return {"wiener": "restored", "richardson_lucy": "restored_rl"}.get(kind, kind if kind in ("ideal", "sensor")
                                                                         else f"restored_{kind}")
+
+
+def _chain_columns(chain) -> dict:
+    """A table row's description of the camera chain (pattern and method by name, where restored); none without."""
+    if chain is None:
+        return {}
+    return {"sensor": chain.sensor.name or "custom", "cfa": chain.cfa or "none",
+            "demosaic": chain.demosaic if chain.cfa else "", "restore_on": chain.restore_on}
+
+
+def _chain_report(chain, optics_sensor) -> dict:
+    """``metrics.json``'s ``camera_chain``: the chain by its names (pattern, demosaicing, where restored, stages), or
+    nothing for the paper's model."""
+    if chain is None:
+        return {}
+    d = chain.to_dict()
+    d["label"] = chain.label()
+    d["optics_pixel_pitch_um"] = optics_sensor.pixel_pitch_um
+    if abs(chain.sensor.pixel_pitch_um - optics_sensor.pixel_pitch_um) > 0.05 * optics_sensor.pixel_pitch_um:
+        print(f"note: the sensor's pixel pitch ({chain.sensor.pixel_pitch_um:g} um) is not the optics' sampling "
+              f"({optics_sensor.pixel_pitch_um:g} um): its noise and ADC apply per simulated pixel", file=sys.stderr)
+    return {"camera_chain": d}
+
+
+def _write_raw(path, raw, chain, row, col) -> None:
+    """The raw mosaic (DN) whose top-left pixel is the frame's ``(row, col)`` as a DNG with the chain's pattern there,
+    levels and white balance."""
+    from pipeline.camera_chain import pattern_at
+    from pipeline.dng import write_dng
+
+    s = chain.sensor
+    qe = s.qe(3)
+    write_dng(path, raw.to("cpu"), pattern_at(chain.cfa, row, col), black_level=s.black_level_dn,
+              white_level=s.white_level, as_shot_neutral=tuple(q / max(qe) for q in qe),
+              color_matrix=chain.xyz_to_camera())
 
 
 def _sensor(psf):
@@ -430,7 +549,10 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     passes = 1 + (1 if restorers is None else len(restorers))
     with tqdm(total=passes * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
         frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
-                               checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers)
+                               checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers,
+                               chain=args.chain)
+    if getattr(args, "raw_out", False):
+        _write_raw(stage / "sensor_raw.dng", frame.raw, args.chain, 0, 0)
     if frame.resumed:
         print(f"resumed from the sensor image in {checkpoint}/", file=sys.stderr)
     def write(kind, enc, img):  # each image is sRGB-encoded once, for its PNG and for all its scores
@@ -498,8 +620,12 @@ def cmd_psnr_table(args) -> int:
     from pipeline import crop_at_field_angle, simulate_crops
 
     photos = args.photos or [None]
+    if args.isos is None:  # the sensor's ISOs, highest first
+        args.isos = sorted(chain_from_args(args)[1].isos, reverse=True)
     for photo in photos:  # every photo's header first, then the designs and options, the output, every photo's pixels
-        _header(photo)
+        info = _header(photo)
+        if info is not None:
+            _check_chain_photo(chain_from_args(args)[0], info.shape, photo)
     _check_common(args)
     lenses = each_lens(args)
     if args.designs is None:  # the paper's designs, unless only lenses are asked for
@@ -509,7 +635,8 @@ def cmd_psnr_table(args) -> int:
         if d not in named:
             raise ValueError(f"design {d!r} is not known; choose from {', '.join(sorted(named))}")
     camera = PAPER_CAMERA
-    wells = [camera.sensor.full_well_for_iso(i) for i in args.isos]
+    chain, table = chain_from_args(args)
+    wells = [_iso_well(table, i, args) for i in args.isos]
     from pipeline.restoration import parse_restoration
 
     spec = parse_restoration(args.method or args.restore)
@@ -528,6 +655,7 @@ def cmd_psnr_table(args) -> int:
     opened, kept = [], 0
     for photo in photos:  # all checked before the first computation; kept in memory while they fit together
         ideal, source = _load(photo, select_device(args.device), max(PHOTO_KEEP_BYTES - kept, 0))
+        _check_chain_photo(chain, ideal.shape, source)
         kept += ideal.nbytes() if ideal.in_memory else 0
         opened.append((ideal, source))
     plans = []
@@ -552,12 +680,14 @@ def cmd_psnr_table(args) -> int:
             blur = nominal if lens is None else AsBuiltPSF(camera, d, lens)
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
-                                         sensor=camera.sensor, restoration_psf=nominal, progress=bar.update)
+                                         sensor=camera.sensor, restoration_psf=nominal, progress=bar.update,
+                                         chain=chain)
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
-                                                                  methods=(spec,), sensor=camera.sensor)
+                                                                  methods=(spec,), sensor=camera.sensor, chain=chain)
             for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
+                             **_chain_columns(chain),
                              "angles_deg": " ".join(f"{a:g}" for a in angles),
                              "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
                              "ssim_restored": mean(method, "ssim")})
@@ -571,11 +701,12 @@ def cmd_psnr_table(args) -> int:
             name = lens_label(ns)
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,), sensor=psf.sensor,
-                                         progress=bar.update)
+                                         progress=bar.update, chain=chain)
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, "lens_file": ns.lens,
                              "pixel_pitch_um": round(psf.sensor.pixel_pitch_um, 6), "iso": iso, "method": method,
+                             **_chain_columns(chain),
                              "angles_deg": " ".join(f"{a:g}" for a in angles),
                              "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
                              "ssim_restored": mean(method, "ssim")})
@@ -595,6 +726,7 @@ def cmd_psnr_table(args) -> int:
           + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
           + (f"One manufactured lens per design (--as-built {args.as_built}): restored with the nominal PSFs and with "
              "the lens's own (calibrated).\n\n" if lens is not None else "")
+          + (f"Camera chain: {chain.label()}.\n\n" if chain is not None else "")
           + ("| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |"
              + (" PSNR calibrated [dB] | SSIM calibrated |" if lens is not None else "") + "\n|---|---|---|---|---|---|"
              + ("---|---|" if lens is not None else "") + "\n")
@@ -621,8 +753,13 @@ def cmd_fig8(args) -> int:
     lens_file = check_lens_arguments(args)
     spec = parse_restoration(args.restore)
     spec.check(PAPER_SCHEME)  # the windows fig8 restores in
+    chain, _ = chain_from_args(args)
+    info = _header(args.photo)
+    if info is not None:
+        _check_chain_photo(chain, info.shape, args.photo)
     out = check_output_dir(args.out, _inputs([args.photo]))
     ideal, source = _load(args.photo, select_device(args.device))
+    _check_chain_photo(chain, ideal.shape, source)
     size = _crop_size(args, ideal, source)
     psf = None
     if lens_file is None:
@@ -639,11 +776,12 @@ def cmd_fig8(args) -> int:
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
         if psf is None:
-            png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec)
+            png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec, chain=chain)
         else:
             png, tiles = lens_mosaic(ideal, stage, psf, lens_file.name or lens_label(args), angles=angles, crop=size,
-                                     seed=args.seed, method=spec)
-        atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles}))
+                                     seed=args.seed, method=spec, chain=chain)
+        atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles,
+                                                               **_chain_report(chain, PAPER_CAMERA.sensor)}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")
     return 0
 
@@ -691,6 +829,7 @@ def register(sub) -> None:
                         "with the nominal lens's PSFs and with the lens's own (calibrated), from the same noisy image; "
                         "crops, or with --full-frame the whole frame (restored_nominal.png, restored_calibrated.png)")
     add_tolerance_arguments(p)
+    add_chain_arguments(p, raw_out=True)
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="--full-frame PNG bit depth (sRGB)")
     p.add_argument("--exr", action="store_true", help="--full-frame: also write linear float EXRs")
     p.add_argument("--memory-limit", type=float, metavar="GIB",
@@ -709,6 +848,7 @@ def register(sub) -> None:
     f.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration method and its options ({methods}; default: wiener)")
     add_lens_arguments(f)
+    add_chain_arguments(f)
     add_device_argument(f)
     f.add_argument("--out", required=True)
     f.set_defaults(func=cmd_fig8)
@@ -719,7 +859,8 @@ def register(sub) -> None:
                    "paper's, or none when --lens is given)")
     add_lens_arguments(t, many=True)
     t.add_argument("--designs-file", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
-    t.add_argument("--isos", type=int, nargs="+", default=sorted(isos, reverse=True))
+    t.add_argument("--isos", type=int, nargs="+", default=None,
+                   help=f"ISOs (default: the sensor's, highest first; the paper's {' '.join(map(str, sorted(isos, reverse=True)))})")
     t.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration method and its options ({methods}; default: wiener)")
     t.add_argument("--method", default=None, help="former name of --restore")
@@ -734,4 +875,5 @@ def register(sub) -> None:
                    help="blur with one manufactured lens per design (drawn with SEED from --grade/--tolerances) and "
                         "add the columns of its restoration with its own PSFs (calibrated) beside the nominal PSFs'")
     add_tolerance_arguments(t, switches=False)
+    add_chain_arguments(t)
     t.set_defaults(func=cmd_psnr_table)

@@ -22,27 +22,31 @@ from pipeline.figures import tile_label
 from pipeline.restoration import Restoration
 from pipeline.simulate import crop_at_field_angle, simulate_crops
 
-__all__ = ["PAPER_FIG8_ANGLES", "figure8", "lens_mosaic"]
+__all__ = ["PAPER_FIG8_ANGLES", "figure8", "lens_mosaic", "chain_isos"]
 
 PAPER_FIG8_ANGLES = PAPER_FIG8_ANGLES_DEG
 
 
 def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             rms_w: Design = PAPER_DESIGNS["rms_w_paper"], e2e: Design = PAPER_DESIGNS["end_to_end_paper"],
-            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method="wiener") -> tuple[Path, list[dict]]:
+            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method="wiener", chain=None
+            ) -> tuple[Path, list[dict]]:
     """The mosaic for ``camera`` with a conventional (``rms_w``) and an end-to-end (``e2e``) design,
     restored with ``method`` (a name, ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`);
-    writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``."""
+    writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``. ``chain`` (a :class:`pipeline.camera_chain.CameraChain`)
+    runs the camera chain; its sensor's ISO table then sets the full wells (:func:`chain_isos`)."""
     spec = Restoration.of(method)
     method = spec.name
     boxes = [crop_at_field_angle(ideal.shape, a, crop, camera.geometry) for a in angles]
     isos = tuple(ISO_FOR_SNR.values())  # low, expected, high light: ISO 400, 100, 25
+    table = camera.sensor if chain is None else chain.sensor
+    isos = chain_isos(table, isos)
     low_noise = isos[-1]
-    well = camera.sensor.full_well_for_iso
+    well = table.full_well_for_iso
     runs = {("rms_w", low_noise): simulate_crops(ideal, LensPSF(camera, rms_w), well(low_noise), boxes, seed=seed,
-                                                 methods=(spec,), sensor=camera.sensor)}
+                                                 methods=(spec,), sensor=camera.sensor, chain=chain)}
     per_iso = simulate_crops(ideal, LensPSF(camera, e2e), [well(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=camera.sensor)
+                             methods=(spec,), sensor=camera.sensor, chain=chain)
     runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
     cols = [("ideal", img(("e2e", low_noise), "ideal"), None),
@@ -52,11 +56,21 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
     cols += [(f"end-to-end: restored, ISO {iso}", img(("e2e", iso), method), ("e2e", iso)) for iso in isos]
     title = (f"Fig. 8: RMS_W design ({rms_w.label()}) vs end-to-end design ({e2e.label()}); restoration: "
              f"{spec.method.label}; PSNR / SSIM in sRGB against the ideal image")
+    if chain is not None:
+        title += f"\ncamera chain: {chain.label()}"
     return _mosaic(runs, cols, runs[("e2e", low_noise)], title, method, out_dir, "fig8_mosaic")
 
 
+def chain_isos(sensor, preferred) -> tuple[int, ...]:
+    """The ISOs of a mosaic: ``preferred`` (highest first) if ``sensor``'s table has them all, else the table's three
+    highest, highest first."""
+    if all(i in sensor.isos for i in preferred):
+        return tuple(preferred)
+    return tuple(sorted(sensor.isos, reverse=True)[:3])
+
+
 def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: int = 128, seed: int = 0,
-                method="wiener", isos=None, sensor=None) -> tuple[Path, list[dict]]:
+                method="wiener", isos=None, sensor=None, chain=None) -> tuple[Path, list[dict]]:
     """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
     :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
     restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
@@ -67,8 +81,10 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
     sensor = psf.sensor if sensor is None else sensor
     boxes = [crop_at_field_angle(ideal.shape, a, crop, psf.geometry) for a in angles]
     isos = tuple(ISO_FOR_SNR.values()) if isos is None else tuple(isos)
-    per_iso = simulate_crops(ideal, psf, [sensor.full_well_for_iso(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=sensor)
+    table = sensor if chain is None else chain.sensor
+    isos = chain_isos(table, isos)
+    per_iso = simulate_crops(ideal, psf, [table.full_well_for_iso(i) for i in isos], boxes, seed=seed,  # one blur
+                             methods=(spec,), sensor=sensor, chain=chain)
     runs = {(label, iso): res for iso, res in zip(isos, per_iso)}
     first = runs[(label, isos[0])]
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
@@ -77,6 +93,8 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
     cols += [(f"restored, ISO {iso}", img((label, iso), method), (label, iso)) for iso in isos]
     title = (f"{label}\nthe sensor image and its restoration ({spec.method.label}) at ISO "
              f"{', '.join(str(i) for i in isos)}; PSNR / SSIM in sRGB against the ideal image")
+    if chain is not None:
+        title += f"\ncamera chain: {chain.label()}"
     return _mosaic(runs, cols, first, title, method, out_dir, "lens_mosaic")
 
 

@@ -43,6 +43,8 @@ class Photo:
     path: str | None = None
     linear: bool = True
     device: torch.device | str = "cpu"
+    metadata: dict | None = None
+    """What the file says beyond its pixels (a RAW photo's pattern, levels, white balance: ``{"raw": ...}``)."""
 
     @classmethod
     def of(cls, image: torch.Tensor, source: str) -> "Photo":
@@ -63,7 +65,7 @@ class Photo:
     def to(self, device) -> "Photo":
         """This photo on ``device`` (its pixels moved now if in memory, else when read)."""
         t = None if self.tensor is None else self.tensor.to(device)
-        return Photo(self.source, self.shape, self.peak, t, self.path, self.linear, torch.device(device))
+        return Photo(self.source, self.shape, self.peak, t, self.path, self.linear, torch.device(device), self.metadata)
 
     def region(self, r0: int, r1: int, c0: int, c1: int) -> torch.Tensor:
         """Linear pixels of rows ``r0:r1`` and columns ``c0:c1`` (px), ``(1, C, r1 - r0, c1 - c0)``."""
@@ -97,7 +99,8 @@ def _sample(spec: str) -> torch.Tensor:
 
 
 def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BYTES, progress=None) -> Photo:
-    """The :class:`Photo` of a file path, ``skimage:NAME`` (an 8-bit sample image that scikit-image ships) or
+    """The :class:`Photo` of a file path (an image, or a camera RAW file read by LibRaw: :mod:`pipeline.raw`),
+    ``skimage:NAME`` (an 8-bit sample image that scikit-image ships) or
     ``None``: the generated default scene, of ``camera``'s sensor size with its targets at field angles of
     ``camera``'s geometry (a :class:`lenssim.Camera`, needed then).
 
@@ -114,6 +117,14 @@ def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BY
                         scene_name(camera))
     if spec.startswith("skimage:"):
         return Photo.of(_sample(spec), spec)
+    from .raw import RAW_MAX_PIXELS, is_raw_path, read_raw
+
+    if is_raw_path(spec):  # LibRaw: the linear camera RGB, as-shot white balance, demosaicked (AHD), in memory
+        img, ri = read_raw(spec, max_pixels=RAW_MAX_PIXELS, what="photo")
+        photo = Photo.of(img, spec)
+        photo.metadata = {"raw": {**ri.to_dict(), "decoded_as": "linear camera RGB, as-shot white balance, LibRaw AHD "
+                                  "demosaicing, (DN - black) / (white - black) in the lowest-gain channel"}}
+        return photo
     info = None
     if keep_bytes > 0:
         from .io import image_info

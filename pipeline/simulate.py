@@ -37,6 +37,7 @@ from lenssim.io.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
 from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, largest_window, window_count
+from .camera_chain import CameraChain, PlanePSF
 from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import expose, read_noise_variance
 from .photo import Photo
@@ -160,7 +161,7 @@ def check_methods(methods, method_options: dict | None = None, scheme: WindowSch
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
                    sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
-                   restoration_psf: PSFProvider | None = None):
+                   restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
     where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
@@ -172,6 +173,11 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     ``{method: {option: value}}``) restores the crop, with the PSFs of ``restoration_psf`` (default ``psf``).
     ``dtype`` is the working precision (float32: ~1e-7 relative, far below the noise; float64 for reference
     runs); results come back in ``ideal``'s dtype.
+
+    ``chain`` (a :class:`pipeline.camera_chain.CameraChain`; None: the paper's model, noise by ``sensor`` as
+    :func:`pipeline.noise.expose`) runs the camera chain in place of the noise: the scene in the camera's RGB, blurred,
+    captured (CFA, noise, ADC: its ``"raw"`` image, DN), developed by the ISP (the ``"sensor"`` image) and restored
+    where the chain says; the CFA's phase and the fixed-pattern noise follow each crop's place in the frame.
     """
     if isinstance(ideal, Photo):  # read region by region (a photo too large to keep decodes only what it needs)
         shape, peak, read, out_dtype = ideal.shape, ideal.peak, ideal.region, ideal.dtype
@@ -187,6 +193,12 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     boxes = check_boxes(boxes, shape)
     for r in specs:  # the options against the windows, after the other arguments, before any work
         r.check(scheme)
+    if chain is not None:
+        if not isinstance(chain, CameraChain):
+            raise ValueError(f"chain is a {type(chain).__name__}: expected a pipeline.camera_chain.CameraChain")
+        if chain.cfa is not None and shape[1] != 3:
+            raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
+                             f"{shape[1]} channel(s)")
     H, W = shape[-2:]
     centre = frame_center(shape)
     providers = {id(psf): psf, id(restoration_psf): restoration_psf}.values()
@@ -221,6 +233,8 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         sub = read(R0, R1, C0, C1).to(dtype)
         oc = (centre[0] - R0, centre[1] - C0)
         br = (max(r0 - margin, R0) - R0, min(r1 + margin, R1) - R0, max(c0 - margin, C0) - C0, min(c1 + margin, C1) - C0)
+        if chain is not None:
+            sub = chain.scene_to_camera(sub)
         blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress)
         rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)
         crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(out_dtype)  # noqa: E731
@@ -229,6 +243,10 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         for i, fwc in enumerate(wells):
             e = fwc / peak
             g = torch.Generator(device=blurred.device).manual_seed(seed + k)
+            if chain is not None:
+                out[i].append(_chain_crop(chain, blurred, br, rr, (R0, C0), oc, e, fwc, g, crop, ci,
+                                          (r0, r1, c0, c1), field_deg, specs, restoration_psf, scheme, progress, dtype))
+                continue
             noisy = blurred.clone()
             reg = (slice(br[0], br[1]), slice(br[2], br[3]))
             noisy[..., reg[0], reg[1]] = expose(blurred[..., reg[0], reg[1]], e, sensor, fwc, generator=g)
@@ -244,6 +262,47 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     return out if several else out[0]
 
 
+def _chain_restorer(chain: CameraChain, spec, psf, e: float, var: float, scheme, oc, region, progress, dtype):
+    """``restore(image, plane)`` for :meth:`CameraChain.develop`: ``spec`` with ``psf`` on the RGB image (its optical
+    centre ``oc`` and ``region`` in the array's pixels), or on a CFA plane with :class:`PlanePSF` (the same windows in
+    the plane's pixels), the plane's centre and region (a plane pixel of slack each side, which demosaicing reads)."""
+    def run(x, plane):
+        if plane is None:
+            return restore(spec, x.to(dtype), psf, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
+                           optical_center=oc, region=region, progress=progress).to(x.dtype)
+        dy, dx, c = plane
+        h, w = x.shape[-2:]
+        pr = None if region is None else (max(-(-(region[0] - dy) // 2) - 1, 0), min(-(-(region[1] - dy) // 2) + 1, h),
+                                          max(-(-(region[2] - dx) // 2) - 1, 0), min(-(-(region[3] - dx) // 2) + 1, w))
+        pp = PlanePSF(psf, dy, dx, c if psf.channels > 1 else 0)
+        return restore(spec, x.to(dtype), pp, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
+                       optical_center=((oc[0] - dy) / 2, (oc[1] - dx) / 2), region=pr, progress=progress).to(x.dtype)
+    return run
+
+
+def _chain_crop(chain, blurred, br, rr, corner, oc, e, fwc, g, crop, ci, box, field_deg, specs, restoration_psf,
+                scheme, progress, dtype) -> "CropResult":
+    """One crop through the camera chain: the blur region ``br`` of the sub-array (its corner ``corner`` in the
+    frame) captured, developed and restored; ``rr`` the crop in the sub-array."""
+    work = blurred[..., br[0]:br[1], br[2]:br[3]]
+    origin = (corner[0] + br[0], corner[1] + br[2])
+    raw = chain.capture(work, e, fwc, generator=g, origin=origin)
+    units = chain.linearise(raw, e, fwc, origin=origin)
+    gains = chain.white_balance_gains(units, origin=origin, channels=blurred.shape[1])
+    ocb = (oc[0] - br[0], oc[1] - br[2])
+    rb = (rr[0] - br[0], rr[1] - br[0], rr[2] - br[2], rr[3] - br[2])
+    cut = lambda t: t[..., rb[0]:rb[1], rb[2]:rb[3]].to(ci.dtype)  # noqa: E731
+    sensor_img = cut(chain.develop(units, gains=gains, origin=origin))
+    res = CropResult(box, field_deg, {"ideal": ci, "blurred": crop(blurred), "sensor": sensor_img,
+                                      "raw": raw[..., rb[0]:rb[1], rb[2]:rb[3]]}, {"sensor": _score(ci, sensor_img)})
+    var = chain.noise_variance(e, fwc)
+    for spec in specs:
+        run = _chain_restorer(chain, spec, restoration_psf, e, var, scheme, ocb, rb, progress, dtype)
+        restored = cut(chain.develop(units, gains=gains, origin=origin, restore=run))
+        res.images[spec.name], res.scores[spec.name] = restored, _score(ci, restored)
+    return res
+
+
 @dataclass
 class FrameResult:
     sensor: torch.Tensor  # (B, C, H, W) linear, blurred + noise
@@ -256,6 +315,9 @@ class FrameResult:
     """``{tag: (B, C, H, W)}``: the frame restored with each provider of a ``restoration_psf`` mapping ``{tag:
     provider}`` (:func:`simulate_frame`), in its order, all from the one :attr:`sensor` image (the first is also
     :attr:`restored`); empty for one restoration provider."""
+    raw: torch.Tensor | None = None
+    """The camera chain's raw data (DN, ``(B, 1, H, W)`` under a CFA; electrons without an ADC), None without a
+    chain."""
 
     def restored_images(self) -> dict:
         """The restored frames by image kind: ``{"restored": ...}``, or ``{"restored_TAG": ...}`` per tag of
@@ -294,7 +356,7 @@ def _provider_key(psf: PSFProvider):
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
-                   restoration_psf: PSFProvider | dict | None = None) -> FrameResult:
+                   restoration_psf: PSFProvider | dict | None = None, chain: CameraChain | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
     ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
     ``restoration_psf`` (default ``psf``).
@@ -315,6 +377,9 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     :meth:`fingerprint`, e.g. :class:`lenssim.FunctionPSF`). The stamp holds the blur provider's fingerprint (for
     :class:`lenssim.AsBuiltPSF` the sampled lens's errors), so a sensor image is never taken from another lens; the
     restorations are always run again.
+
+    ``chain`` (a :class:`pipeline.camera_chain.CameraChain`) runs the camera chain as :func:`simulate_crops` does: the
+    checkpoint then holds its raw data (:attr:`FrameResult.raw`), developed again on resuming.
     """
     from .io import ImageFileError, read_image, write_image
 
@@ -324,9 +389,13 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
     method.check(scheme)
+    if chain is not None and chain.cfa is not None and ideal.shape[1] != 3:
+        raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
+                         f"{ideal.shape[1]} channel(s)")
     seconds = {}
     pkey = _provider_key(psf)
     params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),
+              **({} if chain is None else {"chain": chain.to_dict()}),
               "scheme": [scheme.window, scheme.stride, scheme.core, scheme.anchor, scheme.fit], "dtype": str(dtype),
               "shape": list(ideal.shape)}
     stamp_path = sensor_path = None
@@ -353,17 +422,35 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                     except ImageFileError as exc:  # unreadable now (e.g. the disk failed): computed again
                         warnings.warn(f"{exc}; computing the sensor image again", ResumeWarning, stacklevel=2)
                         noisy = torch.empty(0)
-                    if tuple(noisy.shape) == tuple(ideal.shape):
+                    if chain is not None and tuple(noisy.shape) == _raw_shape(ideal.shape, chain):
+                        if progress is not None:
+                            progress(window_count(ideal.shape, scheme))
+                        return _develop_frame(noisy.to(device=ideal.device, dtype=torch.float64), ideal, restoration_psf,
+                                              method, chain, stamp["electrons_per_unit"], full_well, scheme, progress,
+                                              seconds, dtype, resumed=True)
+                    if chain is None and tuple(noisy.shape) == tuple(ideal.shape):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme))
                         return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, restoration_psf, method, sensor,
                                               stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
     t0 = time.perf_counter()
-    blurred = blur_windowed(ideal.to(dtype), psf, scheme=scheme, progress=progress)
+    scene = ideal.to(dtype) if chain is None else chain.scene_to_camera(ideal.to(dtype))
+    blurred = blur_windowed(scene, psf, scheme=scheme, progress=progress)
+    del scene
     seconds["blur"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     e = full_well / float(blurred.amax())
     g = torch.Generator(device=blurred.device).manual_seed(int(seed))
+    if chain is not None:
+        raw = chain.capture(blurred, e, full_well, generator=g)
+        del blurred
+        seconds["noise"] = time.perf_counter() - t0
+        if sensor_path is not None:
+            write_image(sensor_path, raw.to(torch.float32), bits="float")
+            atomic_write_text(stamp_path, json.dumps({"key": key, "electrons_per_unit": e,
+                                                      "sensor_sha256": _file_sha256(sensor_path), **params}, indent=2))
+        return _develop_frame(raw, ideal, restoration_psf, method, chain, e, full_well, scheme, progress, seconds,
+                              dtype, resumed=False)
     noisy = expose(blurred, e, sensor, full_well, generator=g)
     del blurred
     seconds["noise"] = time.perf_counter() - t0
@@ -421,6 +508,31 @@ def _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, secon
     first = next(iter(restored.values()))
     return FrameResult(noisy.to(ideal.dtype), first, method.name, e, resumed, seconds,
                        restored if several else {})
+
+
+def _raw_shape(shape, chain: CameraChain) -> tuple:
+    """The shape of a chain's raw data for an image of ``shape`` ``(B, C, H, W)``."""
+    return (shape[0], 1 if chain.cfa else shape[1], *shape[-2:])
+
+
+def _develop_frame(raw, ideal, psf, method, chain: CameraChain, e, full_well, scheme, progress, seconds, dtype,
+                   resumed) -> FrameResult:
+    """The chain's raw frame developed (the sensor image) and developed with restoration by each provider."""
+    t0 = time.perf_counter()
+    units = chain.linearise(raw, e, full_well)
+    gains = chain.white_balance_gains(units, channels=ideal.shape[1])
+    sensor_img = chain.develop(units, gains=gains).to(ideal.dtype)
+    seconds["develop"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    var = chain.noise_variance(e, full_well)
+    several = isinstance(psf, dict)
+    restored = {}
+    for tag, prov in (psf.items() if several else [("", psf)]):
+        run = _chain_restorer(chain, method, prov, e, var, scheme, None, None, progress, dtype)
+        restored[tag] = chain.develop(units, gains=gains, restore=run).to(ideal.dtype)
+    seconds["restore"] = time.perf_counter() - t0
+    first = next(iter(restored.values()))
+    return FrameResult(sensor_img, first, method.name, e, resumed, seconds, restored if several else {}, raw=raw)
 
 
 FRAME_WORKING_COPIES = 12

@@ -45,7 +45,7 @@ def _args(tmp_path, *extra, photo=None):
     (["--angles", "45"], "field angle=45.0 is not allowed"),
     (["--full-well", "inf"], "--full-well=inf is not allowed"),
     (["--full-well", "1e30"], "--full-well=1e+30 is not allowed"),
-    (["--iso", "200"], "iso=200 is not allowed"),
+    (["--iso", "200"], "ISO 200 is not allowed"),
     (["--scheme", "511", "32", "64"], "window=511"),
     (["--denoise", "5"], "--denoise 5 is not allowed"),
     (["--restore", "tv"], "restoration method 'tv' is not known"),

@@ -61,7 +61,7 @@ def test_simulate_command_errors(tmp_path, capsys):
     assert main(["simulate", str(tmp_path / "missing.jpg"), "--s", "-0.5", "--Q", "-1", "--out", str(tmp_path)]) == 2
     assert "missing.jpg" in capsys.readouterr().err
     assert main(["simulate", "skimage:camera", "--s", "-0.5", "--Q", "-1", "--iso", "200", "--out", str(tmp_path)]) == 2
-    assert "iso=200" in capsys.readouterr().err
+    assert "ISO 200 is not allowed: one of 25, 100, 400" in capsys.readouterr().err
 
 
 def test_psnr_table(tmp_path, capsys):
