@@ -5,6 +5,8 @@ The stages (:data:`CAMERA_STAGES`, a table from name to function, like the resto
 :class:`CameraChain` runs them; a stage whose term is off is skipped (no random number drawn), so the chain of the
 paper's sensor without a colour filter array draws and returns exactly what :func:`pipeline.noise.expose` does:
 
+optics side: the pixel aperture (the sensor's ``fill_factor``) joins the lens's PSFs for the blur and the restoration
+(:class:`lenssim.optics.pixel_aperture.PixelAperturePSF`, applied by :mod:`pipeline.simulate`).
 sensor side (:meth:`CameraChain.capture`; linear camera RGB in, raw data out)
     ``quantum_efficiency`` (electrons expected per pixel and channel), ``mosaic`` (the Bayer CFA keeps one channel per
     pixel), ``prnu`` (each pixel's fixed gain ``1 + prnu N(0, 1)``), ``photon_noise`` (Poisson), ``dark_current``
@@ -54,6 +56,8 @@ DEFAULT_EXPOSURE_MS = 10.0
 signal is set by the ISO's full well, as in the paper."""
 FIXED_PATTERN_TILE_PX = 256
 """Side (px) of the tiles the PRNU and DSNU patterns are drawn in (each from the seed and the tile's position)."""
+PLANE_PSF_MARGIN_PX = 8
+"""Frame pixels beyond a PSF's known support that :class:`PlanePSF` asks its base provider for (the tent reaches 1)."""
 RESTORE_PLACES = ("rgb", "mosaic")
 """Where restoration runs: on the demosaicked RGB image (today's place) or on the mosaic's CFA planes."""
 WHITE_BALANCE_METHODS = ("illuminant", "grey_world")
@@ -282,6 +286,8 @@ class CameraChain:
         return {"cfa": self.cfa or "none", "demosaic": self.demosaic if self.cfa else None,
                 "restore_on": self.restore_on, "exposure_ms": self.exposure_ms, "white_balance": self.white_balance,
                 "fixed_pattern_seed": self.fixed_pattern_seed, "dark_electrons": self.dark_electrons,
+                "pixel_aperture": None if self.sensor.fill_factor is None else
+                f"box of {math.sqrt(self.sensor.fill_factor):.4g} px (fill factor {self.sensor.fill_factor:g})",
                 "sensor_stages": list(self.sensor_stages), "isp_stages": list(self.isp_stages),
                 "sensor": self.sensor.to_dict()}
 
@@ -289,6 +295,8 @@ class CameraChain:
         """A short description for figures (pattern and method by their names)."""
         s = self.sensor
         parts = [s.name or "sensor"]
+        if s.fill_factor is not None:
+            parts.append(f"fill factor {s.fill_factor:g}")
         if self.cfa:
             parts.append(f"{self.cfa} / {self.demosaic}")
         if s.read_noise_e:
@@ -428,18 +436,25 @@ class PlanePSF(PSFProvider):
 
     def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
         r, c, oc = self._frame(rows, cols, optical_center)
-        m = 2 * n + 1
+        # the frame's PSFs on the smallest odd grid that holds their support (known) with a margin, at most the
+        # 2 n + 1 frame pixels the plane's n x n grid spans
+        ext = int(torch.as_tensor(self.base.extents_px(r, c, oc)).max()) if len(r) else 0
+        m = 2 * n + 1 if ext <= 0 else min(2 * n + 1, 2 * (ext // 2) + PLANE_PSF_MARGIN_PX + 1)
         p = self.base.psf_at_pixels(r, c, oc, m, centered=True, dtype=torch.float64, device=device)
         if p.ndim == 4:
             p = p[:, self.channel]
         tent = torch.tensor([0.5, 1.0, 0.5], dtype=p.dtype, device=p.device)
         k = (tent[:, None] * tent[None, :])[None, None]
         q = torch.nn.functional.conv2d(p[:, None], k, padding=1)[:, 0]
-        h = n // 2
-        q = q[:, n - 2 * h::2, n - 2 * h::2][:, :n, :n]
-        q = q / q.sum(dim=(-2, -1), keepdim=True)
-        q = q.to(dtype=dtype or torch.float32)
-        return q if centered else torch.fft.ifftshift(q, dim=(-2, -1))
+        h, ctr = n // 2, m // 2
+        lo = max(0, -(-(2 * h - ctr) // 2))  # plane index j <-> frame index ctr + 2 (j - h), within 0..m-1
+        hi = min(n - 1, (m - 1 - ctr + 2 * h) // 2)
+        f0 = ctr + 2 * (lo - h)
+        out = q.new_zeros(q.shape[0], n, n)
+        out[:, lo:hi + 1, lo:hi + 1] = q[:, f0::2, f0::2][:, :hi + 1 - lo, :hi + 1 - lo]
+        out = out / out.sum(dim=(-2, -1), keepdim=True)
+        out = out.to(dtype=dtype or torch.float32)
+        return out if centered else torch.fft.ifftshift(out, dim=(-2, -1))
 
     def extent_px(self, rows, cols, optical_center) -> int:
         r, c, oc = self._frame(rows, cols, optical_center)

@@ -187,6 +187,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    psf, restoration_psf = _with_pixel_aperture(chain, psf), _with_pixel_aperture(chain, restoration_psf)
     specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
     wells = [check_full_well(f) for f in (full_well if several else [full_well])]
@@ -260,6 +261,16 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
                 res.images[spec.name], res.scores[spec.name] = restored, _score(ci, restored)
             out[i].append(res)
     return out if several else out[0]
+
+
+def _with_pixel_aperture(chain: CameraChain | None, psf: PSFProvider) -> PSFProvider:
+    """``psf`` integrated over the chain's pixel aperture (its sensor's ``fill_factor``), for the blur and the
+    restoration alike; unchanged without one."""
+    if chain is None or chain.sensor.fill_factor is None:
+        return psf
+    from lenssim.optics.pixel_aperture import PixelAperturePSF
+
+    return PixelAperturePSF(psf, chain.sensor.fill_factor)
 
 
 def _chain_restorer(chain: CameraChain, spec, psf, e: float, var: float, scheme, oc, region, progress, dtype):
@@ -386,6 +397,9 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     check_scene(ideal, "ideal")
     check_provider(psf)
     restoration_psf = _restoration_providers(psf, restoration_psf)
+    psf = _with_pixel_aperture(chain, psf)
+    restoration_psf = ({t: _with_pixel_aperture(chain, p) for t, p in restoration_psf.items()}
+                       if isinstance(restoration_psf, dict) else _with_pixel_aperture(chain, restoration_psf))
     (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
     method.check(scheme)

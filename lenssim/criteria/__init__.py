@@ -57,7 +57,8 @@ class OTFContext:
     ``P_x`` on the same grid (unit signal variance); ``weights`` the quarter-plane integration weights (their
     sum with an even function is its mean over the ``m x m`` DFT grid); ``pw = psd * weights``; ``sigma2``
     ``(S,)`` the noise variances (unit signal variance); ``n`` the FFT size of the PSFs; ``camera`` (pixel
-    pitch, spectrum); ``reference``: an optional reference OTF ``(B, m/2+1, m/2+1)`` on the same grid (e.g. a
+    pitch, spectrum; a sensor ``fill_factor`` multiplies the pixel aperture's MTF into ``H``, ``H2``, the reference and
+    the diffraction-limited OTF); ``reference``: an optional reference OTF ``(B, m/2+1, m/2+1)`` on the same grid (e.g. a
     nominal lens's, for a restoration designed for it).
     """
 
@@ -72,6 +73,26 @@ class OTFContext:
     numerics: object = None
     reference: torch.Tensor | None = None
     _cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        # a sensor with a pixel aperture: its box MTF is part of the system's OTF (and of a reference's)
+        mtf = self.pixel_mtf()
+        if mtf is not None:
+            self.H = self.H * mtf
+            self.H2 = self.H2 * mtf.square()
+            if self.reference is not None:
+                self.reference = self.reference * mtf
+
+    def pixel_mtf(self) -> torch.Tensor | None:
+        """The pixel aperture's MTF on the quarter plane ``(m/2+1, m/2+1)`` (:mod:`lenssim.optics.pixel_aperture`),
+        None for point sampling (no ``fill_factor`` on the camera's sensor)."""
+        ff = getattr(self.camera.sensor, "fill_factor", None)
+        if ff is None:
+            return None
+        from ..optics.pixel_aperture import pixel_aperture_mtf
+
+        f = torch.arange(self.H.shape[-1], dtype=torch.float64, device=self.H.device) / self.m
+        return pixel_aperture_mtf(f, f, ff).to(self.H.real.dtype)
 
     @property
     def m(self) -> int:
@@ -97,7 +118,8 @@ class OTFContext:
                                device=self.H.device)
             kw = {"numerics": self.numerics} if self.numerics is not None else {}
             self._cache["dl"] = otf_quarter_spectrum(self.camera, zero, self.n, oversample=self.m // self.n, **kw)
-        return self._cache["dl"]
+        mtf = self.pixel_mtf()  # the aberration-free camera has the same pixels
+        return self._cache["dl"] if mtf is None else self._cache["dl"] * mtf
 
     def _terms(self) -> int:
         from ..optics.aberrations import N_TERMS

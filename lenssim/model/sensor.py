@@ -36,6 +36,10 @@ class Sensor:
     """The ADC's largest value (DN); None: ``2^bit_depth - 1``."""
     prnu_percent: float = 0.0
     dsnu_e: float = 0.0
+    fill_factor: float | None = None
+    """The fraction of the pixel's area that collects light (a centred square of side ``sqrt(fill_factor)`` px; its
+    box MTF enters every design criterion and the image pipeline's PSFs, :mod:`lenssim.optics.pixel_aperture`); None:
+    point sampling, no pixel aperture (the paper)."""
     cfa: str = "none"
     """The Bayer pattern from the top-left pixel (RGGB, BGGR, GRBG, GBRG) or ``"none"``."""
     colour_matrix: tuple[tuple[float, float, float], ...] = ()
@@ -100,6 +104,12 @@ class Sensor:
             if not self.black_level_dn < white:
                 raise ValueError(f"black_level_dn={self.black_level_dn} is not allowed: below the white level "
                                  f"({white} DN)")
+        f = self.fill_factor
+        if f is not None and (isinstance(f, bool) or not isinstance(f, (int, float)) or not math.isfinite(f)
+                              or not 0 < f <= 1):
+            raise ValueError(f"fill_factor={f!r} is not allowed: a fraction in (0, 1], or None (point sampling)")
+        if f is not None:
+            object.__setattr__(self, "fill_factor", float(f))
         c = str(self.cfa).upper() if str(self.cfa).lower() != "none" else "none"
         if c not in ("none", "RGGB", "BGGR", "GRBG", "GBRG"):
             raise ValueError(f"cfa={self.cfa!r} is not allowed: none, RGGB, BGGR, GRBG or GBRG")
@@ -182,6 +192,6 @@ class Sensor:
 
 
 _CHAIN_DEFAULTS = {"name": "", "source": "", "quantum_efficiency": (), "dark_current_e_per_s": 0.0, "black_level_dn": 0,
-                   "white_level_dn": None, "prnu_percent": 0.0, "dsnu_e": 0.0, "cfa": "none",
+                   "white_level_dn": None, "prnu_percent": 0.0, "dsnu_e": 0.0, "fill_factor": None, "cfa": "none",
                    "colour_matrix": ()}
 _BASE_KEYS = {"pixel_pitch_um", "width_px", "height_px", "full_well_e", "read_noise_e", "bit_depth", "name", "source"}
