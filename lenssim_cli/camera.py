@@ -718,7 +718,11 @@ def cmd_psnr_table(args) -> int:
                 raise ValueError(f"{k} of {r['photo']} / {r['design']} / ISO {r['iso']} is not finite (identical "
                                  "images?): not written")
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    csv = "".join(",".join(str(r.get(k, "")) for k in keys) + "\n" for r in rows)
+    import csv as csv_module
+    import io
+
+    buf = io.StringIO()  # quoted where a field holds a comma (a sensor's name, a photo's path)
+    csv_module.writer(buf, lineterminator="\n").writerows([keys] + [[r.get(k, "") for k in keys] for r in rows])
     where = (f"at {', '.join(f'{a:g}' for a in args.angles)} deg" if args.angles is not None
              else "at the angles that fit each photo (column angles_deg of the CSV)")
     md = (f"Mean over crops {where} ({args.crop} px), sRGB PSNR/SSIM vs the "
@@ -735,7 +739,7 @@ def cmd_psnr_table(args) -> int:
                     + (f" {r['psnr_restored_calibrated_db']:.2f} | {r['ssim_restored_calibrated']:.3f} |" if lens is not None
                        else "") + "\n" for r in rows))
     with staged_output_dir(out) as stage:
-        for name, text in (("psnr_table.csv", ",".join(keys) + "\n" + csv), ("psnr_table.md", md)):
+        for name, text in (("psnr_table.csv", buf.getvalue()), ("psnr_table.md", md)):
             atomic_write_text(stage / name, text)
     print(md)
     print(f"wrote {out}/psnr_table.csv and psnr_table.md in {time.perf_counter() - t0:.0f} s", file=sys.stderr)

@@ -42,15 +42,20 @@ def test_simulate_with_a_sensor_preset_writes_dngs_that_libraw_reads(tmp_path, c
 
 
 def test_psnr_table_with_the_chain_restored_on_the_mosaic(tmp_path, capsys):
+    import csv
+
     out = tmp_path / "t"
-    rc = main(["psnr-table", "skimage:astronaut", "--designs", "end_to_end_paper", "--isos", "100", "--cfa", "RGGB",
+    f = tmp_path / "comma.toml"
+    f.write_text('[sensor]\nname = "mine, with a comma"\npixel_pitch_um = 1.5625\nwidth_px = 6000\nheight_px = 4000\n'
+                 'full_well_e = [[100, 3200]]\nread_noise_e = 2.0\n')
+    rc = main(["psnr-table", "skimage:astronaut", "--designs", "end_to_end_paper", "--sensor", str(f), "--cfa", "RGGB",
                "--restore-on", "mosaic", "--demosaic", "bilinear", "--angles", "0", "--crop", "96", "--out", str(out)])
     assert rc == 0
-    head, row = (out / "psnr_table.csv").read_text().splitlines()[:2]
-    cols = dict(zip(head.split(","), row.split(",")))
-    assert (cols["cfa"], cols["demosaic"], cols["restore_on"]) == ("RGGB", "bilinear", "mosaic")
+    (cols,) = list(csv.DictReader((out / "psnr_table.csv").read_text().splitlines()))
+    assert (cols["sensor"], cols["cfa"], cols["demosaic"], cols["restore_on"], cols["iso"]) == (
+        "mine, with a comma", "RGGB", "bilinear", "mosaic", "100")  # the sensor's ISOs by default
     assert float(cols["psnr_restored_db"]) > float(cols["psnr_sensor_db"])
-    assert "Camera chain: paper (photon noise only), RGGB / bilinear" in (out / "psnr_table.md").read_text()
+    assert "Camera chain: mine, with a comma, RGGB / bilinear" in (out / "psnr_table.md").read_text()
 
 
 def test_a_raw_photo_is_read_by_extension_with_its_metadata(tmp_path, capsys):
