@@ -156,11 +156,11 @@ def _inputs(photos) -> list[str]:
 def _header(spec):
     """A photo file's header, checked before anything else (size, channels; no pixel decoded); None for
     ``skimage:`` names and the generated scene."""
-    from pipeline.io import image_info
+    from pipeline.photo import photo_info
 
     if not spec or spec.startswith("skimage:"):
         return None
-    info = image_info(spec, "photo")
+    info = photo_info(spec, "photo")
     _check_size(spec, info.shape)
     return info
 

@@ -110,13 +110,7 @@ def _info(path, spec, what: str) -> ImageInfo:
 
 def image_info(path: str | os.PathLike, what: str = "image") -> ImageInfo:
     """The :class:`ImageInfo` of ``path`` from its header alone (no pixel is decoded): size, channels, format.
-    ``what`` names the file in errors (e.g. ``"photo"``). A camera RAW file (:func:`pipeline.raw.is_raw_path`) is read
-    by LibRaw: its demosaicked size, three linear channels (format ``"raw"``)."""
-    from .raw import RAW_MAX_PIXELS, is_raw_path, raw_info
-
-    if is_raw_path(path):
-        ri = raw_info(path, what, max_pixels=RAW_MAX_PIXELS)
-        return ImageInfo(str(path), ri.width_px, ri.height_px, 3, "raw", True, 3)
+    ``what`` names the file in errors (e.g. ``"photo"``). A camera RAW file: :func:`pipeline.photo.photo_info`."""
     inp, spec = _open(path, what)
     try:
         return _info(path, spec, what)

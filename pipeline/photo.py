@@ -14,9 +14,9 @@ import numpy as np
 import torch
 
 from .colour_space import srgb_to_linear
-from .io import ImageFileError, read_image, scan_image
+from .io import ImageFileError, ImageInfo, read_image, scan_image
 
-__all__ = ["Photo", "open_photo", "load_photo", "scene_name", "PHOTO_KEEP_BYTES"]
+__all__ = ["Photo", "open_photo", "load_photo", "photo_info", "scene_name", "PHOTO_KEEP_BYTES"]
 
 PHOTO_KEEP_BYTES = 2**30
 """A photo whose linear float32 pixels take at most this many bytes is decoded once and kept in memory (a 24 MP RGB
@@ -96,6 +96,19 @@ def _sample(spec: str) -> torch.Tensor:
     t = torch.from_numpy(arr.astype(np.float32) / 255)
     t = t[None, None] if t.ndim == 2 else t.permute(2, 0, 1)[None, :3]
     return srgb_to_linear(t)
+
+
+def photo_info(spec: str, what: str = "photo") -> ImageInfo:
+    """The header of a photo file: :func:`pipeline.io.image_info`, or for a camera RAW file
+    (:func:`pipeline.raw.is_raw_path`) LibRaw's: its demosaicked size, three linear channels (format ``"raw"``),
+    the size checked against :data:`pipeline.raw.RAW_MAX_PIXELS`."""
+    from .io import image_info
+    from .raw import RAW_MAX_PIXELS, is_raw_path, raw_info
+
+    if is_raw_path(spec):
+        ri = raw_info(spec, what, max_pixels=RAW_MAX_PIXELS)
+        return ImageInfo(str(spec), ri.width_px, ri.height_px, 3, "raw", True, 3)
+    return image_info(spec, what)
 
 
 def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BYTES, progress=None) -> Photo:
