@@ -13,10 +13,10 @@ from lenssim import LensError, __version__
 from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
-from . import camera, design, lens, optics, tolerance
+from . import camera, design, explore, lens, optics, tolerance
 from .common import check_arguments
 
-COMMAND_MODULES = (optics, tolerance, camera, lens, design)
+COMMAND_MODULES = (optics, tolerance, camera, lens, design, explore)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,

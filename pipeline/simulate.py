@@ -161,7 +161,8 @@ def check_methods(methods, method_options: dict | None = None, scheme: WindowSch
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
                    sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
-                   restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None):
+                   restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None,
+                   blur_cache: dict | None = None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
     where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
@@ -178,6 +179,11 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     :func:`pipeline.noise.expose`) runs the camera chain in place of the noise: the scene in the camera's RGB, blurred,
     captured (CFA, noise, ADC: its ``"raw"`` image, DN), developed by the ISP (the ``"sensor"`` image) and restored
     where the chain says; the CFA's phase and the fixed-pattern noise follow each crop's place in the frame.
+
+    ``blur_cache`` (a dict the caller keeps, e.g. an interactive explorer): the blurred region of each box is kept
+    there under the blur provider, the box, the window scheme, the working precision and the chain's colour matrix
+    and pixel aperture, and taken from there by a later call with the same ones (a new ISO, seed, chain or restoration
+    of the same crop then skips the blur). The caller keeps the photo unchanged while it keeps the dict.
     """
     if isinstance(ideal, Photo):  # read region by region (a photo too large to keep decodes only what it needs)
         shape, peak, read, out_dtype = ideal.shape, ideal.peak, ideal.region, ideal.dtype
@@ -187,6 +193,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    blur_key = (id(psf), scheme, dtype, None if chain is None else (chain.sensor.colour_matrix, chain.sensor.fill_factor))
     psf, restoration_psf = _with_pixel_aperture(chain, psf), _with_pixel_aperture(chain, restoration_psf)
     specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
@@ -236,7 +243,12 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         br = (max(r0 - margin, R0) - R0, min(r1 + margin, R1) - R0, max(c0 - margin, C0) - C0, min(c1 + margin, C1) - C0)
         if chain is not None:
             sub = chain.scene_to_camera(sub)
-        blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress)
+        key = blur_key + ((R0, R1, C0, C1), br)
+        blurred = None if blur_cache is None else blur_cache.get(key)
+        if blurred is None:
+            blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress)
+            if blur_cache is not None:
+                blur_cache[key] = blurred
         rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)
         crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(out_dtype)  # noqa: E731
         ci = crop(sub)

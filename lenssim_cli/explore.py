@@ -1,0 +1,398 @@
+"""``lenssim explore``: a local web application over the explorer's computations (issue 32; docs/explore.md).
+
+    lenssim explore [PHOTO] [--design NAME] [--sweep FILE.nc] [--port 5006] [--host 127.0.0.1] [--max-upload-mb 200]
+
+Panel (HoloViz, on a Bokeh server) lays out :mod:`lenssim_studies.explore`'s update functions: the design panel (sliders,
+the criteria, PSFs and MTFs, the cost map; a click on the map selects a design), the photo panel (a click on the photo
+moves the crop; sensor preset, CFA, demosaicing, ISO, seed), the restoration lab (two methods side by side, a
+manufactured lens restored with the nominal PSFs and with its own) and the export (the command line that reproduces
+the photo panel, a PNG of it). Every script and style comes from the installed packages (Bokeh's server serves them);
+nothing is fetched from elsewhere. The server binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning).
+An upload is checked as the command line checks a photo (format, size from the header, every pixel finite), under a
+name of the server's own in a private temporary folder removed after reading; no other path is read or written.
+A failed computation shows its one-line error on the page; the app keeps serving.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+DEFAULT_PORT = 5006
+DEFAULT_MAX_UPLOAD_MB = 200.0
+UPLOAD_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf",
+                   ".orf", ".rw2")
+"""Extensions an upload may have (its name is used for nothing else)."""
+MAP_POLL_MS = 3000
+"""How often (ms) a page redraws the cost map while it is being computed."""
+OVERVIEW_PX = 480
+"""Longer side (px) of the clickable overview of the photo."""
+
+
+def register(sub) -> None:
+    p = sub.add_parser("explore", help="an interactive explorer of designs, photos and restorations in the browser "
+                       "(a local web app; docs/explore.md)")
+    p.add_argument("photo", nargs="?", help="image file or skimage:NAME; default: the generated scene")
+    p.add_argument("--design", metavar="NAME", help="the design the sliders start at (see `lenssim designs`; default "
+                   "end_to_end_paper)")
+    p.add_argument("--sweep", metavar="FILE.nc", help="a sweep over s and Q_back (lenssim sweep) for the cost map; "
+                   "default: a coarse 13 x 15 grid computed once in the background (~1 min)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free one)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only; another one is warned about)")
+    p.add_argument("--max-upload-mb", type=float, default=DEFAULT_MAX_UPLOAD_MB,
+                   help=f"largest photo a page may upload (MB; default {DEFAULT_MAX_UPLOAD_MB:g})")
+    p.set_defaults(func=cmd_explore)
+
+
+def check_explore_arguments(args) -> None:
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port {args.port} is not allowed: 0 (any free port) to 65535")
+    if not (math.isfinite(args.max_upload_mb) and 0 < args.max_upload_mb <= 4096):
+        raise ValueError(f"--max-upload-mb {args.max_upload_mb:g} is not allowed: more than 0 and at most 4096")
+    if not args.host or any(c.isspace() for c in args.host):
+        raise ValueError(f"--host {args.host!r} is not allowed: an address or a host name")
+
+
+def cmd_explore(args) -> int:
+    check_explore_arguments(args)
+    start = _start_design(args.design)
+    try:
+        import panel  # noqa: F401
+    except ImportError:
+        raise ValueError("lenssim explore needs Panel: pip install 'lenssim[explore]'") from None
+    from lenssim_studies.explore import Explorer
+
+    ds = None
+    if args.sweep:
+        ds = _load_sweep(args.sweep)
+    photo, source = _open_photo(args.photo)
+    explorer = Explorer(photo=photo, photo_source=source)
+    if ds is not None:
+        explorer.load_map(ds)
+    else:  # the coarse map, once, in the background (the page shows its progress)
+        import threading
+
+        threading.Thread(target=explorer.compute_map, daemon=True, name="lenssim-explore-map").start()
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: --host {args.host}: the explorer is reachable from other machines; it has no login",
+              file=sys.stderr)
+    serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start)
+    return 0
+
+
+def _start_design(name):
+    """The sliders' first values: a named design's (checked), or the explorer's default."""
+    from lenssim_studies.explore import DesignControls
+
+    if name is None:
+        return DesignControls()
+    from .common import designs
+
+    named = designs(None)
+    if name not in named:
+        raise ValueError(f"--design {name!r} is not known; choose from {', '.join(sorted(named))}")
+    v = named[name].complete().floats()
+    return DesignControls(v["s"], v["Q_back"], v.get("Q_front", 0.0), v.get("focus_shift_um", 0.0))
+
+
+def _load_sweep(path):
+    """A sweep file (``lenssim sweep``'s NetCDF), checked (its checksum) before use."""
+    import xarray as xr
+
+    from lenssim.io.files import check_input_file
+    from lenssim_studies.sweep import verify_sweep
+
+    check_input_file(path, "sweep file")
+    try:
+        ds = xr.load_dataset(path, engine="scipy")
+    except Exception:  # noqa: BLE001 - whatever the reader says, the file is not a sweep
+        raise ValueError(f"--sweep {str(path)!r} is not a sweep file (NetCDF written by `lenssim sweep`)") from None
+    if "config_digest" not in ds.attrs:
+        raise ValueError(f"--sweep {str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
+    verify_sweep(ds, path)
+    return ds
+
+
+def _open_photo(spec):
+    from lenssim_studies.paper import PAPER_CAMERA
+    from pipeline.photo import open_photo
+
+    if spec is None:
+        return None, "generated scene"
+    photo = open_photo(spec, PAPER_CAMERA)
+    return photo, photo.source
+
+
+def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None):
+    """The page (a Panel layout) over ``explorer``; its widgets are reachable as ``app.widgets`` for tests."""
+    import io
+
+    import numpy as np
+    import panel as pn
+    from bokeh.events import Tap
+    from bokeh.plotting import figure
+
+    from lenssim.io.sensor_file import sensor_names
+    from lenssim.model.tolerances import GRADES
+    from lenssim_studies.explore import MAP_CRITERIA, DesignControls, PhotoControls, command_line
+    from pipeline.camera_chain import DEMOSAIC_METHODS
+    from pipeline.cfa import CFA_PATTERNS
+
+    pn.config.loading_indicator = True
+    d0 = DesignControls() if start is None else start
+    w = {
+        "s": pn.widgets.FloatSlider(name="s (bending)", start=-2.0, end=1.0, step=0.025, value=d0.s, format="0.000"),
+        "Q_back": pn.widgets.FloatSlider(name="Q_back (back conic)", start=-10.0, end=1.2, step=0.1, value=d0.Q_back),
+        "Q_front": pn.widgets.FloatSlider(name="Q_front (front conic)", start=-10.0, end=10.0, step=0.1,
+                                          value=d0.Q_front),
+        "focus": pn.widgets.FloatSlider(name="focus shift [um]", start=-500.0, end=500.0, step=5.0,
+                                        value=d0.focus_shift_um),
+        "criterion": pn.widgets.Select(name="map criterion", options=list(MAP_CRITERIA), value="mse_r"),
+        "snr": pn.widgets.Select(name="SNR [dB]", options={f"{s:g}": i for i, s in enumerate(explorer.snr_db)},
+                                 value=min(1, len(explorer.snr_db) - 1)),
+        "iso": pn.widgets.Select(name="ISO", options=[25, 100, 400], value=100),
+        "seed": pn.widgets.IntInput(name="noise seed", value=0, start=0),
+        "sensor": pn.widgets.Select(name="sensor", options=["(paper)"] + sensor_names(), value="(paper)"),
+        "cfa": pn.widgets.Select(name="CFA", options=["none", *CFA_PATTERNS], value="none"),
+        "demosaic": pn.widgets.Select(name="demosaicing", options=list(DEMOSAIC_METHODS), value="Malvar2004"),
+        "restore": pn.widgets.TextInput(name="restoration", value="wiener"),
+        "method_a": pn.widgets.TextInput(name="method A", value="wiener"),
+        "method_b": pn.widgets.TextInput(name="method B", value="richardson_lucy:iterations=20"),
+        "grade": pn.widgets.Select(name="tolerance grade", options=list(GRADES), value="commercial"),
+        "lens_seed": pn.widgets.IntInput(name="lens seed", value=0, start=0),
+        "upload": pn.widgets.FileInput(name="upload a photo", accept=",".join(UPLOAD_SUFFIXES)),
+    }
+    state = {"center": None}
+    error = pn.pane.Alert("", alert_type="danger", visible=False, name="error")
+
+    def controls():
+        return DesignControls(w["s"].value, w["Q_back"].value, w["Q_front"].value, w["focus"].value)
+
+    def photo_controls():
+        sensor = None if w["sensor"].value == "(paper)" else w["sensor"].value
+        return PhotoControls(state["center"], int(w["iso"].value), int(w["seed"].value), sensor, w["cfa"].value,
+                             w["demosaic"].value, w["restore"].value.strip())
+
+    def guarded(fn, *a):
+        """``fn(*a)``, or None with its one-line error shown on the page (the app keeps serving)."""
+        try:
+            out = fn(*a)
+        except (ValueError, OSError) as exc:
+            error.object = f"**error:** {str(exc).splitlines()[0]}"
+            error.visible = True
+            return None
+        error.visible = False
+        return out
+
+    # ---- design panel ------------------------------------------------------------------------------------------
+    criteria_md = pn.pane.Markdown("", name="criteria")
+    optics_png = pn.pane.PNG(None, name="optics", sizing_mode="stretch_width")
+    map_png = pn.pane.PNG(None, name="map", width=560)
+
+    def update_design(*_):
+        c = controls()
+        crit = guarded(explorer.criteria, c)
+        if crit is not None:
+            criteria_md.object = "| criterion | value |\n|---|---|\n" + "".join(
+                f"| {k} | {v:.4g} |\n" for k, v in crit.items())
+            optics_png.object = guarded(explorer.optics_figure, c)
+        update_map()
+
+    map_status = pn.pane.Markdown("", name="map_status")
+
+    def update_map(*_):
+        png = guarded(explorer.cost_map, w["criterion"].value, int(w["snr"].value), controls())
+        if png is not None:
+            map_png.object = png
+        m = explorer.map_data
+        done, total = explorer.map_progress
+        map_status.object = (f"map: computing, {done} of {total or '?'} designs" if m is None else
+                             f"map: {m['s'].size} x {m['Q_back'].size} designs")
+
+    # ---- photo panel --------------------------------------------------------------------------------------------
+    H, W = explorer.photo_shape[-2:]
+    step = max(1, math.ceil(max(H, W) / OVERVIEW_PX))
+    over = figure(width=min(OVERVIEW_PX, W // step), height=min(OVERVIEW_PX, H // step), x_range=(0, W),
+                  y_range=(H, 0), tools="tap", toolbar_location=None, name="overview",
+                  title="click to move the crop")
+    over.axis.visible = False
+
+    def overview_rgba():
+        from pipeline.colour_space import linear_to_srgb
+
+        ph = explorer._ideal()
+        img = ph.load()[..., ::step, ::step]
+        a = (linear_to_srgb(img.clamp(0, 1))[0].cpu().numpy() * 255).astype(np.uint8)
+        a = np.repeat(a, 3, axis=0) if a.shape[0] == 1 else a
+        rgba = np.dstack([a[0], a[1], a[2], np.full_like(a[0], 255)]).view(np.uint32)[..., 0]
+        return rgba
+
+    over.grid.visible = False
+    over.image_rgba(image=[overview_rgba()], x=0, y=0, dw=W, dh=H)  # the y axis runs down: row 0 at the top
+    box = explorer.crop_box(None)
+    crop_rect = over.quad(left=box[2], right=box[3], top=box[0], bottom=box[1], fill_alpha=0, line_color="red",
+                          line_width=2)
+    images = {k: pn.pane.PNG(None, name=k, width=256, height=256) for k in ("ideal", "sensor", "restored")}
+    scores = {k: pn.pane.Markdown("", name=f"score_{k}") for k in ("sensor", "restored")}
+    field_md = pn.pane.Markdown("", name="field")
+    command = pn.pane.Markdown("", name="command")
+
+    def update_photo(*_):
+        r = guarded(explorer.photo_panel, controls(), photo_controls())
+        if r is None:
+            return
+        b = r["box"]
+        crop_rect.data_source.data = {"left": [b[2]], "right": [b[3]], "top": [b[0]], "bottom": [b[1]]}
+        for k, pane in images.items():
+            pane.object = r["png"][k]
+        for k, pane in scores.items():
+            pane.object = f"**{k}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, SSIM {r['scores'][k]['ssim']:.3f}"
+        field_md.object = f"crop {b} at {r['field_deg']:.2f} deg of field"
+        command.object = "```\n" + command_line(photo_arg, controls(), photo_controls(), explorer) + "\n```"
+
+    def on_tap(event):
+        state["center"] = (int(event.y), int(event.x))
+        update_photo()
+
+    over.on_event(Tap, on_tap)
+
+    def on_upload(event):
+        data = w["upload"].value
+        name = w["upload"].filename or ""
+        photo = guarded(_read_upload, data, name, max_upload_mb)
+        if photo is None:
+            return
+        explorer.photo, explorer.photo_source = photo, "uploaded photo"
+        explorer._caches.pop("photo", None)
+        explorer._caches.pop("lab", None)
+        state["center"] = None
+        update_photo()
+
+    w["upload"].param.watch(on_upload, "value")
+
+    # ---- restoration lab --------------------------------------------------------------------------------------
+    lab_imgs = {k: pn.pane.PNG(None, name=f"lab_{k}", width=256, height=256) for k in ("a", "b", "nominal", "own")}
+    lab_scores = {k: pn.pane.Markdown("", name=f"lab_score_{k}") for k in lab_imgs}
+    lab_button = pn.widgets.Button(name="run the restoration lab", button_type="primary")
+
+    def update_lab(*_):
+        r = guarded(explorer.restoration_lab, controls(), photo_controls(), w["method_a"].value.strip(),
+                    w["method_b"].value.strip(), w["grade"].value, int(w["lens_seed"].value))
+        if r is None:
+            return
+        labels = {"a": w["method_a"].value, "b": w["method_b"].value, "nominal": "as built, nominal PSFs",
+                  "own": "as built, its own PSFs"}
+        for k in lab_imgs:
+            lab_imgs[k].object = r["png"][k]
+            lab_scores[k].object = f"**{labels[k]}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, " \
+                                   f"SSIM {r['scores'][k]['ssim']:.3f}"
+
+    lab_button.on_click(update_lab)
+
+    # ---- export ---------------------------------------------------------------------------------------------------
+    def panel_png():
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.image
+        import matplotlib.pyplot as plt
+
+        r = explorer.photo_panel(controls(), photo_controls())
+        fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), constrained_layout=True)
+        for ax, k in zip(axes, ("ideal", "sensor", "restored")):
+            ax.imshow(matplotlib.image.imread(io.BytesIO(r["png"][k]), format="png"))
+            sc = r["scores"].get(k)
+            ax.set_title(k + ("" if sc is None else f": {sc['psnr_db']:.2f} dB, SSIM {sc['ssim']:.3f}"), fontsize=9)
+            ax.set_axis_off()
+        fig.suptitle(f"{explorer.photo_source}, {controls().design().label()}, ISO {w['iso'].value}, crop at "
+                     f"{r['field_deg']:.2f} deg", fontsize=9)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100)
+        plt.close(fig)
+        buf.seek(0)
+        return buf
+
+    download = pn.widgets.FileDownload(callback=panel_png, filename="lenssim_explore.png", label="download the panel "
+                                       "as PNG", button_type="default")
+
+    for k in ("s", "Q_back", "Q_front", "focus"):
+        w[k].param.watch(lambda e: (update_design(), update_photo()), "value_throttled")
+    for k in ("criterion", "snr"):
+        w[k].param.watch(update_map, "value")
+    for k in ("iso", "seed", "sensor", "cfa", "demosaic", "restore"):
+        w[k].param.watch(update_photo, "value")
+
+    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], "### Camera", w["iso"],
+                        w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"], "### Photo", w["upload"],
+                        width=300)
+    design_tab = pn.Column(pn.Row(criteria_md, pn.Column(w["criterion"], w["snr"], map_status, map_png)), optics_png,
+                           name="Design")
+    photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, download)),
+                          pn.Row(*[pn.Column(f"**{k}**", images[k], scores.get(k, "")) for k in images]),
+                          name="Photo")
+    lab_tab = pn.Column(pn.Row(w["method_a"], w["method_b"], w["grade"], w["lens_seed"], lab_button),
+                        pn.Row(*[pn.Column(lab_imgs[k], lab_scores[k]) for k in lab_imgs]), name="Restoration lab")
+    app = pn.Row(sidebar, pn.Column(error, pn.Tabs(design_tab, photo_tab, lab_tab)))
+    if explorer.map_data is None:  # the map is being computed in the background: redrawn until it is there
+        def poll():
+            update_map()
+            if explorer.map_data is not None and cb.running:
+                cb.stop()
+        cb = pn.state.add_periodic_callback(poll, period=MAP_POLL_MS, start=False)
+        pn.state.onload(cb.start)
+    app.widgets = w
+    app.panes = {"criteria": criteria_md, "map": map_png, "optics": optics_png, "images": images, "scores": scores,
+                 "command": command, "overview": over, "error": error, "lab": lab_imgs}
+    app.actions = {"tap": on_tap, "update_design": update_design, "update_photo": update_photo,
+                   "update_lab": update_lab, "upload": on_upload}
+    update_design()
+    update_photo()
+    return app
+
+
+def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
+    """An uploaded photo, checked as the command line checks a photo file: its extension one of
+    :data:`UPLOAD_SUFFIXES`, at most ``max_upload_mb``, decoded from a file of the server's own naming in a private
+    temporary folder (removed after), every pixel checked."""
+    import os
+    import tempfile
+    from pathlib import PurePath
+
+    from lenssim_studies.paper import PAPER_CAMERA
+    from pipeline.photo import open_photo
+
+    if not data:
+        raise ValueError("the upload is empty")
+    if len(data) > max_upload_mb * 1e6:
+        raise ValueError(f"the upload is {len(data) / 1e6:.1f} MB: at most {max_upload_mb:g} MB (--max-upload-mb)")
+    suffix = PurePath(filename).suffix.lower()
+    if suffix not in UPLOAD_SUFFIXES:
+        raise ValueError(f"the upload's type {suffix or '(none)'!r} is not allowed: {', '.join(UPLOAD_SUFFIXES)}")
+    with tempfile.TemporaryDirectory(prefix="lenssim-upload-") as tmp:
+        path = os.path.join(tmp, "upload" + suffix)  # the server's name; the user's is used for nothing else
+        with open(path, "wb") as f:
+            f.write(data)
+        try:
+            return open_photo(path, PAPER_CAMERA, keep_bytes=2**62).load()
+        except (ValueError, OSError) as exc:  # said of the upload, not of the server's temporary file
+            shown = PurePath(filename).name or "the upload"
+            raise ValueError(str(exc).splitlines()[0].replace(repr(path), repr(shown)).replace(path, shown)) from None
+
+
+def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=print, start=None):
+    """Serve the app until interrupted; prints its address."""
+    import panel as pn
+
+    server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start), address=host,
+                      port=port,
+                      show=False, start=False, websocket_origin=[f"{host}:{port}", f"localhost:{port}"]
+                      if port else "*", websocket_max_message_size=int(max_upload_mb * 1e6) + 2**20,
+                      title="lenssim explore")
+    server.start()
+    show_address(f"lenssim explore: http://{host}:{server.port}/ (Ctrl-C to stop)")
+    try:
+        server.io_loop.start()
+    except KeyboardInterrupt:
+        pass
+    return 0

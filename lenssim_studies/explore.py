@@ -1,0 +1,478 @@
+"""The explorer's computations (issue 32): what each control of ``lenssim explore`` changes, as pure functions of the
+controls' values, with caches, so that the web page (:mod:`lenssim_cli.explore`) only lays them out and so that they
+are tested and timed without a browser.
+
+An :class:`Explorer` holds one camera (the paper's, or ``camera``) and one photo; its update functions return plain
+data and PNG bytes:
+
+* :meth:`Explorer.criteria`: the design's criteria (MSE_R per SNR, MSE_S, RMS_W, Strehl, MTF50, cost),
+* :meth:`Explorer.optics_figure`: PSFs across the field (log scale, axes in um) and MTF curves per field angle,
+* :meth:`Explorer.cost_map`: a criterion over the paper's (s, Q_back) plane with iso-cost curves, the named designs and
+  the selected one (the map from a sweep file, or computed once on a coarse grid, :meth:`Explorer.compute_map`),
+* :meth:`Explorer.photo_panel`: a crop of the photo at a clicked position through the chosen camera chain: ideal, sensor
+  image and restored image with PSNR/SSIM,
+* :meth:`Explorer.restoration_lab`: two restoration methods side by side on the same noisy crop, and a manufactured
+  lens restored with the nominal PSFs and with its own,
+* :func:`command_line`: the ``lenssim simulate`` command that reproduces the photo panel.
+
+PSF providers are cached by design (and lens sample), simulated crops by everything they depend on, so a control
+changes only what depends on it.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+from lenssim import AsBuiltPSF, Camera, Design, LensPSF, PSFProvider, evaluate
+from lenssim.model.tolerances import GRADES
+from pipeline.photo import Photo
+
+from .paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
+
+__all__ = ["Explorer", "DesignControls", "PhotoControls", "command_line", "EXPLORE_CROP_PX", "MAP_GRID",
+           "PSF_ANGLES_DEG", "CACHE_ENTRIES"]
+
+EXPLORE_CROP_PX = 256
+"""Side (px) of the photo panel's crop."""
+MAP_GRID = {"s": (-2.0, 1.0, 13), "Q_back": (-10.0, 1.2, 15)}
+"""The coarse grid (start, stop, count) of the cost map when no sweep file is given: 195 designs, ~1 min once."""
+PSF_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
+"""Field angles (deg) of the PSF and MTF panel."""
+PSF_WINDOW_UM = 100.0
+"""Side (um) of the window the PSFs are shown on."""
+CACHE_ENTRIES = 64
+"""Results kept per cache (least recently used dropped)."""
+PSF_CACHE_REQUESTS = 96
+"""PSF requests (each a batch of a few windows' PSFs, ~1 MB each) a design's provider keeps for the next picture: a 256 px
+crop asks for about 40."""
+BLUR_CACHE_REGIONS = 8
+"""Blurred crop regions (each the crop and the restoration's reach, ~10-30 MB) a design's provider keeps: a new ISO,
+seed, chain or restoration of the same crop skips the blur."""
+MAP_CRITERIA = ("mse_r", "mse_s", "rms_w", "strehl", "mtf50", "cost")
+
+
+class _LRU(OrderedDict):
+    def get_or(self, key, make):
+        if key in self:
+            self.move_to_end(key)
+            return self[key]
+        value = make()
+        self[key] = value
+        while len(self) > CACHE_ENTRIES:
+            self.popitem(last=False)
+        return value
+
+
+class _CachedPSF(PSFProvider):
+    """A PSF provider whose PSFs are kept (the last :data:`PSF_CACHE_REQUESTS` requests): the blur and the restoration
+    ask for the same windows' PSFs, and so does every ISO, seed and chain of the same crop."""
+
+    def __init__(self, base: PSFProvider):
+        self.base = base
+        self._kept = _LRU()
+        self.blurred = _Bounded(BLUR_CACHE_REGIONS)
+        """The blurred regions of this provider's crops (:func:`pipeline.simulate.simulate_crops`'s ``blur_cache``)."""
+
+    @property
+    def geometry(self):
+        return self.base.geometry
+
+    @property
+    def channels(self):
+        return self.base.channels
+
+    @property
+    def mirror_symmetric(self):
+        return self.base.mirror_symmetric
+
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        key = (tuple(torch.as_tensor(rows).tolist()), tuple(torch.as_tensor(cols).tolist()),
+               tuple(float(v) for v in optical_center), int(n), bool(centered), dtype, str(device))
+        out = self._kept.get_or(key, lambda: self.base.psf_at_pixels(rows, cols, optical_center, n,
+                                                                     centered=centered, dtype=dtype, device=device))
+        while len(self._kept) > PSF_CACHE_REQUESTS:
+            self._kept.popitem(last=False)
+        return out
+
+    def extent_px(self, rows, cols, optical_center):
+        return self.base.extent_px(rows, cols, optical_center)
+
+    def extents_px(self, rows, cols, optical_center):
+        return self.base.extents_px(rows, cols, optical_center)
+
+    def spectrum(self):
+        return self.base.spectrum()
+
+    def pedestal_fractions(self, n):
+        return self.base.pedestal_fractions(n)
+
+    def fingerprint(self):
+        return self.base.fingerprint()
+
+
+class _Bounded(OrderedDict):
+    """A dict that keeps its last ``size`` entries."""
+
+    def __init__(self, size: int):
+        super().__init__()
+        self.size = size
+
+    def __setitem__(self, key, value):
+        super().__setitem__(key, value)
+        while len(self) > self.size:
+            self.popitem(last=False)
+
+
+@dataclass(frozen=True)
+class DesignControls:
+    """The design the sliders select: the paper's parameters (s, Q_back, Q_front, focus shift um)."""
+
+    s: float = PAPER_DESIGNS["end_to_end_paper"].values["s"].item()
+    Q_back: float = PAPER_DESIGNS["end_to_end_paper"].values["Q_back"].item()
+    Q_front: float = 0.0
+    focus_shift_um: float = 0.0
+
+    def design(self) -> Design:
+        return Design(s=float(self.s), Q_back=float(self.Q_back), Q_front=float(self.Q_front),
+                      focus_shift_um=float(self.focus_shift_um))
+
+    def key(self) -> tuple:
+        return (round(self.s, 9), round(self.Q_back, 9), round(self.Q_front, 9), round(self.focus_shift_um, 9))
+
+
+@dataclass(frozen=True)
+class PhotoControls:
+    """The photo panel's controls: crop centre (row, col, px; None: the frame's centre), ISO, seed, the camera chain
+    (sensor preset, CFA, demosaicing) and the restoration (``NAME[:key=value,...]``)."""
+
+    center: tuple[int, int] | None = None
+    iso: int = 100
+    seed: int = 0
+    sensor: str | None = None
+    cfa: str = "none"
+    demosaic: str = "Malvar2004"
+    restore: str = "wiener"
+
+
+def _png(rgb: torch.Tensor) -> bytes:
+    """8-bit sRGB PNG bytes of a linear image ``(1, C, H, W)``."""
+    import matplotlib.image
+
+    from pipeline.colour_space import linear_to_srgb
+
+    a = linear_to_srgb(rgb.clamp(0, 1))[0].detach().to("cpu", torch.float32).numpy()
+    a = np.repeat(a, 3, axis=0) if a.shape[0] == 1 else a
+    buf = io.BytesIO()
+    matplotlib.image.imsave(buf, np.ascontiguousarray(a.transpose(1, 2, 0)), format="png")
+    return buf.getvalue()
+
+
+def _figure_png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+@dataclass
+class Explorer:
+    """The explorer's state and caches for one camera and one photo (linear ``(1, C, H, W)``, or a
+    :class:`pipeline.photo.Photo`; None: the generated scene is made at the sensor's size on first use)."""
+
+    camera: Camera = PAPER_CAMERA
+    photo: object = None
+    photo_source: str = "generated scene"
+    snr_db: tuple = tuple(PAPER.snr_db)
+    rho0: float = PAPER.rho0
+    map_data: dict | None = None
+    _caches: dict = field(default_factory=dict, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    map_progress: tuple = (0, 0)
+
+    def _cache(self, name: str) -> _LRU:
+        return self._caches.setdefault(name, _LRU())
+
+    # ---- design ---------------------------------------------------------------------------------------------------
+    def check(self, controls: DesignControls) -> Design:
+        """The design of ``controls``, checked against the lens (one-line ``ValueError`` otherwise)."""
+        d = controls.design()
+        self.camera.lens.check_design(d.to(torch.float64))
+        return d
+
+    def criteria(self, controls: DesignControls) -> dict:
+        """``{label: value}``: MSE_R at each SNR, MSE_S at the reference SNR, RMS_W (waves), Strehl, MTF50
+        (cycles/mm) and the cost C_a, averaged over the field as :func:`lenssim.evaluate` does."""
+        def make():
+            d = self.check(controls)
+            r = evaluate(self.camera, d, self.snr_db, rho0=self.rho0)
+            out = {f"MSE_R at {s:g} dB": float(v) for s, v in zip(self.snr_db, r["mse_r"])}
+            ref = min(range(len(self.snr_db)), key=lambda i: abs(self.snr_db[i] - PAPER.reference_snr_db))
+            out[f"MSE_S at {self.snr_db[ref]:g} dB"] = float(r["mse_s"][ref])
+            out.update({"RMS_W [waves]": float(r["rms_w"]), "Strehl": float(r["strehl"]),
+                        "MTF50 [cycles/mm]": float(r["mtf50"]), "cost C_a": float(r["cost"])})
+            return out
+        return self._cache("criteria").get_or(controls.key(), make)
+
+    def optics_figure(self, controls: DesignControls, angles=PSF_ANGLES_DEG) -> bytes:
+        """PNG: the PSF at each field angle of ``angles`` (along the sensor's diagonal, log10 scale, axes in um) and
+        the MTF (radial and tangential) at each angle, against spatial frequency in cycles/mm."""
+        def make():
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+
+            from lenssim import psf_at
+
+            d = self.check(controls)
+            cam = self.camera
+            pitch = cam.sensor.pixel_pitch_um
+            azi = math.atan2(cam.sensor.height_px, cam.sensor.width_px)
+            fig, axes = plt.subplots(1, len(angles) + 1, figsize=(3.0 * (len(angles) + 1), 3.2),
+                                     constrained_layout=True)
+            half = int(PSF_WINDOW_UM / pitch / 2)
+            for ax, a in zip(axes, angles):
+                r = float(cam.geometry.image_height_mm(a))
+                p, n = psf_at(cam, d, r * math.cos(azi), r * math.sin(azi))
+                c = n // 2
+                h = min(half, c)
+                win = p[c - h:c + h, c - h:c + h]
+                e = h * pitch
+                ax.imshow(torch.log10(win.clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,
+                          extent=[-e, e, e, -e])
+                ax.set_title(f"PSF at {a:g} deg", fontsize=9)
+                ax.set_xlabel("x [um]", fontsize=8)
+                ax.tick_params(labelsize=7)
+                f = torch.fft.rfftfreq(n, d=pitch * 1e-3)  # cycles/mm
+                mtf_x = torch.fft.rfft(p.sum(0)).abs()
+                mtf_y = torch.fft.rfft(p.sum(1)).abs()
+                axes[-1].plot(f.numpy(), (mtf_x / mtf_x[0]).numpy(), label=f"{a:g} deg, x")
+                axes[-1].plot(f.numpy(), (mtf_y / mtf_y[0]).numpy(), "--", label=f"{a:g} deg, y")
+            axes[0].set_ylabel("y [um]  (log10 PSF)", fontsize=8)
+            axes[-1].set_xlabel("spatial frequency [cycles/mm]", fontsize=8)
+            axes[-1].set_ylabel("MTF", fontsize=8)
+            axes[-1].set_title("MTF across the field", fontsize=9)
+            axes[-1].set_ylim(0, 1.02)
+            axes[-1].legend(fontsize=6, ncol=2)
+            axes[-1].tick_params(labelsize=7)
+            fig.suptitle(f"{d.label()}: PSFs (log10, {pitch:g} um pixels) and MTFs", fontsize=10)
+            return _figure_png(fig)
+        return self._cache("optics").get_or(controls.key() + tuple(angles), make)
+
+    # ---- the cost map --------------------------------------------------------------------------------------------
+    def compute_map(self, progress=None) -> dict:
+        """The criteria on :data:`MAP_GRID` (once; ``progress(done, total)`` after each design): ``{"s", "Q_back",
+        name: (len(s), len(Q_back)[, S]) arrays}``; designs the lens refuses are NaN."""
+        with self._lock:
+            if self.map_data is not None:
+                return self.map_data
+            s = np.linspace(*MAP_GRID["s"])
+            q = np.linspace(*MAP_GRID["Q_back"])
+            S = len(self.snr_db)
+            out = {"s": s, "Q_back": q, "mse_r": np.full((len(s), len(q), S), np.nan),
+                   "mse_s": np.full((len(s), len(q), S), np.nan),
+                   **{k: np.full((len(s), len(q)), np.nan) for k in ("rms_w", "strehl", "mtf50", "cost")}}
+            total = len(s) * len(q)
+            for i, sv in enumerate(s):
+                for j, qv in enumerate(q):
+                    d = Design(s=float(sv), Q_back=float(qv))
+                    try:
+                        self.camera.lens.check_design(d.to(torch.float64))
+                        r = evaluate(self.camera, d, self.snr_db, rho0=self.rho0)
+                    except ValueError:
+                        r = None
+                    if r is not None:
+                        for k in MAP_CRITERIA:
+                            out[k][i, j] = r[k].numpy()
+                    self.map_progress = (i * len(q) + j + 1, total)
+                    if progress is not None:
+                        progress(*self.map_progress)
+            self.map_data = out
+            return out
+
+    def load_map(self, ds) -> None:
+        """Use a sweep's dataset (:func:`lenssim_studies.sweep.run_sweep`'s, with dimensions ``s`` and ``Q_back``)
+        as the map."""
+        need = {"s", "Q_back"}
+        if not need <= set(ds.dims):
+            raise ValueError(f"the sweep's dimensions are {sorted(ds.dims)}: the map needs s and Q_back")
+        ds = ds.transpose("s", "Q_back", ...)
+        out = {"s": ds["s"].values, "Q_back": ds["Q_back"].values}
+        for k in MAP_CRITERIA:
+            if k in ds:
+                out[k] = ds[k].values
+        self.map_data = out
+
+    def cost_map(self, criterion: str, snr_index: int, selected: DesignControls) -> bytes:
+        """PNG: ``criterion`` (log10 where positive and spanning decades) over the (s, Q_back) plane, the cost's
+        iso-cost curves, the named designs and ``selected``; a note while the map is not computed yet."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        if criterion not in MAP_CRITERIA:
+            raise ValueError(f"criterion {criterion!r} is not allowed: one of {', '.join(MAP_CRITERIA)}")
+        fig, ax = plt.subplots(figsize=(5.6, 4.4), constrained_layout=True)
+        m = self.map_data
+        if m is None:
+            done, total = self.map_progress
+            ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
+            ax.set_axis_off()
+            return _figure_png(fig)
+        v = m[criterion]
+        if v.ndim == 3:
+            v = v[..., snr_index]
+        logscale = criterion in ("mse_r", "mse_s", "cost", "rms_w")
+        z = np.log10(np.where(v > 0, v, np.nan)) if logscale else v
+        im = ax.pcolormesh(m["Q_back"], m["s"], z, shading="nearest", cmap="viridis")
+        fig.colorbar(im, ax=ax, label=("log10 " if logscale else "") + criterion
+                     + (f" at {self.snr_db[snr_index]:g} dB" if criterion in ("mse_r", "mse_s") else ""))
+        if "cost" in m and np.isfinite(m["cost"]).sum() > 3:
+            c = ax.contour(m["Q_back"], m["s"], np.log10(np.where(m["cost"] > 0, m["cost"], np.nan)), levels=6,
+                           colors="w", linewidths=0.7)
+            ax.clabel(c, fontsize=6, fmt=lambda x: f"C_a 1e{x:.1f}")
+        for name, d in PAPER_DESIGNS.items():
+            ax.plot(float(d.values["Q_back"]), float(d.values["s"]), "o", mfc="none", mec="r", ms=7)
+            ax.annotate(name, (float(d.values["Q_back"]), float(d.values["s"])), fontsize=6, color="r",
+                        xytext=(3, 3), textcoords="offset points")
+        ax.plot(selected.Q_back, selected.s, "x", color="k", ms=10, mew=2, label="selected")
+        ax.set_xlabel("Q_back (conic constant of the back surface)")
+        ax.set_ylabel("s (bending)")
+        ax.set_title("criterion over the design plane; white: iso-cost curves", fontsize=9)
+        ax.legend(fontsize=7, loc="lower left")
+        return _figure_png(fig)
+
+    # ---- photo -----------------------------------------------------------------------------------------------------
+    def _ideal(self):
+        if self.photo is None:
+            from pipeline.photo import open_photo
+
+            self.photo = open_photo(None, self.camera)
+            self.photo_source = self.photo.source
+        return self.photo if isinstance(self.photo, Photo) else Photo.of(self.photo, self.photo_source)
+
+    @property
+    def photo_shape(self) -> tuple:
+        return self._ideal().shape
+
+    def crop_box(self, center) -> tuple[int, int, int, int]:
+        """The :data:`EXPLORE_CROP_PX` box centred as near ``center`` (row, col) as fits the photo."""
+        H, W = self.photo_shape[-2:]
+        size = min(EXPLORE_CROP_PX, H, W)
+        r, c = (H // 2, W // 2) if center is None else (int(center[0]), int(center[1]))
+        r0 = min(max(r - size // 2, 0), H - size)
+        c0 = min(max(c - size // 2, 0), W - size)
+        return (r0, r0 + size, c0, c0 + size)
+
+    def _chain(self, pc: PhotoControls):
+        if pc.sensor is None and pc.cfa == "none":
+            return None
+        from lenssim.io.sensor_file import DEFAULT_SENSOR, load_sensor
+        from pipeline.camera_chain import CameraChain
+
+        s = load_sensor(pc.sensor or DEFAULT_SENSOR)
+        if pc.cfa != "none":
+            s = replace(s, cfa=pc.cfa)
+        return CameraChain(s, demosaic=pc.demosaic)
+
+    def _full_well(self, pc: PhotoControls, chain) -> float:
+        table = self.camera.sensor if chain is None else chain.sensor
+        return table.full_well_for_iso(pc.iso)
+
+    def _provider(self, controls: DesignControls, lens=None):
+        key = controls.key() + (None if lens is None else id(lens),)
+        d = self.check(controls)
+        return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(self.camera, d) if lens is None
+                                                                 else AsBuiltPSF(self.camera, d, lens)))
+
+    def photo_panel(self, controls: DesignControls, pc: PhotoControls) -> dict:
+        """The crop at ``pc.center`` through the design and the chain: ``{"box", "field_deg", "png": {"ideal",
+        "sensor", "restored"}, "scores": {"sensor", "restored"}}`` (PSNR dB and SSIM in sRGB)."""
+        from pipeline.simulate import simulate_crops
+
+        def make():
+            chain = self._chain(pc)
+            fw = self._full_well(pc, chain)
+            box = self.crop_box(pc.center)
+            prov = self._provider(controls)
+            (r,) = simulate_crops(self._ideal(), prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
+                                  sensor=self.camera.sensor, chain=chain, blur_cache=prov.blurred)
+            name = r.methods[0]
+            return {"box": box, "field_deg": r.field_deg,
+                    "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
+                    "scores": {"sensor": r.scores["sensor"], "restored": r.scores[name]}}
+        return self._cache("photo").get_or((controls.key(), pc), make)
+
+    def restoration_lab(self, controls: DesignControls, pc: PhotoControls, method_a: str, method_b: str,
+                        grade: str = "commercial", lens_seed: int = 0) -> dict:
+        """Two restorations of the same noisy crop (``method_a``, ``method_b``: ``NAME[:key=value,...]``), and one
+        manufactured lens (drawn from ``grade`` with ``lens_seed``) restored with the nominal PSFs and with its own:
+        ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``, ``nominal``, ``own``."""
+        from pipeline.simulate import simulate_crops
+
+        if grade not in GRADES:
+            raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
+
+        def make():
+            chain = self._chain(pc)
+            fw = self._full_well(pc, chain)
+            box = self.crop_box(pc.center)
+            nominal = self._provider(controls)
+            same = method_a.split(":")[0] == method_b.split(":")[0]
+            if same:  # one name twice: two runs (results are filed by method name)
+                ra = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_a,),
+                                    sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
+                rb = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_b,),
+                                    sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
+                a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
+                sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
+            else:
+                (r,) = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_a, method_b),
+                                      sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)
+                a, b = r.images[r.methods[0]], r.images[r.methods[1]]
+                sa, sb = r.scores[r.methods[0]], r.scores[r.methods[1]]
+            lens = GRADES[grade].sample(1, seed=lens_seed)
+            built = self._provider(controls, lens)
+            runs = {tag: simulate_crops(self._ideal(), built, fw, [box], seed=pc.seed, methods=(pc.restore,),
+                                        sensor=self.camera.sensor, chain=chain, restoration_psf=prov,
+                                        blur_cache=built.blurred)[0]
+                    for tag, prov in (("nominal", nominal), ("own", built))}
+            out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
+            for tag, r in runs.items():
+                m = r.methods[0]
+                out["png"][tag], out["scores"][tag] = _png(r.images[m]), r.scores[m]
+            return out
+        return self._cache("lab").get_or((controls.key(), pc, method_a, method_b, grade, lens_seed), make)
+
+
+def command_line(photo: str | None, controls: DesignControls, pc: PhotoControls, explorer: Explorer) -> str:
+    """The ``lenssim simulate`` command that reproduces the photo panel (its crop at the same field angle)."""
+    import shlex
+
+    box = explorer.crop_box(pc.center)
+    H, W = explorer.photo_shape[-2:]
+    angle = explorer.camera.geometry.box_field_angle((1, 1, H, W), box)
+    parts = ["lenssim", "simulate"] + ([photo] if photo else [])
+    parts += ["--s", f"{controls.s:g}", "--Q_back", f"{controls.Q_back:g}"]
+    if controls.Q_front:
+        parts += ["--Q_front", f"{controls.Q_front:g}"]
+    if controls.focus_shift_um:
+        parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
+    parts += ["--iso", str(pc.iso), "--seed", str(pc.seed), "--crop", str(box[1] - box[0]), "--angles",
+              f"{angle:.3f}", "--restore", pc.restore]
+    if pc.sensor:
+        parts += ["--sensor", pc.sensor]
+    if pc.cfa != "none":
+        parts += ["--cfa", pc.cfa, "--demosaic", pc.demosaic]
+    parts += ["--out", "results/explore"]
+    return shlex.join(parts)

@@ -1,0 +1,151 @@
+"""The explorer (issue 32): its update functions without a browser (tests/test_explore_browser.py drives the page)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from lenssim import evaluate
+from lenssim_studies.explore import MAP_CRITERIA, DesignControls, Explorer, PhotoControls, command_line
+from lenssim_studies.paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
+
+
+@pytest.fixture(scope="module")
+def explorer():
+    import skimage.data
+
+    from pipeline import srgb_to_linear
+
+    img = srgb_to_linear(torch.from_numpy(skimage.data.astronaut()).permute(2, 0, 1)[None].float() / 255)
+    return Explorer(photo=img, photo_source="skimage:astronaut")
+
+
+def test_criteria_are_evaluate_s(explorer):
+    c = explorer.criteria(DesignControls())
+    r = evaluate(PAPER_CAMERA, PAPER_DESIGNS["end_to_end_paper"], PAPER.snr_db, rho0=PAPER.rho0)
+    assert c["MSE_R at 27.6 dB"] == pytest.approx(float(r["mse_r"][1]), rel=1e-9)
+    assert c["cost C_a"] == pytest.approx(float(r["cost"]), rel=1e-9)
+    assert c["MTF50 [cycles/mm]"] == pytest.approx(float(r["mtf50"]), rel=1e-9)
+    assert explorer.criteria(DesignControls()) is c  # cached
+    other = explorer.criteria(DesignControls(Q_back=-5.0))
+    assert other["MSE_R at 27.6 dB"] != c["MSE_R at 27.6 dB"]
+
+
+def test_a_design_the_lens_refuses_is_a_one_line_error(explorer):
+    with pytest.raises(ValueError) as e:
+        explorer.criteria(DesignControls(Q_front=-1e308))
+    assert "\n" not in str(e.value)
+
+
+def test_optics_figure_and_cost_map_are_pngs(explorer):
+    png = explorer.optics_figure(DesignControls())
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    note = explorer.cost_map("mse_r", 1, DesignControls())
+    assert note[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match="criterion 'nope' is not allowed: one of mse_r"):
+        explorer.cost_map("nope", 0, DesignControls())
+
+
+def test_a_sweep_s_dataset_is_the_map(explorer):
+    import numpy as np
+    import xarray as xr
+
+    s, q = np.array([-1.0, -0.5, 0.0]), np.array([-4.0, -2.0])
+    ds = xr.Dataset({k: (("s", "Q_back"), np.random.default_rng(0).random((3, 2))) for k in MAP_CRITERIA
+                     if k not in ("mse_r", "mse_s")},
+                    coords={"s": s, "Q_back": q})
+    ds["mse_r"] = (("s", "Q_back", "snr"), np.ones((3, 2, 3)))
+    ex = Explorer(photo=explorer.photo, photo_source="x")
+    ex.load_map(ds)
+    assert ex.map_data["mse_r"].shape == (3, 2, 3)
+    a = ex.cost_map("mse_r", 0, DesignControls())
+    b = ex.cost_map("cost", 0, DesignControls())
+    assert a != b and a[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match="needs s and Q_back"):
+        ex.load_map(ds.rename({"s": "t"}))
+
+
+def test_photo_panel_is_simulate_crops_and_caches(explorer):
+    from pipeline.simulate import simulate_crops
+
+    pc = PhotoControls(center=(200, 300), iso=400, seed=3)
+    r = explorer.photo_panel(DesignControls(), pc)
+    assert r["box"] == (72, 328, 172, 428)
+    (ref,) = simulate_crops(explorer.photo, explorer._provider(DesignControls()), 800.0, [r["box"]], seed=3,
+                            sensor=PAPER_CAMERA.sensor)
+    assert r["scores"]["restored"] == ref.scores["wiener"]
+    assert r["scores"]["restored"]["psnr_db"] > r["scores"]["sensor"]["psnr_db"]
+    assert explorer.photo_panel(DesignControls(), pc) is r
+    # the crop follows a click, clamped inside the photo
+    assert explorer.crop_box((0, 0)) == (0, 256, 0, 256)
+    assert explorer.crop_box((511, 511)) == (256, 512, 256, 512)
+    chain = explorer.photo_panel(DesignControls(), PhotoControls(center=(200, 300), cfa="RGGB"))
+    assert chain["scores"]["restored"] != explorer.photo_panel(DesignControls(), PhotoControls(center=(200, 300)))[
+        "scores"]["restored"]
+
+
+def test_the_command_line_reproduces_the_photo_panel(explorer, tmp_path, capsys):
+    """At the frame's centre the panel's crop is the command's crop at 0 deg: the same scores."""
+    import json
+    import shlex
+
+    from lenssim_cli.main import main
+
+    pc = PhotoControls(iso=100, seed=5)
+    r = explorer.photo_panel(DesignControls(), pc)
+    cmd = command_line("skimage:astronaut", DesignControls(), pc, explorer)
+    argv = shlex.split(cmd)[1:]
+    argv[argv.index("--out") + 1] = str(tmp_path / "run")
+    assert main(argv) == 0
+    crop = json.loads((tmp_path / "run" / "metrics.json").read_text())["crops"][0]
+    assert crop["scores"]["wiener"]["psnr_db"] == pytest.approx(r["scores"]["restored"]["psnr_db"], abs=1e-9)
+
+
+def test_restoration_lab_two_methods_and_an_as_built_lens(explorer):
+    pc = PhotoControls(center=(256, 256))
+    r = explorer.restoration_lab(DesignControls(), pc, "wiener", "tikhonov:weight=0.003", "commercial", 1)
+    assert set(r["png"]) == {"a", "b", "nominal", "own"}
+    assert all(math.isfinite(v["psnr_db"]) for v in r["scores"].values())
+    assert r["scores"]["a"] == explorer.photo_panel(DesignControls(), pc)["scores"]["restored"]
+    same = explorer.restoration_lab(DesignControls(), pc, "wiener", "wiener:rho0=0.5", "none", 0)
+    assert same["scores"]["a"] != same["scores"]["b"]
+    # with no tolerances the as-built lens is the nominal one: the same restoration either way
+    assert same["scores"]["nominal"] == pytest.approx(same["scores"]["own"])
+    with pytest.raises(ValueError, match="grade 'bad' is not allowed"):
+        explorer.restoration_lab(DesignControls(), pc, "wiener", "wiener", "bad", 0)
+
+
+def test_uploads_are_checked_like_photo_files(tmp_path):
+    from lenssim_cli.explore import _read_upload
+    from pipeline.io import write_image
+
+    made = tmp_path / "made"
+    made.mkdir()
+    write_image(made / "a.png", torch.full((1, 3, 64, 80), 0.5))
+    png = (made / "a.png").read_bytes()
+    img = _read_upload(png, "../../etc/passwd.png", 1.0)
+    assert img.shape == (1, 3, 64, 80)
+    for data, name, message in ((b"", "a.png", "the upload is empty"),
+                                (b"x" * 2_000_001, "a.png", "at most 2 MB"),
+                                (png, "a.exe", "type '.exe' is not allowed"),
+                                (b"not a png at all", "a.png", "cannot read photo")):
+        with pytest.raises((ValueError, OSError)) as e:
+            _read_upload(data, name, 2.0)
+        assert message in str(e.value) and "\n" not in str(e.value)
+    assert [p.name for p in tmp_path.iterdir()] == ["made"]  # nothing written beside it
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["explore", "--port", "70000"], "--port 70000 is not allowed"),
+    (["explore", "--max-upload-mb", "0"], "--max-upload-mb 0 is not allowed"),
+    (["explore", "--sweep", "missing.nc"], "missing.nc"),
+    (["explore", "--design", "nope"], "--design 'nope' is not known; choose from"),
+])
+def test_bad_explore_arguments_are_refused(argv, message, capsys):
+    from lenssim_cli.main import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
