@@ -48,7 +48,7 @@ def main() -> None:
             time.sleep(5)
             page.screenshot(path=f"{a.out}/explore_design.png")
             page.locator(".bk-tab", has_text="Photo").first.click()
-            box = page.locator("canvas").first.bounding_box()
+            box = page.locator("canvas:visible").first.bounding_box()
             page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.35)
             time.sleep(6)
             page.screenshot(path=f"{a.out}/explore_photo.png")

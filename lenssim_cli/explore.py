@@ -188,7 +188,29 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     # ---- design panel ------------------------------------------------------------------------------------------
     criteria_md = pn.pane.Markdown("", name="criteria")
     optics_png = pn.pane.PNG(None, name="optics", sizing_mode="stretch_width")
-    map_png = pn.pane.PNG(None, name="map", width=560)
+    from bokeh.models import ColorBar, ColumnDataSource, LabelSet, LinearColorMapper
+    from bokeh.palettes import Viridis256
+
+    from lenssim_studies.paper import PAPER_DESIGNS
+
+    mapper = LinearColorMapper(palette=Viridis256, nan_color="lightgrey")
+    map_fig = figure(width=600, height=440, tools="tap", toolbar_location=None, name="map",
+                     x_axis_label="Q_back (conic constant of the back surface)", y_axis_label="s (bending)",
+                     title="click to select a design; white: iso-cost curves (log10 C_a)")
+    img_src = ColumnDataSource({"image": [np.full((1, 1), np.nan)], "x": [-10.0], "y": [-2.0], "dw": [11.2],
+                                "dh": [3.0]})
+    map_fig.image(image="image", x="x", y="y", dw="dw", dh="dh", source=img_src, color_mapper=mapper)
+    color_bar = ColorBar(color_mapper=mapper, title="")
+    map_fig.add_layout(color_bar, "right")
+    named = ColumnDataSource({"x": [float(d.values["Q_back"]) for d in PAPER_DESIGNS.values()],
+                              "y": [float(d.values["s"]) for d in PAPER_DESIGNS.values()],
+                              "name": list(PAPER_DESIGNS)})
+    map_fig.scatter("x", "y", source=named, size=9, fill_alpha=0, line_color="red", line_width=2)
+    map_fig.add_layout(LabelSet(x="x", y="y", text="name", source=named, text_font_size="8pt", text_color="red",
+                                x_offset=4, y_offset=4))
+    sel_src = ColumnDataSource({"x": [d0.Q_back], "y": [d0.s]})
+    map_fig.scatter("x", "y", source=sel_src, marker="x", size=16, line_width=3, color="black")
+    contours = {}
 
     def update_design(*_):
         c = controls()
@@ -202,9 +224,24 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     map_status = pn.pane.Markdown("", name="map_status")
 
     def update_map(*_):
-        png = guarded(explorer.cost_map, w["criterion"].value, int(w["snr"].value), controls())
-        if png is not None:
-            map_png.object = png
+        c = controls()
+        sel_src.data = {"x": [c.Q_back], "y": [c.s]}
+        layer = guarded(explorer.map_layer, w["criterion"].value, int(w["snr"].value))
+        if layer is not None:
+            q, sv, z = layer["Q_back"], layer["s"], layer["z"]
+            dq = (q[-1] - q[0]) / max(len(q) - 1, 1)
+            ds = (sv[-1] - sv[0]) / max(len(sv) - 1, 1)
+            img_src.data = {"image": [z], "x": [q[0] - dq / 2], "y": [sv[0] - ds / 2], "dw": [q[-1] - q[0] + dq],
+                            "dh": [sv[-1] - sv[0] + ds]}
+            finite = z[np.isfinite(z)]
+            if finite.size:
+                mapper.low, mapper.high = float(finite.min()), float(finite.max())
+            color_bar.title = ("log10 " if layer["log10"] else "") + w["criterion"].value
+            lc = layer["log10_cost"]
+            if "cost" not in contours and lc is not None and np.isfinite(lc).sum() > 3:
+                lo, hi = np.nanmin(lc), np.nanmax(lc)
+                contours["cost"] = map_fig.contour(q, sv, np.nan_to_num(lc, nan=hi), levels=np.linspace(lo, hi, 8)[1:-1],
+                                                   line_color="white", line_width=1)
         m = explorer.map_data
         done, total = explorer.map_progress
         map_status.object = (f"map: computing, {done} of {total or '?'} designs" if m is None else
@@ -326,7 +363,17 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], "### Camera", w["iso"],
                         w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"], "### Photo", w["upload"],
                         width=300)
-    design_tab = pn.Column(pn.Row(criteria_md, pn.Column(w["criterion"], w["snr"], map_status, map_png)), optics_png,
+    def on_map_tap(event):
+        q = min(max(event.x, w["Q_back"].start), w["Q_back"].end)
+        sv = min(max(event.y, w["s"].start), w["s"].end)
+        w["Q_back"].value = round(round(q / w["Q_back"].step) * w["Q_back"].step, 6)
+        w["s"].value = round(round(sv / w["s"].step) * w["s"].step, 6)
+        update_design()
+        update_photo()
+
+    map_fig.on_event(Tap, on_map_tap)
+    design_tab = pn.Column(pn.Row(criteria_md, pn.Column(w["criterion"], w["snr"], map_status,
+                                                          pn.pane.Bokeh(map_fig))), optics_png,
                            name="Design")
     photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, download)),
                           pn.Row(*[pn.Column(f"**{k}**", images[k], scores.get(k, "")) for k in images]),
@@ -342,9 +389,9 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         cb = pn.state.add_periodic_callback(poll, period=MAP_POLL_MS, start=False)
         pn.state.onload(cb.start)
     app.widgets = w
-    app.panes = {"criteria": criteria_md, "map": map_png, "optics": optics_png, "images": images, "scores": scores,
+    app.panes = {"criteria": criteria_md, "map": map_fig, "optics": optics_png, "images": images, "scores": scores,
                  "command": command, "overview": over, "error": error, "lab": lab_imgs}
-    app.actions = {"tap": on_tap, "update_design": update_design, "update_photo": update_photo,
+    app.actions = {"tap": on_tap, "map_tap": on_map_tap, "update_design": update_design, "update_photo": update_photo,
                    "update_lab": update_lab, "upload": on_upload}
     update_design()
     update_photo()

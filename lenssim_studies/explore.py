@@ -312,6 +312,24 @@ class Explorer:
                 out[k] = ds[k].values
         self.map_data = out
 
+    def map_layer(self, criterion: str, snr_index: int) -> dict | None:
+        """The map of ``criterion`` (at the SNR of ``snr_index`` for the per-SNR ones): ``{"s", "Q_back", "z" (len(s),
+        len(Q_back)), "log10": whether z is log10 of the criterion, "log10_cost" (same shape, NaN where refused)}``;
+        None while the map is not computed."""
+        if criterion not in MAP_CRITERIA:
+            raise ValueError(f"criterion {criterion!r} is not allowed: one of {', '.join(MAP_CRITERIA)}")
+        m = self.map_data
+        if m is None:
+            return None
+        v = m[criterion]
+        if v.ndim == 3:
+            v = v[..., snr_index]
+        logscale = criterion in ("mse_r", "mse_s", "cost", "rms_w")
+        z = np.log10(np.where(v > 0, v, np.nan)) if logscale else v
+        cost = m.get("cost")
+        lc = None if cost is None else np.log10(np.where(cost > 0, cost, np.nan))
+        return {"s": m["s"], "Q_back": m["Q_back"], "z": z, "log10": logscale, "log10_cost": lc}
+
     def cost_map(self, criterion: str, snr_index: int, selected: DesignControls) -> bytes:
         """PNG: ``criterion`` (log10 where positive and spanning decades) over the (s, Q_back) plane, the cost's
         iso-cost curves, the named designs and ``selected``; a note while the map is not computed yet."""
@@ -320,20 +338,15 @@ class Explorer:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        if criterion not in MAP_CRITERIA:
-            raise ValueError(f"criterion {criterion!r} is not allowed: one of {', '.join(MAP_CRITERIA)}")
+        layer = self.map_layer(criterion, snr_index)
         fig, ax = plt.subplots(figsize=(5.6, 4.4), constrained_layout=True)
         m = self.map_data
-        if m is None:
+        if layer is None:
             done, total = self.map_progress
             ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
             ax.set_axis_off()
             return _figure_png(fig)
-        v = m[criterion]
-        if v.ndim == 3:
-            v = v[..., snr_index]
-        logscale = criterion in ("mse_r", "mse_s", "cost", "rms_w")
-        z = np.log10(np.where(v > 0, v, np.nan)) if logscale else v
+        z, logscale = layer["z"], layer["log10"]
         im = ax.pcolormesh(m["Q_back"], m["s"], z, shading="nearest", cmap="viridis")
         fig.colorbar(im, ax=ax, label=("log10 " if logscale else "") + criterion
                      + (f" at {self.snr_db[snr_index]:g} dB" if criterion in ("mse_r", "mse_s") else ""))

@@ -1,7 +1,7 @@
 """``lenssim explore`` in a real headless browser (Debian's Chromium driven by Playwright with the system binary;
 skipped, saying why, where either is missing): the page loads with no console error and no request off this
-machine, moving the Q_back slider changes the criteria and the PSF figure, a click on the photo moves the crop, a bad
-upload shows its one-line error and the app keeps serving."""
+machine, moving the Q_back slider changes the criteria and the PSF figure, a click on the cost map selects a design,
+a click on the photo moves the crop, a bad upload shows its one-line error and the app keeps serving."""
 
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ def test_the_explorer_page_in_a_real_browser(server):
         page.goto(url)
         page.wait_for_selector("text=MSE_R at 27.6 dB", timeout=120_000)
         criteria = lambda: _text(page, "table")  # noqa: E731
-        optics = lambda: page.locator("img").nth(1).get_attribute("src")  # noqa: E731
+        optics = lambda: page.locator("img").first.get_attribute("src")  # noqa: E731  (the PSF/MTF figure)
         before_c, before_o = criteria(), optics()
         # move the Q_back slider (the second) by keyboard: four steps of 0.1
         page.locator(".noUi-handle").nth(1).focus()
@@ -99,12 +99,17 @@ def test_the_explorer_page_in_a_real_browser(server):
         assert "MSE_R at 27.6 dB" in after_c
         _wait_change(optics, before_o)
         assert "-2.80" in _text(page, "text=Q_back (back conic)")
+        # a click on the cost map selects a design: the sliders move, the criteria change
+        before_c = criteria()
+        box = page.locator("canvas:visible").first.bounding_box()
+        page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.3)
+        _wait_change(criteria, before_c)
         # the photo: a click on the overview moves the crop
         page.locator(".bk-tab", has_text="Photo").first.click()
         field = lambda: _text(page, "p:has-text('of field')")  # noqa: E731
         page.wait_for_selector("text=of field", timeout=60_000)
         before_f = field()
-        box = page.locator("canvas").first.bounding_box()
+        box = page.locator("canvas:visible").first.bounding_box()
         page.mouse.click(box["x"] + box["width"] * 0.15, box["y"] + box["height"] * 0.2)
         after_f = _wait_change(field, before_f)
         assert "(0, 256, 0, 256)" in after_f or after_f != before_f
