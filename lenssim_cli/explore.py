@@ -134,6 +134,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from bokeh.plotting import figure
 
     from lenssim.io.sensor_file import sensor_names
+    from lenssim.model.glass import load_glasses
     from lenssim.model.tolerances import GRADES
     from lenssim_studies.explore import MAP_CRITERIA, DesignControls, PhotoControls, command_line
     from pipeline.camera_chain import DEMOSAIC_METHODS
@@ -142,32 +143,33 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     pn.config.loading_indicator = True
     d0 = DesignControls() if start is None else start
     w = {
-        "s": pn.widgets.FloatSlider(name="s (bending)", start=-2.0, end=1.0, step=0.025, value=d0.s, format="0.000"),
-        "Q_back": pn.widgets.FloatSlider(name="Q_back (back conic)", start=-10.0, end=1.2, step=0.1, value=d0.Q_back),
-        "Q_front": pn.widgets.FloatSlider(name="Q_front (front conic)", start=-10.0, end=10.0, step=0.1,
+        "s": pn.widgets.FloatSlider(label="s (bending)", start=-2.0, end=1.0, step=0.025, value=d0.s, format="0.000"),
+        "Q_back": pn.widgets.FloatSlider(label="Q_back (back conic)", start=-10.0, end=1.2, step=0.1, value=d0.Q_back),
+        "Q_front": pn.widgets.FloatSlider(label="Q_front (front conic)", start=-10.0, end=10.0, step=0.1,
                                           value=d0.Q_front),
-        "focus": pn.widgets.FloatSlider(name="focus shift [um]", start=-500.0, end=500.0, step=5.0,
+        "focus": pn.widgets.FloatSlider(label="focus shift [um]", start=-500.0, end=500.0, step=5.0,
                                         value=d0.focus_shift_um),
-        "criterion": pn.widgets.Select(name="map criterion", options=list(MAP_CRITERIA), value="mse_r"),
-        "snr": pn.widgets.Select(name="SNR [dB]", options={f"{s:g}": i for i, s in enumerate(explorer.snr_db)},
+        "glass": pn.widgets.Select(label="glass (catalogue)", options=list(load_glasses()), value=d0.glass),
+        "criterion": pn.widgets.Select(label="map criterion", options=list(MAP_CRITERIA), value="mse_r"),
+        "snr": pn.widgets.Select(label="SNR [dB]", options={f"{s:g}": i for i, s in enumerate(explorer.snr_db)},
                                  value=min(1, len(explorer.snr_db) - 1)),
-        "iso": pn.widgets.Select(name="ISO", options=[25, 100, 400], value=100),
-        "seed": pn.widgets.IntInput(name="noise seed", value=0, start=0),
-        "sensor": pn.widgets.Select(name="sensor", options=["(paper)"] + sensor_names(), value="(paper)"),
-        "cfa": pn.widgets.Select(name="CFA", options=["none", *CFA_PATTERNS], value="none"),
-        "demosaic": pn.widgets.Select(name="demosaicing", options=list(DEMOSAIC_METHODS), value="Malvar2004"),
-        "restore": pn.widgets.TextInput(name="restoration", value="wiener"),
-        "method_a": pn.widgets.TextInput(name="method A", value="wiener"),
-        "method_b": pn.widgets.TextInput(name="method B", value="richardson_lucy:iterations=20"),
-        "grade": pn.widgets.Select(name="tolerance grade", options=list(GRADES), value="commercial"),
-        "lens_seed": pn.widgets.IntInput(name="lens seed", value=0, start=0),
-        "upload": pn.widgets.FileInput(name="upload a photo", accept=",".join(UPLOAD_SUFFIXES)),
+        "iso": pn.widgets.Select(label="ISO", options=[25, 100, 400], value=100),
+        "seed": pn.widgets.IntInput(label="noise seed", value=0, start=0),
+        "sensor": pn.widgets.Select(label="sensor", options=["(paper)"] + sensor_names(), value="(paper)"),
+        "cfa": pn.widgets.Select(label="CFA", options=["none", *CFA_PATTERNS], value="none"),
+        "demosaic": pn.widgets.Select(label="demosaicing", options=list(DEMOSAIC_METHODS), value="Malvar2004"),
+        "restore": pn.widgets.TextInput(label="restoration", value="wiener"),
+        "method_a": pn.widgets.TextInput(label="method A", value="wiener"),  # the lab's first picks (controls below)
+        "method_b": pn.widgets.TextInput(label="method B", value="richardson_lucy:iterations=20"),
+        "grade": pn.widgets.Select(label="tolerance grade", options=list(GRADES), value="commercial"),
+        "lens_seed": pn.widgets.IntInput(label="lens seed", value=0, start=0),
+        "upload": pn.widgets.FileInput(label="upload a photo", accept=",".join(UPLOAD_SUFFIXES)),
     }
     state = {"center": None}
     error = pn.pane.Alert("", alert_type="danger", visible=False, name="error")
 
     def controls():
-        return DesignControls(w["s"].value, w["Q_back"].value, w["Q_front"].value, w["focus"].value)
+        return DesignControls(w["s"].value, w["Q_back"].value, w["Q_front"].value, w["focus"].value, w["glass"].value)
 
     def photo_controls():
         sensor = None if w["sensor"].value == "(paper)" else w["sensor"].value
@@ -245,7 +247,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         m = explorer.map_data
         done, total = explorer.map_progress
         map_status.object = (f"map: computing, {done} of {total or '?'} designs" if m is None else
-                             f"map: {m['s'].size} x {m['Q_back'].size} designs")
+                             f"map: {m['s'].size} x {m['Q_back'].size} designs (the paper's glass, n = 1.5)")
 
     # ---- photo panel --------------------------------------------------------------------------------------------
     H, W = explorer.photo_shape[-2:]
@@ -309,16 +311,59 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     w["upload"].param.watch(on_upload, "value")
 
     # ---- restoration lab --------------------------------------------------------------------------------------
+    from pipeline.restoration import RESTORATION_METHODS
+
+    def option_widget(method, key, default):
+        """A control for one option of a restoration method, from its default's type."""
+        label = f"{key}"
+        if isinstance(default, bool):
+            return pn.widgets.Checkbox(label=label, value=default)
+        if isinstance(default, int):
+            return pn.widgets.IntInput(label=label, value=default, start=1)
+        if isinstance(default, float):
+            return pn.widgets.FloatInput(label=label, value=default)
+        return pn.widgets.TextInput(label=label, value=str(default))
+
+    def method_controls(tag, initial):
+        """A method picker and its options as controls; ``spec()`` gives ``NAME:key=value,...``."""
+        name, _, rest = initial.partition(":")
+        given = dict(kv.split("=", 1) for kv in rest.split(",") if "=" in kv)
+        pick = pn.widgets.Select(label=f"method {tag}", options=list(RESTORATION_METHODS), value=name)
+        box = pn.Column()
+        controls_of = {}
+
+        def rebuild(*_):
+            m = RESTORATION_METHODS[pick.value]
+            controls_of.clear()
+            for k, default in m.options:
+                wdg = option_widget(pick.value, k, default)
+                if pick.value == name and k in given:
+                    wdg.value = type(default)(given[k]) if not isinstance(default, bool) else given[k] == "True"
+                controls_of[k] = wdg
+            box.objects = list(controls_of.values())
+
+        pick.param.watch(rebuild, "value")
+        rebuild()
+
+        def spec():
+            m = RESTORATION_METHODS[pick.value]
+            changed = [f"{k}={controls_of[k].value}" for k, default in m.options if controls_of[k].value != default]
+            return pick.value + (":" + ",".join(changed) if changed else "")
+        return pn.Column(pick, box, width=220), spec
+
+    method_a_box, spec_a = method_controls("A", w["method_a"].value)
+    method_b_box, spec_b = method_controls("B", w["method_b"].value)
     lab_imgs = {k: pn.pane.PNG(None, name=f"lab_{k}", width=256, height=256) for k in ("a", "b", "nominal", "own")}
     lab_scores = {k: pn.pane.Markdown("", name=f"lab_score_{k}") for k in lab_imgs}
-    lab_button = pn.widgets.Button(name="run the restoration lab", button_type="primary")
+    lab_button = pn.widgets.Button(label="run the restoration lab", color="primary")
 
     def update_lab(*_):
-        r = guarded(explorer.restoration_lab, controls(), photo_controls(), w["method_a"].value.strip(),
-                    w["method_b"].value.strip(), w["grade"].value, int(w["lens_seed"].value))
+        a, b = spec_a(), spec_b()
+        r = guarded(explorer.restoration_lab, controls(), photo_controls(), a, b, w["grade"].value,
+                    int(w["lens_seed"].value))
         if r is None:
             return
-        labels = {"a": w["method_a"].value, "b": w["method_b"].value, "nominal": "as built, nominal PSFs",
+        labels = {"a": a, "b": b, "nominal": "as built, nominal PSFs",
                   "own": "as built, its own PSFs"}
         for k in lab_imgs:
             lab_imgs[k].object = r["png"][k]
@@ -351,16 +396,17 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         return buf
 
     download = pn.widgets.FileDownload(callback=panel_png, filename="lenssim_explore.png", label="download the panel "
-                                       "as PNG", button_type="default")
+                                       "as PNG", color="default")
 
     for k in ("s", "Q_back", "Q_front", "focus"):
         w[k].param.watch(lambda e: (update_design(), update_photo()), "value_throttled")
+    w["glass"].param.watch(lambda e: (update_design(), update_photo()), "value")
     for k in ("criterion", "snr"):
         w[k].param.watch(update_map, "value")
     for k in ("iso", "seed", "sensor", "cfa", "demosaic", "restore"):
         w[k].param.watch(update_photo, "value")
 
-    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], "### Camera", w["iso"],
+    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], w["glass"], "### Camera", w["iso"],
                         w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"], "### Photo", w["upload"],
                         width=300)
     def on_map_tap(event):
@@ -378,7 +424,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, download)),
                           pn.Row(*[pn.Column(f"**{k}**", images[k], scores.get(k, "")) for k in images]),
                           name="Photo")
-    lab_tab = pn.Column(pn.Row(w["method_a"], w["method_b"], w["grade"], w["lens_seed"], lab_button),
+    lab_tab = pn.Column(pn.Row(method_a_box, method_b_box, pn.Column(w["grade"], w["lens_seed"], lab_button)),
                         pn.Row(*[pn.Column(lab_imgs[k], lab_scores[k]) for k in lab_imgs]), name="Restoration lab")
     app = pn.Row(sidebar, pn.Column(error, pn.Tabs(design_tab, photo_tab, lab_tab)))
     if explorer.map_data is None:  # the map is being computed in the background: redrawn until it is there
@@ -390,7 +436,8 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         pn.state.onload(cb.start)
     app.widgets = w
     app.panes = {"criteria": criteria_md, "map": map_fig, "optics": optics_png, "images": images, "scores": scores,
-                 "command": command, "overview": over, "error": error, "lab": lab_imgs}
+                 "command": command, "overview": over, "error": error, "lab": lab_imgs, "field": field_md}
+    app.specs = {"a": spec_a, "b": spec_b}
     app.actions = {"tap": on_tap, "map_tap": on_map_tap, "update_design": update_design, "update_photo": update_photo,
                    "update_lab": update_lab, "upload": on_upload}
     update_design()
@@ -434,7 +481,8 @@ def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, sh
     server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start), address=host,
                       port=port,
                       show=False, start=False, websocket_origin=[f"{host}:{port}", f"localhost:{port}"]
-                      if port else "*", websocket_max_message_size=int(max_upload_mb * 1e6) + 2**20,
+                      if port and host in ("127.0.0.1", "localhost", "::1") else "*",
+                      websocket_max_message_size=int(max_upload_mb * 1e6) + 2**20,
                       title="lenssim explore")
     server.start()
     show_address(f"lenssim explore: http://{host}:{server.port}/ (Ctrl-C to stop)")

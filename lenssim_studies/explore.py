@@ -132,19 +132,22 @@ class _Bounded(OrderedDict):
 
 @dataclass(frozen=True)
 class DesignControls:
-    """The design the sliders select: the paper's parameters (s, Q_back, Q_front, focus shift um)."""
+    """The design the sliders select: the paper's parameters (s, Q_back, Q_front, focus shift um) and the lens's glass
+    (a catalogue name, ``configs/glasses.toml``; ``"paper"``: the paper's non-dispersive n = 1.5)."""
 
     s: float = PAPER_DESIGNS["end_to_end_paper"].values["s"].item()
     Q_back: float = PAPER_DESIGNS["end_to_end_paper"].values["Q_back"].item()
     Q_front: float = 0.0
     focus_shift_um: float = 0.0
+    glass: str = "paper"
 
     def design(self) -> Design:
         return Design(s=float(self.s), Q_back=float(self.Q_back), Q_front=float(self.Q_front),
                       focus_shift_um=float(self.focus_shift_um))
 
     def key(self) -> tuple:
-        return (round(self.s, 9), round(self.Q_back, 9), round(self.Q_front, 9), round(self.focus_shift_um, 9))
+        return (round(self.s, 9), round(self.Q_back, 9), round(self.Q_front, 9), round(self.focus_shift_um, 9),
+                self.glass)
 
 
 @dataclass(frozen=True)
@@ -202,10 +205,22 @@ class Explorer:
         return self._caches.setdefault(name, _LRU())
 
     # ---- design ---------------------------------------------------------------------------------------------------
+    def camera_for(self, controls: DesignControls) -> Camera:
+        """The camera with the lens made of ``controls.glass`` (the explorer's own camera for ``"paper"``)."""
+        if controls.glass == "paper":
+            return self.camera
+
+        def make():
+            from lenssim import Lens
+
+            lens = Lens.from_dict({**self.camera.lens.to_dict(), "glass": controls.glass, "refractive_index": None})
+            return replace(self.camera, lens=lens)
+        return self._cache("camera").get_or(controls.glass, make)
+
     def check(self, controls: DesignControls) -> Design:
         """The design of ``controls``, checked against the lens (one-line ``ValueError`` otherwise)."""
         d = controls.design()
-        self.camera.lens.check_design(d.to(torch.float64))
+        self.camera_for(controls).lens.check_design(d.to(torch.float64))
         return d
 
     def criteria(self, controls: DesignControls) -> dict:
@@ -213,7 +228,7 @@ class Explorer:
         (cycles/mm) and the cost C_a, averaged over the field as :func:`lenssim.evaluate` does."""
         def make():
             d = self.check(controls)
-            r = evaluate(self.camera, d, self.snr_db, rho0=self.rho0)
+            r = evaluate(self.camera_for(controls), d, self.snr_db, rho0=self.rho0)
             out = {f"MSE_R at {s:g} dB": float(v) for s, v in zip(self.snr_db, r["mse_r"])}
             ref = min(range(len(self.snr_db)), key=lambda i: abs(self.snr_db[i] - PAPER.reference_snr_db))
             out[f"MSE_S at {self.snr_db[ref]:g} dB"] = float(r["mse_s"][ref])
@@ -234,7 +249,7 @@ class Explorer:
             from lenssim import psf_at
 
             d = self.check(controls)
-            cam = self.camera
+            cam = self.camera_for(controls)
             pitch = cam.sensor.pixel_pitch_um
             azi = math.atan2(cam.sensor.height_px, cam.sensor.width_px)
             fig, axes = plt.subplots(1, len(angles) + 1, figsize=(3.0 * (len(angles) + 1), 3.2),
@@ -264,7 +279,8 @@ class Explorer:
             axes[-1].set_ylim(0, 1.02)
             axes[-1].legend(fontsize=6, ncol=2)
             axes[-1].tick_params(labelsize=7)
-            fig.suptitle(f"{d.label()}: PSFs (log10, {pitch:g} um pixels) and MTFs", fontsize=10)
+            glass = "" if controls.glass == "paper" else f", {controls.glass}"
+            fig.suptitle(f"{d.label()}{glass}: PSFs (log10, {pitch:g} um pixels) and MTFs", fontsize=10)
             return _figure_png(fig)
         return self._cache("optics").get_or(controls.key() + tuple(angles), make)
 
@@ -405,8 +421,9 @@ class Explorer:
     def _provider(self, controls: DesignControls, lens=None):
         key = controls.key() + (None if lens is None else id(lens),)
         d = self.check(controls)
-        return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(self.camera, d) if lens is None
-                                                                 else AsBuiltPSF(self.camera, d, lens)))
+        cam = self.camera_for(controls)
+        return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(cam, d) if lens is None
+                                                                 else AsBuiltPSF(cam, d, lens)))
 
     def photo_panel(self, controls: DesignControls, pc: PhotoControls) -> dict:
         """The crop at ``pc.center`` through the design and the chain: ``{"box", "field_deg", "png": {"ideal",
@@ -481,6 +498,8 @@ def command_line(photo: str | None, controls: DesignControls, pc: PhotoControls,
         parts += ["--Q_front", f"{controls.Q_front:g}"]
     if controls.focus_shift_um:
         parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
+    if controls.glass != "paper":
+        parts += ["--glass", controls.glass]
     parts += ["--iso", str(pc.iso), "--seed", str(pc.seed), "--crop", str(box[1] - box[0]), "--angles",
               f"{angle:.3f}", "--restore", pc.restore]
     if pc.sensor:

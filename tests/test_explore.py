@@ -149,3 +149,45 @@ def test_bad_explore_arguments_are_refused(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_a_glass_changes_the_lens_and_the_command_line(explorer):
+    from lenssim_cli.common import camera_from_args
+
+    g = DesignControls(glass="N-SF5")
+    c = explorer.criteria(g)
+    args = type("A", (), {"glass": "N-SF5", "spectrum": "paper"})()
+    r = evaluate(camera_from_args(args), PAPER_DESIGNS["end_to_end_paper"], PAPER.snr_db, rho0=PAPER.rho0)
+    assert c["MSE_R at 27.6 dB"] == pytest.approx(float(r["mse_r"][1]), rel=1e-9)
+    assert c["MSE_R at 27.6 dB"] != explorer.criteria(DesignControls())["MSE_R at 27.6 dB"]
+    assert "--glass N-SF5" in command_line(None, g, PhotoControls(), explorer)
+    with pytest.raises(ValueError):
+        explorer.criteria(DesignControls(glass="no-such-glass"))
+
+
+def test_the_page_s_handlers_without_a_browser(explorer):
+    """build_app's handlers as the page calls them: a tap on the photo, a tap on the map, a method's options, a bad
+    upload (its error shown, the app still working)."""
+    pytest.importorskip("panel")
+    from types import SimpleNamespace
+
+    from lenssim_cli.explore import build_app
+
+    explorer.map_data = None
+    explorer.map_progress = (0, 0)
+    app = build_app(explorer)
+    assert "MSE_R at 27.6 dB" in app.panes["criteria"].object
+    assert "crop (128, 384, 128, 384)" in app.panes["field"].object
+    app.actions["tap"](SimpleNamespace(x=40.0, y=30.0))
+    assert app.panes["images"]["restored"].object is not None
+    assert "--angles" in app.panes["command"].object
+    before = app.panes["criteria"].object
+    app.actions["map_tap"](SimpleNamespace(x=-6.04, y=-1.26))
+    assert (app.widgets["Q_back"].value, app.widgets["s"].value) == (-6.0, -1.25)
+    assert app.panes["criteria"].object != before
+    assert app.specs["a"]() == "wiener" and app.specs["b"]() == "richardson_lucy"
+    app.widgets["upload"].filename = "mine.png"
+    app.widgets["upload"].value = b"not an image"
+    assert app.panes["error"].visible and "cannot read photo 'mine.png'" in app.panes["error"].object
+    app.widgets["glass"].value = "N-BK7"
+    assert not app.panes["error"].visible
