@@ -155,6 +155,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
                                  value=min(1, len(explorer.snr_db) - 1)),
         "iso": pn.widgets.Select(label="ISO", options=[25, 100, 400], value=100),
         "seed": pn.widgets.IntInput(label="noise seed", value=0, start=0),
+        "full_well": pn.widgets.FloatInput(label="full well [e-] (0: the ISO's)", value=0.0, start=0.0),
         "sensor": pn.widgets.Select(label="sensor", options=["(paper)"] + sensor_names(), value="(paper)"),
         "cfa": pn.widgets.Select(label="CFA", options=["none", *CFA_PATTERNS], value="none"),
         "demosaic": pn.widgets.Select(label="demosaicing", options=list(DEMOSAIC_METHODS), value="Malvar2004"),
@@ -173,8 +174,9 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
 
     def photo_controls():
         sensor = None if w["sensor"].value == "(paper)" else w["sensor"].value
+        fw = float(w["full_well"].value or 0.0)
         return PhotoControls(state["center"], int(w["iso"].value), int(w["seed"].value), sensor, w["cfa"].value,
-                             w["demosaic"].value, w["restore"].value.strip())
+                             w["demosaic"].value, w["restore"].value.strip(), fw if fw > 0 else None)
 
     def guarded(fn, *a):
         """``fn(*a)``, or None with its one-line error shown on the page (the app keeps serving)."""
@@ -403,12 +405,12 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     w["glass"].param.watch(lambda e: (update_design(), update_photo()), "value")
     for k in ("criterion", "snr"):
         w[k].param.watch(update_map, "value")
-    for k in ("iso", "seed", "sensor", "cfa", "demosaic", "restore"):
+    for k in ("iso", "seed", "full_well", "sensor", "cfa", "demosaic", "restore"):
         w[k].param.watch(update_photo, "value")
 
-    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], w["glass"], "### Camera", w["iso"],
-                        w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"], "### Photo", w["upload"],
-                        width=300)
+    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], w["glass"], "### Camera",
+                        w["iso"], w["full_well"], w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"],
+                        "### Photo", w["upload"], width=300)
     def on_map_tap(event):
         q = min(max(event.x, w["Q_back"].start), w["Q_back"].end)
         sv = min(max(event.y, w["s"].start), w["s"].end)

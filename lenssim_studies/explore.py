@@ -153,7 +153,8 @@ class DesignControls:
 @dataclass(frozen=True)
 class PhotoControls:
     """The photo panel's controls: crop centre (row, col, px; None: the frame's centre), ISO, seed, the camera chain
-    (sensor preset, CFA, demosaicing) and the restoration (``NAME[:key=value,...]``)."""
+    (sensor preset, CFA, demosaicing), the restoration (``NAME[:key=value,...]``) and a full well (e-) overriding the
+    ISO's."""
 
     center: tuple[int, int] | None = None
     iso: int = 100
@@ -162,6 +163,8 @@ class PhotoControls:
     cfa: str = "none"
     demosaic: str = "Malvar2004"
     restore: str = "wiener"
+    full_well: float | None = None
+    """Electrons at the image's peak, in place of the ISO's full well (None: the ISO's)."""
 
 
 def _png(rgb: torch.Tensor) -> bytes:
@@ -415,6 +418,10 @@ class Explorer:
         return CameraChain(s, demosaic=pc.demosaic)
 
     def _full_well(self, pc: PhotoControls, chain) -> float:
+        if pc.full_well is not None:
+            from pipeline.checks import check_full_well
+
+            return check_full_well(pc.full_well, "full well")
         table = self.camera.sensor if chain is None else chain.sensor
         return table.full_well_for_iso(pc.iso)
 
@@ -500,7 +507,8 @@ def command_line(photo: str | None, controls: DesignControls, pc: PhotoControls,
         parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
     if controls.glass != "paper":
         parts += ["--glass", controls.glass]
-    parts += ["--iso", str(pc.iso), "--seed", str(pc.seed), "--crop", str(box[1] - box[0]), "--angles",
+    parts += (["--iso", str(pc.iso)] if pc.full_well is None else ["--full-well", f"{pc.full_well:g}"])
+    parts += ["--seed", str(pc.seed), "--crop", str(box[1] - box[0]), "--angles",
               f"{angle:.3f}", "--restore", pc.restore]
     if pc.sensor:
         parts += ["--sensor", pc.sensor]

@@ -161,6 +161,13 @@ def test_a_glass_changes_the_lens_and_the_command_line(explorer):
     assert c["MSE_R at 27.6 dB"] == pytest.approx(float(r["mse_r"][1]), rel=1e-9)
     assert c["MSE_R at 27.6 dB"] != explorer.criteria(DesignControls())["MSE_R at 27.6 dB"]
     assert "--glass N-SF5" in command_line(None, g, PhotoControls(), explorer)
+    # a full well in place of the ISO's: the same as that ISO's full well, and said so in the command
+    fw = explorer.photo_panel(DesignControls(), PhotoControls(center=(256, 256), full_well=800.0))
+    iso = explorer.photo_panel(DesignControls(), PhotoControls(center=(256, 256), iso=400))
+    assert fw["scores"] == iso["scores"]
+    assert "--full-well 800" in command_line(None, DesignControls(), PhotoControls(full_well=800.0), explorer)
+    with pytest.raises(ValueError, match="full well"):
+        explorer.photo_panel(DesignControls(), PhotoControls(full_well=-1.0))
     with pytest.raises(ValueError):
         explorer.criteria(DesignControls(glass="no-such-glass"))
 
