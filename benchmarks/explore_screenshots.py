@@ -3,7 +3,8 @@
     python benchmarks/explore_screenshots.py [PHOTO] [--out docs/figures] [--sweep FILE.nc]
 
 Starts the explorer on a free port, waits for the cost map, moves the crop to a point of the photo, runs the
-restoration lab, and saves ``explore_design.png``, ``explore_photo.png`` and ``explore_lab.png``.
+restoration lab, and saves ``explore_design.png``, ``explore_photo.png`` and ``explore_lab.png``, each scaled to
+:data:`SCALE` and reduced to a :data:`COLOURS`-colour palette (under 100 kB each: the repository keeps them).
 """
 
 from __future__ import annotations
@@ -15,6 +16,20 @@ import subprocess
 import sys
 import time
 import urllib.request
+
+SCALE = 0.7
+"""Screenshots are scaled by this before saving."""
+COLOURS = 128
+"""Palette size of the saved screenshots."""
+
+
+def shrink(path: str) -> None:
+    """``path`` (a PNG) scaled by :data:`SCALE` and reduced to :data:`COLOURS` colours, in place."""
+    from PIL import Image
+
+    im = Image.open(path).convert("RGB")
+    im = im.resize((int(im.width * SCALE), int(im.height * SCALE)), Image.LANCZOS)
+    im.quantize(colors=COLOURS, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
 
 
 def main() -> None:
@@ -62,6 +77,8 @@ def main() -> None:
     finally:
         proc.terminate()
         proc.wait()
+    for name in ("explore_design", "explore_photo", "explore_lab"):
+        shrink(f"{a.out}/{name}.png")
     print(f"wrote {a.out}/explore_design.png, explore_photo.png, explore_lab.png")
 
 
