@@ -120,8 +120,23 @@ def _open_photo(spec):
 
     if spec is None:
         return None, "generated scene"
+    if not spec.startswith("skimage:"):
+        _check_photo_bytes(spec, spec)
     photo = open_photo(spec, PAPER_CAMERA)
     return photo, photo.source
+
+
+def _check_photo_bytes(path, shown) -> None:
+    """The explorer keeps its photo in memory: refused from the header, before any pixel is decoded, when its linear
+    float32 frame would take more than :data:`pipeline.photo.PHOTO_KEEP_BYTES`."""
+    from pipeline.photo import PHOTO_KEEP_BYTES, photo_info
+
+    info = photo_info(path, "photo")
+    need = info.pixels * info.channels * 4
+    if need > PHOTO_KEEP_BYTES:
+        raise ValueError(f"photo {shown!r} is {info.width} x {info.height} px ({need / 2**30:.3g} GiB as linear "
+                         f"float32): the explorer keeps its photo in memory, at most {PHOTO_KEEP_BYTES / 2**30:.3g} GiB; "
+                         "crop or scale it first")
 
 
 def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None):
@@ -470,6 +485,7 @@ def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
         with open(path, "wb") as f:
             f.write(data)
         try:
+            _check_photo_bytes(path, path)  # from the header, before decoding
             return open_photo(path, PAPER_CAMERA, keep_bytes=2**62).load()
         except (ValueError, OSError) as exc:  # said of the upload, not of the server's temporary file
             shown = PurePath(filename).name or "the upload"

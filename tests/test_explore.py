@@ -117,7 +117,7 @@ def test_restoration_lab_two_methods_and_an_as_built_lens(explorer):
         explorer.restoration_lab(DesignControls(), pc, "wiener", "wiener", "bad", 0)
 
 
-def test_uploads_are_checked_like_photo_files(tmp_path):
+def test_uploads_are_checked_like_photo_files(tmp_path, monkeypatch):
     from lenssim_cli.explore import _read_upload
     from pipeline.io import write_image
 
@@ -135,6 +135,17 @@ def test_uploads_are_checked_like_photo_files(tmp_path):
             _read_upload(data, name, 2.0)
         assert message in str(e.value) and "\n" not in str(e.value)
     assert [p.name for p in tmp_path.iterdir()] == ["made"]  # nothing written beside it
+    # a picture too large to keep is refused from its header, before a pixel is decoded
+    import pipeline.photo
+
+    def no_decoding(*a, **k):
+        raise AssertionError("pixels decoded")
+
+    monkeypatch.setattr(pipeline.photo, "PHOTO_KEEP_BYTES", 64 * 80 * 3 * 4 - 1)
+    monkeypatch.setattr(pipeline.photo, "read_image", no_decoding)
+    monkeypatch.setattr(pipeline.photo, "scan_image", no_decoding)
+    with pytest.raises(ValueError, match=r"'big.png' is 80 x 64 px .*keeps its photo in memory"):
+        _read_upload(png, "big.png", 1.0)
 
 
 @pytest.mark.parametrize("argv, message", [
