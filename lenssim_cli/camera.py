@@ -620,12 +620,13 @@ def cmd_psnr_table(args) -> int:
     from pipeline import crop_at_field_angle, simulate_crops
 
     photos = args.photos or [None]
+    chain, table = chain_from_args(args)
     if args.isos is None:  # the sensor's ISOs, highest first
-        args.isos = sorted(chain_from_args(args)[1].isos, reverse=True)
+        args.isos = sorted(table.isos, reverse=True)
     for photo in photos:  # every photo's header first, then the designs and options, the output, every photo's pixels
         info = _header(photo)
         if info is not None:
-            _check_chain_photo(chain_from_args(args)[0], info.shape, photo)
+            _check_chain_photo(chain, info.shape, photo)
     _check_common(args)
     lenses = each_lens(args)
     if args.designs is None:  # the paper's designs, unless only lenses are asked for
@@ -635,7 +636,6 @@ def cmd_psnr_table(args) -> int:
         if d not in named:
             raise ValueError(f"design {d!r} is not known; choose from {', '.join(sorted(named))}")
     camera = PAPER_CAMERA
-    chain, table = chain_from_args(args)
     wells = [_iso_well(table, i, args) for i in args.isos]
     from pipeline.restoration import parse_restoration
 

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from lenssim import AsBuiltPSF, Camera, Design, LensPSF, PSFProvider, evaluate
+from lenssim.optics.psf_provider import DerivedPSF
 from lenssim.model.tolerances import GRADES
 from pipeline.photo import Photo
 
@@ -59,68 +60,9 @@ MAP_CRITERIA = ("mse_r", "mse_s", "rms_w", "strehl", "mtf50", "cost")
 
 
 class _LRU(OrderedDict):
-    def get_or(self, key, make):
-        if key in self:
-            self.move_to_end(key)
-            return self[key]
-        value = make()
-        self[key] = value
-        while len(self) > CACHE_ENTRIES:
-            self.popitem(last=False)
-        return value
+    """A dict that keeps its last ``size`` entries used (:data:`CACHE_ENTRIES` by default)."""
 
-
-class _CachedPSF(PSFProvider):
-    """A PSF provider whose PSFs are kept (the last :data:`PSF_CACHE_REQUESTS` requests): the blur and the restoration
-    ask for the same windows' PSFs, and so does every ISO, seed and chain of the same crop."""
-
-    def __init__(self, base: PSFProvider):
-        self.base = base
-        self._kept = _LRU()
-        self.blurred = _Bounded(BLUR_CACHE_REGIONS)
-        """The blurred regions of this provider's crops (:func:`pipeline.simulate.simulate_crops`'s ``blur_cache``)."""
-
-    @property
-    def geometry(self):
-        return self.base.geometry
-
-    @property
-    def channels(self):
-        return self.base.channels
-
-    @property
-    def mirror_symmetric(self):
-        return self.base.mirror_symmetric
-
-    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
-        key = (tuple(torch.as_tensor(rows).tolist()), tuple(torch.as_tensor(cols).tolist()),
-               tuple(float(v) for v in optical_center), int(n), bool(centered), dtype, str(device))
-        out = self._kept.get_or(key, lambda: self.base.psf_at_pixels(rows, cols, optical_center, n,
-                                                                     centered=centered, dtype=dtype, device=device))
-        while len(self._kept) > PSF_CACHE_REQUESTS:
-            self._kept.popitem(last=False)
-        return out
-
-    def extent_px(self, rows, cols, optical_center):
-        return self.base.extent_px(rows, cols, optical_center)
-
-    def extents_px(self, rows, cols, optical_center):
-        return self.base.extents_px(rows, cols, optical_center)
-
-    def spectrum(self):
-        return self.base.spectrum()
-
-    def pedestal_fractions(self, n):
-        return self.base.pedestal_fractions(n)
-
-    def fingerprint(self):
-        return self.base.fingerprint()
-
-
-class _Bounded(OrderedDict):
-    """A dict that keeps its last ``size`` entries."""
-
-    def __init__(self, size: int):
+    def __init__(self, size: int = CACHE_ENTRIES):
         super().__init__()
         self.size = size
 
@@ -128,6 +70,32 @@ class _Bounded(OrderedDict):
         super().__setitem__(key, value)
         while len(self) > self.size:
             self.popitem(last=False)
+
+    def get_or(self, key, make):
+        """The entry ``key``, made by ``make()`` (and kept) when missing."""
+        if key in self:
+            self.move_to_end(key)
+            return self[key]
+        value = make()
+        self[key] = value
+        return value
+
+
+class _CachedPSF(DerivedPSF):
+    """A PSF provider whose PSFs are kept (the last :data:`PSF_CACHE_REQUESTS` requests): the blur and the restoration
+    ask for the same windows' PSFs, and so does every ISO, seed and chain of the same crop. ``blurred`` keeps the
+    blurred regions of its crops (:func:`pipeline.simulate.simulate_crops`'s ``blur_cache``)."""
+
+    def __init__(self, base: PSFProvider):
+        self.base = base
+        self._kept = _LRU(PSF_CACHE_REQUESTS)
+        self.blurred = _LRU(BLUR_CACHE_REGIONS)
+
+    def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        key = (tuple(torch.as_tensor(rows).tolist()), tuple(torch.as_tensor(cols).tolist()),
+               tuple(float(v) for v in optical_center), int(n), bool(centered), dtype, str(device))
+        return self._kept.get_or(key, lambda: self.base.psf_at_pixels(rows, cols, optical_center, n,
+                                                                      centered=centered, dtype=dtype, device=device))
 
 
 @dataclass(frozen=True)
@@ -465,19 +433,12 @@ class Explorer:
             fw = self._full_well(pc, chain)
             box = self.crop_box(pc.center)
             nominal = self._provider(controls)
-            same = method_a.split(":")[0] == method_b.split(":")[0]
-            if same:  # one name twice: two runs (results are filed by method name)
-                ra = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_a,),
-                                    sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
-                rb = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_b,),
-                                    sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
-                a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
-                sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
-            else:
-                (r,) = simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(method_a, method_b),
-                                      sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)
-                a, b = r.images[r.methods[0]], r.images[r.methods[1]]
-                sa, sb = r.scores[r.methods[0]], r.scores[r.methods[1]]
+            # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
+            ra, rb = (simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(m,),
+                                     sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
+                      for m in (method_a, method_b))
+            a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
+            sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
             lens = GRADES[grade].sample(1, seed=lens_seed)
             built = self._provider(controls, lens)
             runs = {tag: simulate_crops(self._ideal(), built, fw, [box], seed=pc.seed, methods=(pc.restore,),

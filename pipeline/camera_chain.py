@@ -38,14 +38,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import torch
 
 from lenssim import PSFProvider, Sensor
+from lenssim.optics.psf_provider import DerivedPSF
 from lenssim.registry import Registry
 
-from .cfa import CFA_PATTERNS, DEMOSAIC_METHODS, demosaic, mosaic, validate_cfa
+from .cfa import DEMOSAIC_METHODS, demosaic, mosaic, validate_cfa
 from .checks import check_image
 
 __all__ = ["CAMERA_STAGES", "CameraStage", "CameraChain", "PlanePSF", "RESTORE_PLACES", "WHITE_BALANCE_METHODS",
@@ -124,7 +125,6 @@ class _Context:
     origin: tuple[int, int]
     generator: torch.Generator | None = None
     gains: torch.Tensor | None = None
-    sites: int = 3  # colour channels of the scene (3 for a CFA)
 
     @property
     def sensor(self) -> Sensor:
@@ -406,21 +406,17 @@ class CameraChain:
 
 
 @dataclass(frozen=True)
-class PlanePSF(PSFProvider):
+class PlanePSF(DerivedPSF):
     """The PSFs of one CFA plane: pixel ``(i, j)`` of the plane is pixel ``(2 i + dy, 2 j + dx)`` of the frame, whose
     PSFs ``base`` gives; the plane's PSF is the frame's convolved with the tent ``[1/2, 1, 1/2]`` in each direction and
     sampled every other pixel (the blurred frame's samples at the plane's pixels, with the scene's missing pixels
     linearly interpolated between the plane's), unit sum; ``channel`` picks the plane's colour of a per-channel
-    provider."""
+    provider. Mirror-symmetric where ``base`` is (the tent is symmetric)."""
 
-    base: object
+    base: PSFProvider
     dy: int
     dx: int
     channel: int = 0
-    mirror_symmetric: bool = field(init=False, default=False)
-
-    def __post_init__(self):
-        object.__setattr__(self, "mirror_symmetric", bool(getattr(self.base, "mirror_symmetric", False)))
 
     channels = 1
 
@@ -464,23 +460,11 @@ class PlanePSF(PSFProvider):
         r, c, oc = self._frame(rows, cols, optical_center)
         return torch.as_tensor(self.base.extents_px(r, c, oc)).to(torch.int64) // 2 + 2
 
-    def spectrum(self):
-        return self.base.spectrum()
-
     def pedestal_fractions(self, n: int):
         return (0.0,)
 
-    def bank(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
-        from lenssim.optics.bank import PSFBank
-
-        lams, weights = self.spectrum()
-        return PSFBank(self.psf_at_pixels(rows, cols, optical_center, n, centered=centered, dtype=dtype, device=device),
-                       self.geometry.pixel_pitch_um, lams, weights, centered)
-
-    def fingerprint(self):
-        key = getattr(self.base, "fingerprint", None)
-        return None if not callable(key) else f"{key()}|plane({self.dy},{self.dx},{self.channel})"
+    def derivation(self) -> str:
+        return f"plane({self.dy},{self.dx},{self.channel})"
 
 
 assert set(CAMERA_STAGES) == set(_RAW_STAGES + _ISP_STAGES)
-assert CFA_PATTERNS == ("RGGB", "BGGR", "GRBG", "GBRG")

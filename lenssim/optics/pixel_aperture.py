@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .psf_provider import PSFProvider
+from .psf_provider import DerivedPSF, PSFProvider
 
 __all__ = ["pixel_aperture_side_px", "pixel_aperture_mtf", "apply_pixel_aperture", "PixelAperturePSF"]
 
@@ -45,7 +45,7 @@ def apply_pixel_aperture(psf: torch.Tensor, fill_factor: float) -> torch.Tensor:
 
 
 @dataclass(frozen=True)
-class PixelAperturePSF(PSFProvider):
+class PixelAperturePSF(DerivedPSF):
     """The PSFs of ``base`` integrated over pixels of ``fill_factor`` (:func:`apply_pixel_aperture`)."""
 
     base: PSFProvider
@@ -54,19 +54,8 @@ class PixelAperturePSF(PSFProvider):
     def __post_init__(self):
         pixel_aperture_side_px(self.fill_factor)
 
-    @property
-    def geometry(self):
-        return self.base.geometry
-
-    @property
-    def channels(self) -> int:
-        return self.base.channels
-
-    @property
-    def mirror_symmetric(self) -> bool:  # the square aperture keeps the mirror symmetry about rows, columns, diagonals
-        return bool(self.base.mirror_symmetric)
-
     def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
+        # the square aperture keeps the mirror symmetry about rows, columns and diagonals (base's flag holds)
         p = self.base.psf_at_pixels(rows, cols, optical_center, n, centered=True, dtype=dtype, device=device)
         p = apply_pixel_aperture(p, self.fill_factor)
         return p if centered else torch.fft.ifftshift(p, dim=(-2, -1))
@@ -79,12 +68,5 @@ class PixelAperturePSF(PSFProvider):
         e = torch.as_tensor(self.base.extents_px(rows, cols, optical_center)).to(torch.int64)
         return torch.where(e > 0, e + 2, e)
 
-    def spectrum(self):
-        return self.base.spectrum()
-
-    def pedestal_fractions(self, n: int):
-        return self.base.pedestal_fractions(n)
-
-    def fingerprint(self):
-        key = getattr(self.base, "fingerprint", None)
-        return None if not callable(key) else f"{key()}|pixel aperture {self.fill_factor!r}"
+    def derivation(self) -> str:
+        return f"pixel aperture {self.fill_factor!r}"

@@ -29,7 +29,7 @@ from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .psf_bank import max_wavefront_slope, pedestal_fraction, spectral_coefficients
 from .wavefront_models import validate_wavefront_model
 
-__all__ = ["PSFProvider", "LensPSF", "FunctionPSF", "AsBuiltPSF"]
+__all__ = ["PSFProvider", "DerivedPSF", "LensPSF", "FunctionPSF", "AsBuiltPSF"]
 
 
 class PSFProvider:
@@ -76,6 +76,49 @@ class PSFProvider:
         :meth:`extent_px` everywhere; a provider that knows how its PSFs grow over the field says so."""
         rows = torch.as_tensor(rows)
         return torch.full((rows.numel(),), int(self.extent_px(rows, cols, optical_center)), dtype=torch.int64)
+
+
+class DerivedPSF(PSFProvider):
+    """A provider made from another, ``base``: everything is ``base``'s unless a subclass says otherwise (the pixel
+    aperture's, a CFA plane's, a cache's PSFs)."""
+
+    base: PSFProvider
+
+    @property
+    def geometry(self) -> FieldGeometry:
+        return self.base.geometry
+
+    @property
+    def channels(self) -> int:
+        return self.base.channels
+
+    @property
+    def mirror_symmetric(self) -> bool:
+        return bool(self.base.mirror_symmetric)
+
+    def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
+        return self.base.psf_at_pixels(rows, cols, optical_center, n, centered=centered, dtype=dtype, device=device)
+
+    def extent_px(self, rows, cols, optical_center) -> int:
+        return self.base.extent_px(rows, cols, optical_center)
+
+    def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
+        return self.base.extents_px(rows, cols, optical_center)
+
+    def spectrum(self):
+        return self.base.spectrum()
+
+    def pedestal_fractions(self, n: int):
+        return self.base.pedestal_fractions(n)
+
+    def fingerprint(self):
+        """``base``'s fingerprint and :meth:`derivation` (None when ``base`` has none: no resuming then)."""
+        key = getattr(self.base, "fingerprint", None)
+        return None if not callable(key) or key() is None else f"{key()}|{self.derivation()}"
+
+    def derivation(self) -> str:
+        """What this provider changes of ``base``'s PSFs, for its fingerprint ("": nothing)."""
+        return ""
 
 
 class _CameraPSF(PSFProvider):
