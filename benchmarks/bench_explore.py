@@ -2,35 +2,65 @@
 functions of :mod:`lenssim_studies.explore` as the page does (no browser; the page's own round trip, ~80 ms with
 Panel, is measured in docs/explore.md).
 
-    python benchmarks/bench_explore.py [PHOTO]
+    python benchmarks/bench_explore.py [PHOTO] [--lens LENS --vary NAME=LO:HI[:STEP] ...]
 
 For the paper's lens and a 256 px crop: the first picture (cold caches), then each control changed in turn (a new
 design: criteria, PSF/MTF figure and the photo; the ISO; the seed; a click moving the crop; the CFA; a return to an
 earlier state, served from the caches), 5 times each with fresh values; prints the median and the largest time per
-control. No timing is asserted anywhere.
+control. With ``--lens``: any lens (``lenssim explore --lens``'s explorer), its first free parameter moved by one step
+as the "new design". No timing is asserted anywhere.
 """
 
 from __future__ import annotations
 
 import statistics
-import sys
 import time
 from dataclasses import replace
 
 
 def main() -> None:
-    from lenssim_studies.explore import DesignControls, Explorer, PhotoControls
-    from pipeline.photo import open_photo
-    from lenssim_studies.paper import PAPER_CAMERA
+    import argparse
 
-    spec = sys.argv[1] if len(sys.argv) > 1 else "skimage:astronaut"
+    from lenssim_studies.explore import DesignControls, Explorer, PhotoControls
+    from lenssim_studies.paper import PAPER_CAMERA
+    from pipeline.photo import open_photo
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("photo", nargs="?", default="skimage:astronaut")
+    ap.add_argument("--lens")
+    ap.add_argument("--vary", action="append", default=[])
+    a = ap.parse_args()
+    spec = a.photo
     photo = open_photo(spec, PAPER_CAMERA)
-    ex = Explorer(photo=photo, photo_source=photo.source)
     H, W = photo.shape[-2:]
-    d, pc = DesignControls(), PhotoControls(center=(H // 3, W // 3))
+    if a.lens:
+        from lenssim.io.prescription_file import read_lens
+        from lenssim_cli.explore import parse_slider
+        from lenssim_studies.explore_lens import LensExplorer
+
+        free = tuple(parse_slider(v) for v in a.vary)
+        ex = LensExplorer(photo=photo.load(), photo_source=photo.source, prescription=read_lens(a.lens), lens=a.lens,
+                          free=free)
+        d = ex.start
+        first = free[0]
+
+        def new_design(k):
+            v = d.as_dict()
+            v[first.name] = min(max(v[first.name] - first.step * (k + 1), first.start), first.end)
+            return ex.controls_from(v)
+        label = f"{first.name} slider (new design)"
+    else:
+        ex = Explorer(photo=photo, photo_source=photo.source)
+        d = DesignControls()
+
+        def new_design(k):
+            return replace(d, Q_back=d.Q_back - 0.1 * (k + 1))
+        label = "Q_back slider (new design)"
+    pc = PhotoControls(center=(H // 3, W // 3))
     t0 = time.perf_counter()
     ex.criteria(d), ex.optics_figure(d), ex.photo_panel(d, pc)
-    print(f"{spec} ({W} x {H}): first picture (cold) {time.perf_counter() - t0:.2f} s")
+    print(f"{spec} ({W} x {H}){', ' + a.lens if a.lens else ''}: first picture (cold) "
+          f"{time.perf_counter() - t0:.2f} s")
 
     def timed(label, changes):
         ts = {"criteria": [], "optics": [], "photo": []}
@@ -47,9 +77,8 @@ def main() -> None:
         print(f"  {label:28s} " + ", ".join(f"{k} {statistics.median(v):.2f} s (max {max(v):.2f})"
                                              for k, v in ts.items()))
 
-    timed("Q_back slider (new design)", [(replace(d, Q_back=d.Q_back - 0.1 * (k + 1)), pc) for k in range(5)])
-    timed("ISO", [(d, replace(pc, iso=i)) for i in (400, 25, 400, 25, 400)][:5] if False else
-          [(d, replace(pc, iso=400, seed=100 + k)) for k in range(5)])
+    timed(label, [(new_design(k), pc) for k in range(5)])
+    timed("ISO", [(d, replace(pc, iso=400, seed=100 + k)) for k in range(5)])
     timed("seed", [(d, replace(pc, seed=k + 1)) for k in range(5)])
     timed("click (crop moved)", [(d, replace(pc, center=(H // 3 + 40 * (k + 1), W // 3 + 30 * (k + 1))))
                                  for k in range(5)])

@@ -55,6 +55,10 @@ def _check_common(args) -> None:
     for a in getattr(args, "angles", None) or []:
         if not (math.isfinite(a) and a >= 0):
             raise ValueError(f"--angles {a:g} is not allowed: field angles are finite and >= 0 degrees")
+    if getattr(args, "at", None) is not None:
+        if args.angles is not None:
+            raise ValueError("--at and --angles both place the crops; give one")
+        args.at_pixels = [_parse_at(v) for v in args.at]
     _, table = chain_from_args(args)
     isos = getattr(args, "isos", None)
     for iso in isos or []:
@@ -187,6 +191,24 @@ def _load(spec, device, keep_bytes=None):
     return photo.to(device), photo.source
 
 
+def _parse_at(text: str) -> tuple[int, int]:
+    """``--at ROW,COL`` -> ``(row, col)`` (whole numbers >= 0; checked against the photo later)."""
+    parts = text.split(",")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        raise ValueError(f"--at {text!r} is not allowed: ROW,COL, the crop's centre pixel (whole numbers >= 0, from "
+                         "the top-left corner)")
+    return int(parts[0]), int(parts[1])
+
+
+def _check_at(args, shape, source) -> None:
+    """Every ``--at`` pixel inside the photo."""
+    H, W = shape[-2:]
+    for (r, c), text in zip(getattr(args, "at_pixels", None) or [], args.at or []):
+        if not (r < H and c < W):
+            raise ValueError(f"--at {text} is not allowed: {source!r} is {W} x {H} px (rows 0 to {H - 1}, columns 0 "
+                             f"to {W - 1})")
+
+
 def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]:
     """``--angles`` as given, or (none given) angles that fit this image: the preferred ones whose crop lies inside
     the frame, else evenly from the axis to the largest that fits; said on stderr."""
@@ -315,6 +337,7 @@ def cmd_simulate(args) -> int:
     if header is not None:
         _check_photo_shape(args, header.shape, header.path, psf)
         _check_chain_photo(chain, header.shape, header.path)
+        _check_at(args, header.shape, header.path)
     t0 = time.perf_counter()
     # the whole frame (checked against the memory limit above) is decoded once; crops of a photo too large to keep
     # read only the rows or tiles they reach
@@ -324,12 +347,19 @@ def cmd_simulate(args) -> int:
         psf = lens_psf_from_args(args, ideal.shape)
     _check_photo_shape(args, ideal.shape, source, psf)
     _check_chain_photo(chain, ideal.shape, source)
+    _check_at(args, ideal.shape, source)
     args.chain = chain
     size = _crop_size(args, ideal, source)
     geometry = psf.geometry
-    angles = _angles(args, ideal, size, geometry, DEFAULT_ANGLES_DEG if lens_file is None else
-                     _lens_angles(psf), source)
-    boxes = [crop_at_field_angle(ideal.shape, a, size, geometry) for a in angles]
+    if getattr(args, "at_pixels", None):  # crops centred at the given pixels (moved inside at the edges)
+        from pipeline.simulate import crop_at_pixel
+
+        boxes = [crop_at_pixel(ideal.shape, r, c, size) for r, c in args.at_pixels]
+        angles = [round(geometry.box_field_angle(ideal.shape, b), 3) for b in boxes]
+    else:
+        angles = _angles(args, ideal, size, geometry, DEFAULT_ANGLES_DEG if lens_file is None else
+                         _lens_angles(psf), source)
+        boxes = [crop_at_field_angle(ideal.shape, a, size, geometry) for a in angles]
     if args.denoise:
         from pipeline import gentle_denoise
 
@@ -369,14 +399,16 @@ def cmd_simulate(args) -> int:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                          sensor=_sensor(psf), progress=bar.update, chain=chain)
         report["crops"] = []
-        for a, r in zip(angles, results):
-            tag = f"crop_{a:g}deg"
+        for i, (a, r) in enumerate(zip(angles, results)):
+            asked = {"requested_deg": a} if not getattr(args, "at_pixels", None) else \
+                {"requested_at_row_col": list(args.at_pixels[i])}
+            tag = _crop_tag(asked)
             for kind in ("ideal", "sensor") + methods:
                 if kind in r.images:
                     write_image(stage / f"{tag}_{_file_kind(kind)}.png", linear_to_srgb(r.images[kind].clamp(0, 1)))
             if getattr(args, "raw_out", False):
                 _write_raw(stage / f"{tag}_raw.dng", r.images["raw"], chain, r.box[0], r.box[2])
-            report["crops"].append({"requested_deg": a, "field_deg": round(r.field_deg, 3),
+            report["crops"].append({**asked, "field_deg": round(r.field_deg, 3),
                                     "box_r0_r1_c0_c1": list(r.box), "scores": r.scores,
                                     "psnr_sensor_db": r.scores["sensor"]["psnr_db"],
                                     "psnr_restored_db": r.scores[methods[0]]["psnr_db"],
@@ -399,6 +431,14 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _crop_tag(entry: dict) -> str:
+    """A crop's file-name stem from its metrics entry: by the angle asked (``--angles``) or the pixel (``--at``)."""
+    if "requested_at_row_col" in entry:
+        r, c = entry["requested_at_row_col"]
+        return f"crop_r{r}_c{c}"
+    return f"crop_{entry['requested_deg']:g}deg"
+
+
 def _index_page(stage, title, report, results, methods) -> None:
     """``index.html``: the mosaic, the scores of every crop, the whole-frame results; self-contained."""
     from lenssim_studies import html
@@ -412,7 +452,7 @@ def _index_page(stage, title, report, results, methods) -> None:
                        "(PSNR / SSIM in sRGB against the ideal image)"),
             "<h2>Scores</h2>", html.table(header, rows)]
     for r, c in zip(results, report["crops"]):
-        tag = f"crop_{c['requested_deg']:g}deg"
+        tag = _crop_tag(c)
         body.append(f"<h2>Crop at {r.field_deg:.2f} deg</h2>")
         label = lambda k: "ideal (the reference)" if k == "ideal" else (  # noqa: E731
             f"{_kind_label(k)}: {fmt(r.scores.get(k))}")
@@ -815,6 +855,9 @@ def register(sub) -> None:
     p.add_argument("--angles", type=float, nargs="+", default=None,
                    help=f"crop field angles (deg); default {' '.join(f'{a:g}' for a in DEFAULT_ANGLES_DEG)}, those of them "
                         "that fit the photo (else evenly from the axis to the largest that fits)")
+    p.add_argument("--at", nargs="+", metavar="ROW,COL",
+                   help="instead of --angles: crops centred at these pixels (from the photo's top-left corner; a crop "
+                        "that would cross an edge is moved inside)")
     p.add_argument("--crop", type=int, default=256, help="crop size (px)")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--denoise", type=float, default=0.0, metavar="STRENGTH",

@@ -1,6 +1,9 @@
 """``lenssim explore``: a local web application over the explorer's computations (issue 32; docs/explore.md).
 
-    lenssim explore [PHOTO] [--design NAME] [--sweep FILE.nc] [--port 5006] [--host 127.0.0.1] [--max-upload-mb 200]
+    lenssim explore [PHOTO] [--photo FILE ...] [--design NAME] [--sweep FILE.nc] [--port 5006] [--host 127.0.0.1]
+                    [--max-upload-mb 200]
+    lenssim explore [PHOTO] --lens LENS --vary NAME=LO:HI[:STEP] [--vary ...] [--hold efl,fnum] [--image file]
+                    [--aspherize S7] [--pixel-pitch UM] ...
 
 Panel (HoloViz, on a Bokeh server) lays out :mod:`lenssim_studies.explore`'s update functions: the design panel (sliders,
 the criteria, PSFs and MTFs, the cost map; a click on the map selects a design), the photo panel (a click on the photo
@@ -27,14 +30,36 @@ MAP_POLL_MS = 3000
 """How often (ms) a page redraws the cost map while it is being computed."""
 OVERVIEW_PX = 480
 """Longer side (px) of the clickable overview of the photo."""
+SAMPLE_PHOTOS = ("skimage:astronaut", "skimage:chelsea", "skimage:coffee", "skimage:rocket",
+                 "skimage:hubble_deep_field", "skimage:camera")
+"""scikit-image's samples the page offers besides the user's photos (each shipped inside the package: none is
+downloaded)."""
+GENERATED = "generated scene"
 
 
 def register(sub) -> None:
     p = sub.add_parser("explore", help="an interactive explorer of designs, photos and restorations in the browser "
                        "(a local web app; docs/explore.md)")
-    p.add_argument("photo", nargs="?", help="image file or skimage:NAME; default: the generated scene")
+    p.add_argument("photo", nargs="?", help="image file (also a camera RAW file) or skimage:NAME; default: the "
+                   "generated scene")
+    p.add_argument("--photo", dest="photos", action="append", metavar="FILE", default=[],
+                   help="another photo the page offers (repeat; the page also offers the generated scene and "
+                        "scikit-image's samples)")
     p.add_argument("--design", metavar="NAME", help="the design the sliders start at (see `lenssim designs`; default "
                    "end_to_end_paper)")
+    p.add_argument("--lens", metavar="LENS", help="any lens instead of the paper's singlet: a .zmx or .toml "
+                   "prescription, or a shipped lens's name (docs/any-lens.md); its free parameters by --vary")
+    p.add_argument("--vary", action="append", metavar="NAME=LO:HI[:STEP]",
+                   help="--lens: a free parameter as a slider from LO to HI (STEP: its step; default "
+                        f"{SLIDER_STEPS_HELP} steps), named as `lenssim tradeoff` names them (S5.conic, S7.A4, "
+                        "E1.bending, focus_um, ...); repeat for up to 3; the map is over the first two")
+    p.add_argument("--hold", help="--lens: what each design holds: a comma-separated list of efl, fnum")
+    p.add_argument("--image", choices=("file", "paraxial", "best"), default="file",
+                   help="--lens: each design's image plane (default: the file's)")
+    p.add_argument("--aspherize", nargs="+", metavar="S5", help="--lens: surfaces made even aspheres (their A4..A16 "
+                   "free)")
+    p.add_argument("--pixel-pitch", type=float, metavar="UM", help="--lens: the sensor's pixel pitch (um) instead of "
+                   "the photo spanning the lens's field (and, for the criteria, of the lens's Nyquist pitch)")
     p.add_argument("--sweep", metavar="FILE.nc", help="a sweep over s and Q_back (lenssim sweep) for the cost map; "
                    "default: a coarse 13 x 15 grid computed once in the background (~1 min)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free one)")
@@ -43,6 +68,9 @@ def register(sub) -> None:
     p.add_argument("--max-upload-mb", type=float, default=DEFAULT_MAX_UPLOAD_MB,
                    help=f"largest photo a page may upload (MB; default {DEFAULT_MAX_UPLOAD_MB:g})")
     p.set_defaults(func=cmd_explore)
+
+
+SLIDER_STEPS_HELP = 100
 
 
 def check_explore_arguments(args) -> None:
@@ -56,7 +84,19 @@ def check_explore_arguments(args) -> None:
 
 def cmd_explore(args) -> int:
     check_explore_arguments(args)
-    start = _start_design(args.design)
+    lens_args = [f for f, v in (("--vary", args.vary), ("--hold", args.hold), ("--aspherize", args.aspherize),
+                                ("--pixel-pitch", args.pixel_pitch),
+                                ("--image", None if args.image == "file" else args.image)) if v is not None]
+    if args.lens is None and lens_args:
+        raise ValueError(f"{', '.join(lens_args)} appl(ies) to --lens LENS (any lens); the paper's singlet has its "
+                         "own sliders")
+    if args.lens is not None:
+        given = [f for f, v in (("--design", args.design), ("--sweep", args.sweep)) if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} describe(s) the paper's singlet; leave them out with --lens")
+        if not args.vary:
+            raise ValueError("--lens needs its free parameters: --vary NAME=LO:HI (e.g. --vary E1.bending=0.3:1.3)")
+    start = None if args.lens else _start_design(args.design)
     try:
         import panel  # noqa: F401
     except ImportError:
@@ -66,8 +106,14 @@ def cmd_explore(args) -> int:
     ds = None
     if args.sweep:
         ds = _load_sweep(args.sweep)
+    for extra in args.photos:
+        _check_photo_arg(extra)
     photo, source = _open_photo(args.photo)
-    explorer = Explorer(photo=photo, photo_source=source)
+    if args.lens is not None:
+        explorer = _lens_explorer(args, photo, source)
+    else:
+        explorer = Explorer(photo=photo, photo_source=source)
+    photos = ([args.photo] if args.photo else []) + [p for p in args.photos if p != args.photo]
     if ds is not None:
         explorer.load_map(ds)
     else:  # the coarse map, once, in the background (the page shows its progress)
@@ -77,8 +123,46 @@ def cmd_explore(args) -> int:
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: --host {args.host}: the explorer is reachable from other machines; it has no login",
               file=sys.stderr)
-    serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start)
+    serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start,
+          photos=photos)
     return 0
+
+
+def parse_slider(text: str):
+    """``NAME=LO:HI[:STEP]`` -> :class:`lenssim_studies.explore_lens.FreeParameter` (one-line ``ValueError``)."""
+    from lenssim_studies.explore_lens import SLIDER_STEPS, FreeParameter
+
+    name, sep, spec = text.partition("=")
+    parts = spec.split(":")
+    try:
+        nums = [float(v) for v in parts]
+    except ValueError:
+        nums = []
+    if not sep or not name.strip() or len(nums) not in (2, 3):
+        raise ValueError(f"--vary {text!r} is not allowed: NAME=LO:HI[:STEP] with numbers (e.g. S7.conic=-2:0)")
+    lo, hi = nums[:2]
+    step = nums[2] if len(nums) == 3 else (hi - lo) / SLIDER_STEPS
+    return FreeParameter(name.strip(), lo, hi, step)
+
+
+def _lens_explorer(args, photo, source):
+    """The explorer on ``--lens`` with its ``--vary`` sliders, checked (the lens, names, solves) before serving."""
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.optics.lens_solves import HOLDS
+    from lenssim_studies.explore_lens import LensExplorer
+
+    free = tuple(parse_slider(v) for v in args.vary)
+    hold = tuple(h.strip() for h in (args.hold or "").split(",") if h.strip())
+    for h in hold:
+        if h not in HOLDS:
+            raise ValueError(f"--hold {h!r} is not allowed: a comma-separated list of {', '.join(HOLDS)}")
+    p = read_lens(args.lens)
+    aspherize = tuple(int(v.lstrip("Ss")) if v.lstrip("Ss").isdigit() else -1 for v in args.aspherize or ())
+    for k, v in zip(aspherize, args.aspherize or ()):
+        if not 1 <= k <= len(p.surfaces):
+            raise ValueError(f"--aspherize {v} is not allowed: surfaces S1 to S{len(p.surfaces)}")
+    return LensExplorer(photo=photo, photo_source=source, prescription=p, lens=str(args.lens), free=free, hold=hold,
+                        image=args.image, aspherize=aspherize, pixel_pitch_um=args.pixel_pitch)
 
 
 def _start_design(name):
@@ -114,14 +198,22 @@ def _load_sweep(path):
     return ds
 
 
+def _check_photo_arg(spec) -> None:
+    """A photo the page may open later, checked now (a sample's name; a file's header and size)."""
+    if spec.startswith("skimage:"):
+        if spec not in SAMPLE_PHOTOS:
+            raise ValueError(f"photo {spec!r} is not offered: a file, or one of {', '.join(SAMPLE_PHOTOS)}")
+    else:
+        _check_photo_bytes(spec, spec)
+
+
 def _open_photo(spec):
     from lenssim_studies.paper import PAPER_CAMERA
     from pipeline.photo import open_photo
 
-    if spec is None:
-        return None, "generated scene"
-    if not spec.startswith("skimage:"):
-        _check_photo_bytes(spec, spec)
+    if spec is None or spec == GENERATED:
+        return None, GENERATED
+    _check_photo_arg(spec)
     photo = open_photo(spec, PAPER_CAMERA)
     return photo, photo.source
 
@@ -139,8 +231,10 @@ def _check_photo_bytes(path, shown) -> None:
                          "crop or scale it first")
 
 
-def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None):
-    """The page (a Panel layout) over ``explorer``; its widgets are reachable as ``app.widgets`` for tests."""
+def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None, photos=()):
+    """The page (a Panel layout) over ``explorer`` (its design sliders are the explorer's: the paper's singlet or any
+    lens); ``photos``: the photos offered besides the generated scene and scikit-image's samples. Its widgets are
+    reachable as ``app.widgets`` for tests."""
     import io
 
     import numpy as np
@@ -151,20 +245,20 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from lenssim.io.sensor_file import sensor_names
     from lenssim.model.glass import load_glasses
     from lenssim.model.tolerances import GRADES
-    from lenssim_studies.explore import MAP_CRITERIA, DesignControls, PhotoControls, command_line
+    from lenssim_studies.explore import MAP_CRITERIA, PhotoControls, command_line
     from pipeline.camera_chain import DEMOSAIC_METHODS
     from pipeline.cfa import CFA_PATTERNS
 
     pn.config.loading_indicator = True
-    d0 = DesignControls() if start is None else start
-    w = {
-        "s": pn.widgets.FloatSlider(label="s (bending)", start=-2.0, end=1.0, step=0.025, value=d0.s, format="0.000"),
-        "Q_back": pn.widgets.FloatSlider(label="Q_back (back conic)", start=-10.0, end=1.2, step=0.1, value=d0.Q_back),
-        "Q_front": pn.widgets.FloatSlider(label="Q_front (front conic)", start=-10.0, end=10.0, step=0.1,
-                                          value=d0.Q_front),
-        "focus": pn.widgets.FloatSlider(label="focus shift [um]", start=-500.0, end=500.0, step=5.0,
-                                        value=d0.focus_shift_um),
-        "glass": pn.widgets.Select(label="glass (catalogue)", options=list(load_glasses()), value=d0.glass),
+    sliders = explorer.sliders(start)
+    w = {sl.key: pn.widgets.FloatSlider(label=sl.label, start=sl.start, end=sl.end, step=sl.step, value=sl.value,
+                                        format=_slider_format(sl.step)) for sl in sliders}
+    w["glass"] = pn.widgets.Select(label="glass (catalogue)", options=list(load_glasses()),
+                                   value="paper" if start is None else start.glass, visible=explorer.has_glass)
+    shown = [photo_arg or GENERATED] + [p for p in photos if p != photo_arg]
+    offered = list(dict.fromkeys(shown + [GENERATED, *SAMPLE_PHOTOS]))
+    w.update({
+        "photo": pn.widgets.Select(label="photo", options=offered, value=shown[0]),
         "criterion": pn.widgets.Select(label="map criterion", options=list(MAP_CRITERIA), value="mse_r"),
         "snr": pn.widgets.Select(label="SNR [dB]", options={f"{s:g}": i for i, s in enumerate(explorer.snr_db)},
                                  value=min(1, len(explorer.snr_db) - 1)),
@@ -180,12 +274,12 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         "grade": pn.widgets.Select(label="tolerance grade", options=list(GRADES), value="commercial"),
         "lens_seed": pn.widgets.IntInput(label="lens seed", value=0, start=0),
         "upload": pn.widgets.FileInput(label="upload a photo", accept=",".join(UPLOAD_SUFFIXES)),
-    }
-    state = {"center": None}
+    })
+    state = {"center": None, "photo": shown[0]}
     error = pn.pane.Alert("", alert_type="danger", visible=False, name="error")
 
     def controls():
-        return DesignControls(w["s"].value, w["Q_back"].value, w["Q_front"].value, w["focus"].value, w["glass"].value)
+        return explorer.controls_from({sl.key: w[sl.key].value for sl in sliders}, w["glass"].value)
 
     def photo_controls():
         sensor = None if w["sensor"].value == "(paper)" else w["sensor"].value
@@ -210,24 +304,24 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from bokeh.models import ColorBar, ColumnDataSource, LabelSet, LinearColorMapper
     from bokeh.palettes import Viridis256
 
-    from lenssim_studies.paper import PAPER_DESIGNS
-
+    xk, yk = explorer.map_axes
     mapper = LinearColorMapper(palette=Viridis256, nan_color="lightgrey")
     map_fig = figure(width=600, height=440, tools="tap", toolbar_location=None, name="map",
-                     x_axis_label="Q_back (conic constant of the back surface)", y_axis_label="s (bending)",
+                     x_axis_label=explorer.axis_label(xk), y_axis_label=explorer.axis_label(yk),
                      title="click to select a design; white: iso-cost curves (log10 C_a)")
-    img_src = ColumnDataSource({"image": [np.full((1, 1), np.nan)], "x": [-10.0], "y": [-2.0], "dw": [11.2],
-                                "dh": [3.0]})
+    img_src = ColumnDataSource({"image": [np.full((1, 1), np.nan)], "x": [0.0], "y": [0.0], "dw": [1.0],
+                                "dh": [1.0]})
     map_fig.image(image="image", x="x", y="y", dw="dw", dh="dh", source=img_src, color_mapper=mapper)
     color_bar = ColorBar(color_mapper=mapper, title="")
     map_fig.add_layout(color_bar, "right")
-    named = ColumnDataSource({"x": [float(d.values["Q_back"]) for d in PAPER_DESIGNS.values()],
-                              "y": [float(d.values["s"]) for d in PAPER_DESIGNS.values()],
-                              "name": list(PAPER_DESIGNS)})
+    points = explorer.named_points()
+    named = ColumnDataSource({"x": [v[0] for v in points.values()], "y": [v[1] for v in points.values()],
+                              "name": list(points)})
     map_fig.scatter("x", "y", source=named, size=9, fill_alpha=0, line_color="red", line_width=2)
     map_fig.add_layout(LabelSet(x="x", y="y", text="name", source=named, text_font_size="8pt", text_color="red",
                                 x_offset=4, y_offset=4))
-    sel_src = ColumnDataSource({"x": [d0.Q_back], "y": [d0.s]})
+    sx, sy = explorer.map_point(controls())
+    sel_src = ColumnDataSource({"x": [sx], "y": [sy]})
     map_fig.scatter("x", "y", source=sel_src, marker="x", size=16, line_width=3, color="black")
     contours = {}
 
@@ -243,13 +337,13 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     map_status = pn.pane.Markdown("", name="map_status")
 
     def update_map(*_):
-        c = controls()
-        sel_src.data = {"x": [c.Q_back], "y": [c.s]}
+        px, py = explorer.map_point(controls())
+        sel_src.data = {"x": [px], "y": [py]}
         layer = guarded(explorer.map_layer, w["criterion"].value, int(w["snr"].value))
         if layer is not None:
-            q, sv, z = layer["Q_back"], layer["s"], layer["z"]
+            q, sv, z = layer["x"], layer["y"], layer["z"]
             dq = (q[-1] - q[0]) / max(len(q) - 1, 1)
-            ds = (sv[-1] - sv[0]) / max(len(sv) - 1, 1)
+            ds = (sv[-1] - sv[0]) / (len(sv) - 1) if len(sv) > 1 else 1.0
             img_src.data = {"image": [z], "x": [q[0] - dq / 2], "y": [sv[0] - ds / 2], "dw": [q[-1] - q[0] + dq],
                             "dh": [sv[-1] - sv[0] + ds]}
             finite = z[np.isfinite(z)]
@@ -257,38 +351,42 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
                 mapper.low, mapper.high = float(finite.min()), float(finite.max())
             color_bar.title = ("log10 " if layer["log10"] else "") + w["criterion"].value
             lc = layer["log10_cost"]
-            if "cost" not in contours and lc is not None and np.isfinite(lc).sum() > 3:
+            if ("cost" not in contours and lc is not None and min(lc.shape) > 1 and np.isfinite(lc).sum() > 3
+                    and np.nanmax(lc) > np.nanmin(lc)):
                 lo, hi = np.nanmin(lc), np.nanmax(lc)
                 contours["cost"] = map_fig.contour(q, sv, np.nan_to_num(lc, nan=hi), levels=np.linspace(lo, hi, 8)[1:-1],
                                                    line_color="white", line_width=1)
         m = explorer.map_data
         done, total = explorer.map_progress
         map_status.object = (f"map: computing, {done} of {total or '?'} designs" if m is None else
-                             f"map: {m['s'].size} x {m['Q_back'].size} designs (the paper's glass, n = 1.5)")
+                             f"map: {m[xk].size} x {m[yk].size} designs ({explorer.map_note()})")
 
     # ---- photo panel --------------------------------------------------------------------------------------------
-    H, W = explorer.photo_shape[-2:]
-    step = max(1, math.ceil(max(H, W) / OVERVIEW_PX))
-    over = figure(width=min(OVERVIEW_PX, W // step), height=min(OVERVIEW_PX, H // step), x_range=(0, W),
-                  y_range=(H, 0), tools="tap", toolbar_location=None, name="overview",
-                  title="click to move the crop")
+    over = figure(width=OVERVIEW_PX, height=OVERVIEW_PX, x_range=(0, 1), y_range=(1, 0), tools="tap",
+                  toolbar_location=None, name="overview", title="click to move the crop")
     over.axis.visible = False
+    over.grid.visible = False
+    over_src = ColumnDataSource({"image": [np.zeros((1, 1), np.uint32)], "x": [0], "y": [0], "dw": [1], "dh": [1]})
+    over.image_rgba(image="image", x="x", y="y", dw="dw", dh="dh", source=over_src)  # the y axis runs down
+    crop_rect = over.quad(left=[0], right=[1], top=[0], bottom=[1], fill_alpha=0, line_color="red", line_width=2)
 
-    def overview_rgba():
+    def draw_overview():
+        """The photo's overview (at most :data:`OVERVIEW_PX` on its longer side) and its axes, for the photo now
+        shown."""
         from pipeline.colour_space import linear_to_srgb
 
-        ph = explorer._ideal()
-        img = ph.load()[..., ::step, ::step]
+        H, W = explorer.photo_shape[-2:]
+        step = max(1, math.ceil(max(H, W) / OVERVIEW_PX))
+        img = explorer._ideal().load()[..., ::step, ::step]
         a = (linear_to_srgb(img.clamp(0, 1))[0].cpu().numpy() * 255).astype(np.uint8)
         a = np.repeat(a, 3, axis=0) if a.shape[0] == 1 else a
         rgba = np.dstack([a[0], a[1], a[2], np.full_like(a[0], 255)]).view(np.uint32)[..., 0]
-        return rgba
+        over.width, over.height = max(1, W // step), max(1, H // step)
+        over.x_range.start, over.x_range.end = 0, W
+        over.y_range.start, over.y_range.end = H, 0
+        over_src.data = {"image": [rgba], "x": [0], "y": [0], "dw": [W], "dh": [H]}
 
-    over.grid.visible = False
-    over.image_rgba(image=[overview_rgba()], x=0, y=0, dw=W, dh=H)  # the y axis runs down: row 0 at the top
-    box = explorer.crop_box(None)
-    crop_rect = over.quad(left=box[2], right=box[3], top=box[0], bottom=box[1], fill_alpha=0, line_color="red",
-                          line_width=2)
+    draw_overview()
     images = {k: pn.pane.PNG(None, name=k, width=256, height=256) for k in ("ideal", "sensor", "restored")}
     scores = {k: pn.pane.Markdown("", name=f"score_{k}") for k in ("sensor", "restored")}
     field_md = pn.pane.Markdown("", name="field")
@@ -305,7 +403,24 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         for k, pane in scores.items():
             pane.object = f"**{k}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, SSIM {r['scores'][k]['ssim']:.3f}"
         field_md.object = f"crop {b} at {r['field_deg']:.2f} deg of field"
-        command.object = "```\n" + command_line(photo_arg, controls(), photo_controls(), explorer) + "\n```"
+        shown = None if state["photo"] == GENERATED else state["photo"]
+        command.object = "```\n" + command_line(shown, controls(), photo_controls(), explorer) + "\n```"
+
+    def show_photo(photo, source, name):
+        """Show ``photo`` (its caches dropped, the crop back at the centre)."""
+        explorer.photo, explorer.photo_source = photo, source
+        for k in ("photo", "lab", "field"):
+            explorer._caches.pop(k, None)
+        state["center"], state["photo"] = None, name
+        draw_overview()
+        update_photo()
+
+    def on_pick(event):
+        opened = guarded(_open_photo, event.new)
+        if opened is not None:
+            show_photo(*opened, event.new)
+
+    w["photo"].param.watch(on_pick, "value")
 
     def on_tap(event):
         state["center"] = (int(event.y), int(event.x))
@@ -319,11 +434,9 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         photo = guarded(_read_upload, data, name, max_upload_mb)
         if photo is None:
             return
-        explorer.photo, explorer.photo_source = photo, "uploaded photo"
-        explorer._caches.pop("photo", None)
-        explorer._caches.pop("lab", None)
-        state["center"] = None
-        update_photo()
+        from pathlib import PurePath
+
+        show_photo(photo, "uploaded photo", PurePath(name).name or "uploaded photo")
 
     w["upload"].param.watch(on_upload, "value")
 
@@ -390,7 +503,17 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     lab_button.on_click(update_lab)
 
     # ---- export ---------------------------------------------------------------------------------------------------
+    def _save(fig):
+        import matplotlib.pyplot as plt
+
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100)
+        plt.close(fig)
+        buf.seek(0)
+        return buf
+
     def panel_png():
+        """The photo panel as a PNG: ideal, sensor and restored crops with their scores, what made them."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -404,41 +527,75 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
             sc = r["scores"].get(k)
             ax.set_title(k + ("" if sc is None else f": {sc['psnr_db']:.2f} dB, SSIM {sc['ssim']:.3f}"), fontsize=9)
             ax.set_axis_off()
-        fig.suptitle(f"{explorer.photo_source}, {controls().design().label()}, ISO {w['iso'].value}, crop at "
+        fig.suptitle(f"{explorer.photo_source}, {explorer.design_label(controls())}, ISO {w['iso'].value}, crop at "
                      f"{r['field_deg']:.2f} deg", fontsize=9)
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=100)
-        plt.close(fig)
-        buf.seek(0)
-        return buf
+        return _save(fig)
+
+    def design_png():
+        """The design panel as a PNG: the criteria, the cost map with the design, the PSFs and MTFs."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.image
+        import matplotlib.pyplot as plt
+
+        c = controls()
+        crit = explorer.criteria(c)
+        crit_img = matplotlib.image.imread(io.BytesIO(explorer.cost_map(w["criterion"].value, int(w["snr"].value), c)),
+                                           format="png")
+        optics = matplotlib.image.imread(io.BytesIO(explorer.optics_figure(c)), format="png")
+        fig = plt.figure(figsize=(12, 8.5), constrained_layout=True)
+        top, bottom = fig.subfigures(2, 1, height_ratios=(1.25, 1))
+        ax_t, ax_m = top.subplots(1, 2, width_ratios=(0.8, 1.2))
+        ax_t.set_axis_off()
+        ax_t.table(cellText=[[k, f"{v:.4g}"] for k, v in crit.items()], colLabels=["criterion", "value"],
+                   loc="center").scale(1, 1.4)
+        ax_m.imshow(crit_img)
+        ax_m.set_axis_off()
+        ax_o = bottom.subplots()
+        ax_o.imshow(optics)
+        ax_o.set_axis_off()
+        fig.suptitle(explorer.design_label(c), fontsize=10)
+        return _save(fig)
 
     download = pn.widgets.FileDownload(callback=panel_png, filename="lenssim_explore.png", label="download the panel "
                                        "as PNG", color="default")
+    design_download = pn.widgets.FileDownload(callback=design_png, filename="lenssim_design.png",
+                                              label="download the design panel as PNG", color="default")
+    exports = [download]
+    if hasattr(explorer, "lens_toml"):  # any lens: the design as a lens file, which the command line names
+        from lenssim_studies.explore_lens import LENS_EXPORT_FILE
 
-    for k in ("s", "Q_back", "Q_front", "focus"):
-        w[k].param.watch(lambda e: (update_design(), update_photo()), "value_throttled")
+        exports.append(pn.widgets.FileDownload(callback=lambda: io.BytesIO(explorer.lens_toml(controls()).encode()),
+                                               filename=LENS_EXPORT_FILE, label=f"download the lens ({LENS_EXPORT_FILE})",
+                                               color="default"))
+
+    for sl in sliders:
+        w[sl.key].param.watch(lambda e: (update_design(), update_photo()), "value_throttled")
     w["glass"].param.watch(lambda e: (update_design(), update_photo()), "value")
     for k in ("criterion", "snr"):
         w[k].param.watch(update_map, "value")
     for k in ("iso", "seed", "full_well", "sensor", "cfa", "demosaic", "restore"):
         w[k].param.watch(update_photo, "value")
 
-    sidebar = pn.Column("### Design", w["s"], w["Q_back"], w["Q_front"], w["focus"], w["glass"], "### Camera",
+    sidebar = pn.Column("### Design", *[w[sl.key] for sl in sliders], w["glass"], "### Camera",
                         w["iso"], w["full_well"], w["seed"], w["sensor"], w["cfa"], w["demosaic"], w["restore"],
-                        "### Photo", w["upload"], width=300)
+                        "### Photo", w["photo"], w["upload"], width=300)
+
     def on_map_tap(event):
-        q = min(max(event.x, w["Q_back"].start), w["Q_back"].end)
-        sv = min(max(event.y, w["s"].start), w["s"].end)
-        w["Q_back"].value = round(round(q / w["Q_back"].step) * w["Q_back"].step, 6)
-        w["s"].value = round(round(sv / w["s"].step) * w["s"].step, 6)
+        for key, v in ((xk, event.x), (yk, event.y)):
+            if key in w:  # (a lens with one free parameter has no vertical axis)
+                sl = w[key]
+                v = min(max(v, sl.start), sl.end)
+                sl.value = round(sl.start + round((v - sl.start) / sl.step) * sl.step, 9)
         update_design()
         update_photo()
 
     map_fig.on_event(Tap, on_map_tap)
-    design_tab = pn.Column(pn.Row(criteria_md, pn.Column(w["criterion"], w["snr"], map_status,
-                                                          pn.pane.Bokeh(map_fig))), optics_png,
+    design_tab = pn.Column(pn.Row(pn.Column(criteria_md, design_download),
+                                  pn.Column(w["criterion"], w["snr"], map_status, pn.pane.Bokeh(map_fig))), optics_png,
                            name="Design")
-    photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, download)),
+    photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, *exports)),
                           pn.Row(*[pn.Column(f"**{k}**", images[k], scores.get(k, "")) for k in images]),
                           name="Photo")
     lab_tab = pn.Column(pn.Row(method_a_box, method_b_box, pn.Column(w["grade"], w["lens_seed"], lab_button)),
@@ -456,10 +613,19 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
                  "command": command, "overview": over, "error": error, "lab": lab_imgs, "field": field_md}
     app.specs = {"a": spec_a, "b": spec_b}
     app.actions = {"tap": on_tap, "map_tap": on_map_tap, "update_design": update_design, "update_photo": update_photo,
-                   "update_lab": update_lab, "upload": on_upload}
+                   "update_lab": update_lab, "upload": on_upload, "pick": on_pick, "panel_png": panel_png,
+                   "design_png": design_png}
+    app.exports = exports
     update_design()
     update_photo()
     return app
+
+
+def _slider_format(step: float) -> str:
+    """The slider's number format (numbro): as many decimals as its step has, at least 2."""
+    text = f"{step:.10f}".rstrip("0")
+    decimals = len(text.split(".")[1]) if "." in text else 0
+    return "0[.]" + "0" * min(max(decimals, 2), 10)
 
 
 def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
@@ -492,11 +658,13 @@ def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
             raise ValueError(str(exc).splitlines()[0].replace(repr(path), repr(shown)).replace(path, shown)) from None
 
 
-def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=print, start=None):
+def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=print, start=None,
+          photos=()):
     """Serve the app until interrupted; prints its address."""
     import panel as pn
 
-    server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start), address=host,
+    server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start, photos=photos),
+                      address=host,
                       port=port,
                       show=False, start=False, websocket_origin=[f"{host}:{port}", f"localhost:{port}"]
                       if port and host in ("127.0.0.1", "localhost", "::1") else "*",

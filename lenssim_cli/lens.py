@@ -179,23 +179,15 @@ def lens_psf_from_args(args, shape, *, progress=None):
     the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
     and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
     field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
-    from lenssim.optics.sequential_psf import image_scale_mm
+    from lenssim_studies.lens_tradeoff import photo_field
 
     p = check_lens_arguments(args)
     seq, _ = refocused_lens(p, args.refocus or "file")
     H, W = shape[-2:]
-    corner_px = math.hypot(H - 1, W - 1) / 2
-    scale = image_scale_mm(seq)
-    amax = max(p.fields)
-    if args.pixel_pitch is None:
-        if amax <= 0:
-            raise ValueError(f"--lens {args.lens} has only the axial field: give --pixel-pitch UM for the sensor")
-        pitch = scale * math.tan(math.radians(amax)) / corner_px * 1e3
-    else:
-        pitch = float(args.pixel_pitch)
-    # the blur's windows reach past the frame's edges by up to half a core (px) on each axis: their PSFs too
-    reach_px = corner_px + (args.scheme[2] if getattr(args, "scheme", None) else 0)
-    amax = math.degrees(math.atan(reach_px * pitch * 1e-3 / scale))
+    if args.pixel_pitch is None and max(p.fields) <= 0:
+        raise ValueError(f"--lens {args.lens} has only the axial field: give --pixel-pitch UM for the sensor")
+    pitch, amax = photo_field(p, seq, shape, pitch_um=args.pixel_pitch,
+                              margin_px=args.scheme[2] if getattr(args, "scheme", None) else 0)
     return lens_provider(args, p, seq, pitch_um=pitch, width_px=int(W), height_px=int(H), max_field_deg=amax)
 
 
@@ -204,21 +196,16 @@ def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: in
     """The :class:`lenssim.optics.sequential_psf.SequentialPSF` of the lens ``seq`` (prescription ``p``) on the paper's
     sensor (its noise and full wells) with pixels of ``pitch_um``, in the lens's own wavelengths (equal weights) or the
     colour channels of ``--spectrum``, traced out to ``max_field_deg``."""
-    from dataclasses import replace
-
-    from lenssim.model.spectrum import Spectrum, channel_spectra
-    from lenssim.optics.sequential_psf import SequentialPSF
-    from lenssim_studies.paper import PAPER_CAMERA
+    from lenssim.model.spectrum import channel_spectra
+    from lenssim_studies.lens_tradeoff import sequential_provider
 
     from .common import DEFAULT_ILLUMINANT
 
-    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch_um, width_px=width_px, height_px=height_px)
     spec = getattr(args, "spectrum", "paper") or "paper"
-    light = Spectrum(p.wavelengths_um, (1.0,) * len(p.wavelengths_um), name=f"the lens's {len(p.wavelengths_um)} "
-                     "wavelength(s)")
     chans = () if spec == "paper" else channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
                                                        args.wavelengths_per_channel)
-    return SequentialPSF(seq, sensor, light, chans, max_field_deg=max_field_deg, sampling=sampling)
+    return sequential_provider(p, seq, pitch_um=pitch_um, sampling=sampling, max_field_deg=max_field_deg,
+                               width_px=width_px, height_px=height_px, colour_channels=chans)
 
 
 def cmd_evaluate_lens(args) -> int:

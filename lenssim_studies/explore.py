@@ -37,7 +37,7 @@ from pipeline.photo import Photo
 
 from .paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
 
-__all__ = ["Explorer", "DesignControls", "PhotoControls", "command_line", "EXPLORE_CROP_PX", "MAP_GRID",
+__all__ = ["Explorer", "DesignControls", "PhotoControls", "Slider", "command_line", "EXPLORE_CROP_PX", "MAP_GRID",
            "PSF_ANGLES_DEG", "CACHE_ENTRIES"]
 
 EXPLORE_CROP_PX = 256
@@ -96,6 +96,19 @@ class _CachedPSF(DerivedPSF):
                tuple(float(v) for v in optical_center), int(n), bool(centered), dtype, str(device))
         return self._kept.get_or(key, lambda: self.base.psf_at_pixels(rows, cols, optical_center, n,
                                                                       centered=centered, dtype=dtype, device=device))
+
+
+@dataclass(frozen=True)
+class Slider:
+    """One design control of the page: its key (the value's name in :meth:`Explorer.controls_from`), label (with the
+    unit), range, step and first value."""
+
+    key: str
+    label: str
+    start: float
+    end: float
+    step: float
+    value: float
 
 
 @dataclass(frozen=True)
@@ -174,6 +187,52 @@ class Explorer:
 
     def _cache(self, name: str) -> _LRU:
         return self._caches.setdefault(name, _LRU())
+
+    # ---- what the page's design controls are ---------------------------------------------------------------------
+    has_glass = True
+    """Whether the lens's glass is a control (the paper's singlet: a catalogue glass or the paper's n = 1.5)."""
+
+    def sliders(self, start: DesignControls | None = None) -> list[Slider]:
+        """The design sliders, at ``start``'s values (the explorer's default design otherwise)."""
+        d = DesignControls() if start is None else start
+        return [Slider("s", "s (bending)", -2.0, 1.0, 0.025, d.s),
+                Slider("Q_back", "Q_back (back conic)", -10.0, 1.2, 0.1, d.Q_back),
+                Slider("Q_front", "Q_front (front conic)", -10.0, 10.0, 0.1, d.Q_front),
+                Slider("focus", "focus shift [um]", -500.0, 500.0, 5.0, d.focus_shift_um)]
+
+    def controls_from(self, values: dict, glass: str = "paper") -> DesignControls:
+        """The design of the sliders' ``{key: value}`` (keys of :meth:`sliders`)."""
+        return DesignControls(values["s"], values["Q_back"], values["Q_front"], values["focus"], glass)
+
+    @property
+    def map_axes(self) -> tuple[str, str]:
+        """The cost map's (horizontal, vertical) axes: slider keys, also the keys of :attr:`map_data`."""
+        return ("Q_back", "s")
+
+    def map_point(self, controls) -> tuple[float, float]:
+        """Where ``controls`` sits on the map (horizontal, vertical)."""
+        return (controls.Q_back, controls.s)
+
+    def named_points(self) -> dict[str, tuple[float, float]]:
+        """The named designs marked on the map: ``{name: (horizontal, vertical)}``."""
+        return {name: (float(d.values["Q_back"]), float(d.values["s"])) for name, d in PAPER_DESIGNS.items()}
+
+    def axis_label(self, key: str) -> str:
+        """A map axis's label."""
+        return {"Q_back": "Q_back (conic constant of the back surface)", "s": "s (bending)"}.get(key, key)
+
+    def map_note(self) -> str:
+        """What the map's designs hold fixed (shown under the map)."""
+        return "the paper's glass, n = 1.5"
+
+    def design_label(self, controls) -> str:
+        glass = "" if controls.glass == "paper" else f", {controls.glass}"
+        return controls.design().label() + glass
+
+    @property
+    def sensor(self):
+        """The sensor the photo is simulated on (its pixels, noise and ISO table)."""
+        return self.camera.sensor
 
     # ---- design ---------------------------------------------------------------------------------------------------
     def camera_for(self, controls: DesignControls) -> Camera:
@@ -300,9 +359,9 @@ class Explorer:
         self.map_data = out
 
     def map_layer(self, criterion: str, snr_index: int) -> dict | None:
-        """The map of ``criterion`` (at the SNR of ``snr_index`` for the per-SNR ones): ``{"s", "Q_back", "z" (len(s),
-        len(Q_back)), "log10": whether z is log10 of the criterion, "log10_cost" (same shape, NaN where refused)}``;
-        None while the map is not computed."""
+        """The map of ``criterion`` (at the SNR of ``snr_index`` for the per-SNR ones): ``{"x", "y"`` (the values of
+        :attr:`map_axes`), ``"x_name", "y_name", "z"`` (len(y), len(x)), ``"log10"``: whether z is log10 of the
+        criterion, ``"log10_cost"`` (same shape, NaN where refused)``}``; None while the map is not computed."""
         if criterion not in MAP_CRITERIA:
             raise ValueError(f"criterion {criterion!r} is not allowed: one of {', '.join(MAP_CRITERIA)}")
         m = self.map_data
@@ -315,7 +374,8 @@ class Explorer:
         z = np.log10(np.where(v > 0, v, np.nan)) if logscale else v
         cost = m.get("cost")
         lc = None if cost is None else np.log10(np.where(cost > 0, cost, np.nan))
-        return {"s": m["s"], "Q_back": m["Q_back"], "z": z, "log10": logscale, "log10_cost": lc}
+        xn, yn = self.map_axes
+        return {"x": m[xn], "y": m[yn], "x_name": xn, "y_name": yn, "z": z, "log10": logscale, "log10_cost": lc}
 
     def cost_map(self, criterion: str, snr_index: int, selected: DesignControls) -> bytes:
         """PNG: ``criterion`` (log10 where positive and spanning decades) over the (s, Q_back) plane, the cost's
@@ -327,27 +387,27 @@ class Explorer:
 
         layer = self.map_layer(criterion, snr_index)
         fig, ax = plt.subplots(figsize=(5.6, 4.4), constrained_layout=True)
-        m = self.map_data
         if layer is None:
             done, total = self.map_progress
             ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
             ax.set_axis_off()
             return _figure_png(fig)
         z, logscale = layer["z"], layer["log10"]
-        im = ax.pcolormesh(m["Q_back"], m["s"], z, shading="nearest", cmap="viridis")
+        x, y = layer["x"], layer["y"]
+        im = ax.pcolormesh(x, y, z, shading="nearest", cmap="viridis")
         fig.colorbar(im, ax=ax, label=("log10 " if logscale else "") + criterion
                      + (f" at {self.snr_db[snr_index]:g} dB" if criterion in ("mse_r", "mse_s") else ""))
-        if "cost" in m and np.isfinite(m["cost"]).sum() > 3:
-            c = ax.contour(m["Q_back"], m["s"], np.log10(np.where(m["cost"] > 0, m["cost"], np.nan)), levels=6,
-                           colors="w", linewidths=0.7)
-            ax.clabel(c, fontsize=6, fmt=lambda x: f"C_a 1e{x:.1f}")
-        for name, d in PAPER_DESIGNS.items():
-            ax.plot(float(d.values["Q_back"]), float(d.values["s"]), "o", mfc="none", mec="r", ms=7)
-            ax.annotate(name, (float(d.values["Q_back"]), float(d.values["s"])), fontsize=6, color="r",
-                        xytext=(3, 3), textcoords="offset points")
-        ax.plot(selected.Q_back, selected.s, "x", color="k", ms=10, mew=2, label="selected")
-        ax.set_xlabel("Q_back (conic constant of the back surface)")
-        ax.set_ylabel("s (bending)")
+        lc = layer["log10_cost"]
+        if lc is not None and np.isfinite(lc).sum() > 3 and min(lc.shape) > 1 and np.nanmax(lc) > np.nanmin(lc):
+            c = ax.contour(x, y, lc, levels=6, colors="w", linewidths=0.7)
+            ax.clabel(c, fontsize=6, fmt=lambda v: f"C_a 1e{v:.1f}")
+        for name, (px, py) in self.named_points().items():
+            ax.plot(px, py, "o", mfc="none", mec="r", ms=7)
+            ax.annotate(name, (px, py), fontsize=6, color="r", xytext=(3, 3), textcoords="offset points")
+        sx, sy = self.map_point(selected)
+        ax.plot(sx, sy, "x", color="k", ms=10, mew=2, label="selected")
+        ax.set_xlabel(self.axis_label(layer["x_name"]))
+        ax.set_ylabel(self.axis_label(layer["y_name"]))
         ax.set_title("criterion over the design plane; white: iso-cost curves", fontsize=9)
         ax.legend(fontsize=7, loc="lower left")
         return _figure_png(fig)
@@ -366,13 +426,14 @@ class Explorer:
         return self._ideal().shape
 
     def crop_box(self, center) -> tuple[int, int, int, int]:
-        """The :data:`EXPLORE_CROP_PX` box centred as near ``center`` (row, col) as fits the photo."""
+        """The :data:`EXPLORE_CROP_PX` box centred as near ``center`` (row, col; None: the frame's centre) as fits the
+        photo."""
+        from pipeline.simulate import crop_at_pixel
+
         H, W = self.photo_shape[-2:]
-        size = min(EXPLORE_CROP_PX, H, W)
-        r, c = (H // 2, W // 2) if center is None else (int(center[0]), int(center[1]))
-        r0 = min(max(r - size // 2, 0), H - size)
-        c0 = min(max(c - size // 2, 0), W - size)
-        return (r0, r0 + size, c0, c0 + size)
+        r, c = (H // 2, W // 2) if center is None else (min(max(int(center[0]), 0), H - 1),
+                                                        min(max(int(center[1]), 0), W - 1))
+        return crop_at_pixel((H, W), r, c, min(EXPLORE_CROP_PX, H, W))
 
     def _chain(self, pc: PhotoControls):
         if pc.sensor is None and pc.cfa == "none":
@@ -390,7 +451,7 @@ class Explorer:
             from pipeline.checks import check_full_well
 
             return check_full_well(pc.full_well, "full well")
-        table = self.camera.sensor if chain is None else chain.sensor
+        table = self.sensor if chain is None else chain.sensor
         return table.full_well_for_iso(pc.iso)
 
     def _provider(self, controls: DesignControls, lens=None):
@@ -399,6 +460,25 @@ class Explorer:
         cam = self.camera_for(controls)
         return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(cam, d) if lens is None
                                                                  else AsBuiltPSF(cam, d, lens)))
+
+    def design_arguments(self, controls: DesignControls) -> list[str]:
+        """The command-line arguments that select ``controls``'s design."""
+        parts = ["--s", f"{controls.s:g}", "--Q_back", f"{controls.Q_back:g}"]
+        if controls.Q_front:
+            parts += ["--Q_front", f"{controls.Q_front:g}"]
+        if controls.focus_shift_um:
+            parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
+        if controls.glass != "paper":
+            parts += ["--glass", controls.glass]
+        return parts
+
+    def check_grade(self, grade: str) -> None:
+        if grade not in GRADES:
+            raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
+
+    def _built_provider(self, controls: DesignControls, grade: str, lens_seed: int):
+        """The PSFs of one manufactured lens of ``controls``'s design (drawn from ``grade`` with ``lens_seed``)."""
+        return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed))
 
     def photo_panel(self, controls: DesignControls, pc: PhotoControls) -> dict:
         """The crop at ``pc.center`` through the design and the chain: ``{"box", "field_deg", "png": {"ideal",
@@ -411,7 +491,7 @@ class Explorer:
             box = self.crop_box(pc.center)
             prov = self._provider(controls)
             (r,) = simulate_crops(self._ideal(), prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                  sensor=self.camera.sensor, chain=chain, blur_cache=prov.blurred)
+                                  sensor=self.sensor, chain=chain, blur_cache=prov.blurred)
             name = r.methods[0]
             return {"box": box, "field_deg": r.field_deg,
                     "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
@@ -425,8 +505,7 @@ class Explorer:
         ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``, ``nominal``, ``own``."""
         from pipeline.simulate import simulate_crops
 
-        if grade not in GRADES:
-            raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
+        self.check_grade(grade)
 
         def make():
             chain = self._chain(pc)
@@ -435,14 +514,13 @@ class Explorer:
             nominal = self._provider(controls)
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
             ra, rb = (simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(m,),
-                                     sensor=self.camera.sensor, chain=chain, blur_cache=nominal.blurred)[0]
+                                     sensor=self.sensor, chain=chain, blur_cache=nominal.blurred)[0]
                       for m in (method_a, method_b))
             a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
             sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
-            lens = GRADES[grade].sample(1, seed=lens_seed)
-            built = self._provider(controls, lens)
+            built = self._built_provider(controls, grade, lens_seed)
             runs = {tag: simulate_crops(self._ideal(), built, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                        sensor=self.camera.sensor, chain=chain, restoration_psf=prov,
+                                        sensor=self.sensor, chain=chain, restoration_psf=prov,
                                         blur_cache=built.blurred)[0]
                     for tag, prov in (("nominal", nominal), ("own", built))}
             out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
@@ -453,24 +531,16 @@ class Explorer:
         return self._cache("lab").get_or((controls.key(), pc, method_a, method_b, grade, lens_seed), make)
 
 
-def command_line(photo: str | None, controls: DesignControls, pc: PhotoControls, explorer: Explorer) -> str:
-    """The ``lenssim simulate`` command that reproduces the photo panel (its crop at the same field angle)."""
+def command_line(photo: str | None, controls, pc: PhotoControls, explorer: Explorer) -> str:
+    """The ``lenssim simulate`` command that reproduces the photo panel (its crop, centred at the same pixel)."""
     import shlex
 
     box = explorer.crop_box(pc.center)
-    H, W = explorer.photo_shape[-2:]
-    angle = explorer.camera.geometry.box_field_angle((1, 1, H, W), box)
-    parts = ["lenssim", "simulate"] + ([photo] if photo else [])
-    parts += ["--s", f"{controls.s:g}", "--Q_back", f"{controls.Q_back:g}"]
-    if controls.Q_front:
-        parts += ["--Q_front", f"{controls.Q_front:g}"]
-    if controls.focus_shift_um:
-        parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
-    if controls.glass != "paper":
-        parts += ["--glass", controls.glass]
+    size = box[1] - box[0]
+    parts = ["lenssim", "simulate"] + ([photo] if photo else []) + explorer.design_arguments(controls)
     parts += (["--iso", str(pc.iso)] if pc.full_well is None else ["--full-well", f"{pc.full_well:g}"])
-    parts += ["--seed", str(pc.seed), "--crop", str(box[1] - box[0]), "--angles",
-              f"{angle:.3f}", "--restore", pc.restore]
+    parts += ["--seed", str(pc.seed), "--crop", str(size), "--at", f"{box[0] + size // 2},{box[2] + size // 2}",
+              "--restore", pc.restore]
     if pc.sensor:
         parts += ["--sensor", pc.sensor]
     if pc.cfa != "none":

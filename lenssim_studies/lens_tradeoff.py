@@ -33,7 +33,7 @@ import xarray as xr
 from lenssim import __version__
 from lenssim.criteria import CRITERIA
 from lenssim.model.lens_parameters import LensParameter, parse_parameter
-from lenssim.model.numerics import Numerics
+from lenssim.model.numerics import DEFAULT_NUMERICS, Numerics
 from lenssim.model.prescription import Prescription
 from lenssim.model.spectrum import Spectrum
 from lenssim.optics.lens_solves import solve_design
@@ -65,14 +65,37 @@ WAVEFRONTS = ("exact", "third_order")
 
 
 def sequential_provider(p: Prescription, seq: SequentialLens, *, pitch_um: float, sampling: str,
-                        max_field_deg: float, numerics: Numerics, coarse: bool) -> SequentialPSF:
-    """The PSFs of ``seq`` on the paper's sensor with pixels of ``pitch_um``, in the lens's own wavelengths (equal
-    weights); ``coarse``: the wavefront table at its initial field nodes only."""
-    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch_um, width_px=1, height_px=1)
+                        max_field_deg: float, numerics: Numerics = DEFAULT_NUMERICS, coarse: bool = False,
+                        width_px: int = 1, height_px: int = 1, colour_channels=()) -> SequentialPSF:
+    """The PSFs of ``seq`` on the paper's sensor (its noise and full wells) with ``width_px`` x ``height_px`` pixels of
+    ``pitch_um``, in the lens's own wavelengths (equal weights) or in ``colour_channels`` (each a
+    :class:`lenssim.Spectrum`), traced out to ``max_field_deg``; ``coarse``: the wavefront table at its initial field
+    nodes only."""
+    sensor = replace(PAPER_CAMERA.sensor, pixel_pitch_um=pitch_um, width_px=width_px, height_px=height_px)
     light = Spectrum(p.wavelengths_um, (1.0,) * len(p.wavelengths_um),
                      name=f"the lens's {len(p.wavelengths_um)} wavelength(s)")
-    return SequentialPSF(seq, sensor, light, (), max_field_deg=max_field_deg, sampling=sampling, numerics=numerics,
-                         table_max_nodes=TABLE_INITIAL_NODES if coarse else TABLE_MAX_NODES)
+    return SequentialPSF(seq, sensor, light, tuple(colour_channels), max_field_deg=max_field_deg, sampling=sampling,
+                         numerics=numerics, table_max_nodes=TABLE_INITIAL_NODES if coarse else TABLE_MAX_NODES)
+
+
+def photo_field(p: Prescription, seq: SequentialLens, shape, *, pitch_um: float | None = None,
+                margin_px: float = 0.0) -> tuple[float, float]:
+    """The pixel pitch (um) and the largest field angle (deg) of a photo of ``shape`` ``(..., H, W)`` taken through
+    ``seq``: by default the pitch that puts the lens's largest field at the photo's corners (``pitch_um``: the given
+    one); the angle reaches ``margin_px`` past the corners (the blur's windows reach past the frame's edges by up to
+    half a core on each axis: their PSFs too)."""
+    from lenssim.optics.sequential_psf import image_scale_mm
+
+    H, W = shape[-2:]
+    corner_px = math.hypot(H - 1, W - 1) / 2
+    scale = image_scale_mm(seq)
+    if pitch_um is None:
+        amax = max(p.fields)
+        if amax <= 0:
+            raise ValueError("the lens has only the axial field: give a pixel pitch (um) for the sensor")
+        pitch_um = scale * math.tan(math.radians(amax)) / corner_px * 1e3
+    reach_px = corner_px + margin_px
+    return float(pitch_um), math.degrees(math.atan(reach_px * pitch_um * 1e-3 / scale))
 
 
 @dataclass(frozen=True)

@@ -134,6 +134,18 @@ def crop_at_field_angle(shape, alpha_deg: float, size: int, geometry: FieldGeome
     return box
 
 
+def crop_at_pixel(shape, row: int, col: int, size: int) -> tuple[int, int, int, int]:
+    """Box ``(r0, r1, c0, c1)`` of ``size`` px centred as near the pixel (``row``, ``col``; from the frame's top-left
+    corner) as fits the frame of ``shape``: a box that would cross an edge is moved inside."""
+    H, W = shape[-2:]
+    size = check_int("crop size", size, 1, min(H, W))
+    row = check_int("crop centre row", row, 0, H - 1)
+    col = check_int("crop centre column", col, 0, W - 1)
+    r0 = min(max(row - size // 2, 0), H - size)
+    c0 = min(max(col - size // 2, 0), W - size)
+    return (r0, r0 + size, c0, c0 + size)
+
+
 def check_methods(methods, method_options: dict | None = None, scheme: WindowScheme | None = None
                   ) -> tuple[Restoration, ...]:
     """Restorations from names, ``"NAME:key=value,..."`` specs or :class:`Restoration` objects, with

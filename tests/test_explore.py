@@ -198,7 +198,7 @@ def test_the_page_s_handlers_without_a_browser(explorer):
     assert "crop (128, 384, 128, 384)" in app.panes["field"].object
     app.actions["tap"](SimpleNamespace(x=40.0, y=30.0))
     assert app.panes["images"]["restored"].object is not None
-    assert "--angles" in app.panes["command"].object
+    assert "--at " in app.panes["command"].object
     before = app.panes["criteria"].object
     app.actions["map_tap"](SimpleNamespace(x=-6.04, y=-1.26))
     assert (app.widgets["Q_back"].value, app.widgets["s"].value) == (-6.0, -1.25)

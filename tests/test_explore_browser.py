@@ -39,12 +39,16 @@ def server(tmp_path_factory):
     d = tmp_path_factory.mktemp("explore")
     (d / "tiny.toml").write_text(TINY_SWEEP)
     run_sweep(load_config(d / "tiny.toml"), d / "tiny.nc", show_progress=False)
+    yield from _serve(["skimage:astronaut", "--sweep", str(d / "tiny.nc")], d)
+
+
+def _serve(args, d):
+    """``lenssim explore ARGS`` on a free port until the test is done: ``(url, d)``."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "lenssim_cli.main", "explore", "skimage:astronaut", "--port",
-                             str(port), "--sweep", str(d / "tiny.nc")], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "lenssim_cli.main", "explore", *args, "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     url = f"http://127.0.0.1:{port}/"
     t0 = time.time()
     while True:
@@ -61,6 +65,12 @@ def server(tmp_path_factory):
     proc.terminate()
     proc.wait(timeout=20)
     proc.stdout.close()
+
+
+@pytest.fixture(scope="module")
+def lens_server(tmp_path_factory):
+    yield from _serve(["skimage:astronaut", "--lens", "paper_singlet", "--vary", "E1.bending=-1:0:0.025",
+                       "--vary", "S2.conic=-10:0:0.1"], tmp_path_factory.mktemp("explore_lens"))
 
 
 def _text(page, selector: str) -> str:
@@ -125,6 +135,37 @@ def test_the_explorer_page_in_a_real_browser(server):
         page.keyboard.press("ArrowRight")
         _wait_change(criteria, before_c)
         page.screenshot(path=str(d / "page.png"), full_page=True)
+        browser.close()
+    assert not outside, f"requests off this machine: {outside[:5]}"
+    assert not errors, f"console errors: {errors[:5]}"
+
+
+def test_any_lens_in_a_real_browser(lens_server):
+    """``--lens`` with two free parameters: their sliders on the page; moving one changes the criteria (real rays)
+    and the PSF figure; the lens file and the command line are offered on the photo tab."""
+    url, _ = lens_server
+    outside, errors = [], []
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = browser.new_page(viewport={"width": 1500, "height": 1100})
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.on("request", lambda r: outside.append(r.url) if urlparse(r.url).hostname not in (
+            "127.0.0.1", "localhost") and not r.url.startswith(("data:", "blob:")) else None)
+        page.goto(url)
+        page.wait_for_selector("text=EFL [mm]", timeout=120_000)
+        page.wait_for_selector("text=S2.conic", timeout=10_000)
+        page.wait_for_selector("text=E1.bending", timeout=10_000)
+        criteria = lambda: _text(page, "table")  # noqa: E731
+        optics = lambda: page.locator("img").first.get_attribute("src")  # noqa: E731
+        before_c, before_o = criteria(), optics()
+        page.locator(".noUi-handle").nth(1).focus()  # S2.conic: three steps of 0.1
+        for _ in range(3):
+            page.keyboard.press("ArrowLeft")
+        _wait_change(criteria, before_c)
+        _wait_change(optics, before_o)
+        page.locator(".bk-tab", has_text="Photo").first.click()
+        page.wait_for_selector("text=download the lens (explored_lens.toml)", timeout=60_000)
+        page.wait_for_selector("text=--lens explored_lens.toml", timeout=60_000)
         browser.close()
     assert not outside, f"requests off this machine: {outside[:5]}"
     assert not errors, f"console errors: {errors[:5]}"

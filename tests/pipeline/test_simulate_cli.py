@@ -55,6 +55,35 @@ def test_simulate_command_writes_images_and_metrics(tmp_path, capsys):
     assert "sensor -> adaptive Wiener, Richardson-Lucy" in capsys.readouterr().out
 
 
+def test_crops_centred_at_pixels(tmp_path, capsys):
+    """``--at ROW,COL``: the crop centred at that pixel (moved inside at an edge), named by it; its field angle is the
+    box's, as --angles reports it."""
+    from pipeline.simulate import crop_at_pixel
+
+    assert crop_at_pixel((1, 1, 512, 512), 100, 500, 64) == (68, 132, 448, 512)
+    assert crop_at_pixel((512, 512), 0, 0, 64) == (0, 64, 0, 64)
+    out = tmp_path / "at"
+    assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", "--at", "256,256", "100,500",
+                 "--crop", "64", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert [c["box_r0_r1_c0_c1"] for c in m["crops"]] == [[224, 288, 224, 288], [68, 132, 448, 512]]
+    assert [c["requested_at_row_col"] for c in m["crops"]] == [[256, 256], [100, 500]]
+    edge = PAPER_CAMERA.geometry.box_field_angle((1, 1, 512, 512), (68, 132, 448, 512))
+    assert m["crops"][0]["field_deg"] == 0.0 and m["crops"][1]["field_deg"] == pytest.approx(edge, abs=1e-3)
+    assert edge > 0.5
+    assert (out / "crop_r100_c500_restored.png").exists()
+    capsys.readouterr()
+    for argv, message in ((["--at", "1,2", "--angles", "0"], "--at and --angles both place the crops"),
+                          (["--at", "1;2"], "--at '1;2' is not allowed: ROW,COL"),
+                          (["--at", "1,-2"], "--at '1,-2' is not allowed: ROW,COL"),
+                          (["--at", "600,2"], "--at 600,2 is not allowed: 'skimage:camera' is 512 x 512 px")):
+        assert main(["simulate", "skimage:camera", "--design", "end_to_end_paper", *argv, "--out",
+                     str(tmp_path / "bad")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "bad").exists()
+
+
 def test_simulate_command_errors(tmp_path, capsys):
     assert main(["simulate", "skimage:nothing", "--design", "end_to_end_paper", "--out", str(tmp_path)]) == 2
     assert "nothing" in capsys.readouterr().err
