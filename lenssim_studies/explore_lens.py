@@ -227,13 +227,17 @@ class LensExplorer(Explorer):
             matplotlib.use("Agg")
             import matplotlib.pyplot as plt
 
+            from lenssim.optics.sequential_psf import image_scale_mm
+
             q, seq = self.check(controls)
-            prov = sequential_provider(q, seq, pitch_um=self._criteria_pitch, sampling=self._sampling,
-                                       max_field_deg=max(max(angles), 1e-9), numerics=self.numerics, coarse=True)
             pitch = self._criteria_pitch
-            scale = prov.image_scale_mm
+            scale = image_scale_mm(seq)
             cols = [round(scale * math.tan(math.radians(a)) / (pitch * 1e-3)) for a in angles]
             rows = [0] * len(cols)
+            shown = [math.degrees(math.atan(c * pitch * 1e-3 / scale)) for c in cols]  # at whole pixels
+            prov = sequential_provider(q, seq, pitch_um=pitch, sampling=self._sampling,
+                                       max_field_deg=max(max(shown) * (1 + 1e-9), 1e-9), numerics=self.numerics,
+                                       coarse=True)
             n = int(prov.extent_px(torch.tensor(rows), torch.tensor(cols), (0.0, 0.0)))
             n = max(32, n + n % 2)
             psfs = prov.psf_at_pixels(torch.tensor(rows), torch.tensor(cols), (0.0, 0.0), n, dtype=torch.float64)
@@ -242,7 +246,7 @@ class LensExplorer(Explorer):
                                      constrained_layout=True)
             half = min(n // 2, max(8, int(PSF_WINDOW_UM / pitch / 2)))
             c = n // 2
-            for ax, a, p in zip(axes, angles, psfs):
+            for ax, a, p in zip(axes, shown, psfs):
                 win = p[c - half:c + half, c - half:c + half]
                 e = half * pitch
                 ax.imshow(torch.log10(win.clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,

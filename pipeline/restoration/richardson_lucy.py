@@ -50,10 +50,11 @@ def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterat
         H = otf
         win = patches.shape[-1]  # the scheme's window, or larger where the PSF outgrows it
         conv = lambda x, F: torch.fft.irfft2(torch.fft.rfft2(x) * F, s=(win, win))  # noqa: E731
+        Hc = H.conj().resolve_conj()  # once: a conj view is resolved again by every product
         u = torch.full_like(patches, 0.5)  # scikit-image's starting point
         for _ in range(iterations):
             ratio = patches / conv(u, H).clamp_min(eps)
-            u = u * conv(ratio, H.conj())
+            u = u * conv(ratio, Hc)
         return u
 
     return apply_windowed(observed, psf, rl, scheme=scheme, optical_center=optical_center, region=region,

@@ -67,7 +67,7 @@ def tikhonov_windowed(observed: torch.Tensor, psf: PSFProvider, *, weight: float
         spec = torch.fft.rfft2(patches)
         dc = spec[..., 0, 0].clone()
         G = (H.real.square() + H.imag.square() + weight).clamp_min_(tiny)
-        out = spec.mul_(H.conj()).div_(G)
+        out = spec.mul_(H.conj().resolve_conj()).div_(G)
         out[..., 0, 0] = dc  # the window's mean passes as it is
         return out  # spectrum: apply_windowed inverse transforms only the core
 

@@ -67,7 +67,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
                     read_noise_var: float = 0.0, rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
-                    pixel_stats: int = WIENER_PIXEL_STATS_PX) -> torch.Tensor:
+                    pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool = False) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with Poisson noise.
 
     ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
@@ -126,7 +126,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         out = torch.fft.rfft2(patches)
         dc = mu[..., 0, 0] * (win * win)  # the local mean's DC term: filter y - mu, then add mu back
         out[..., 0, 0] -= dc
-        out.mul_(H.conj())
+        out.mul_(H.conj().resolve_conj())  # a conj view broadcast over the channels is ~2x slower (measured)
         torch.view_as_real(out).mul_(G[..., None])  # the real G scales both parts: no complex copy of G
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
@@ -157,7 +157,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         spec = torch.fft.rfft2(patches)
         dc = mu[..., 0, 0] * (win * win)
         spec[..., 0, 0] -= dc
-        spec.mul_(H.conj())
+        spec.mul_(H.conj().resolve_conj())
         out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
         for j, level in enumerate(WIENER_PIXEL_LEVELS):
             G = torch.div(P, (HP + noise / (sx * level)).clamp_min_(tiny))
@@ -175,7 +175,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         return full
 
     return apply_windowed(observed, psf, restore_per_pixel if local == "pixel" else restore, scheme=scheme,
-                          optical_center=optical_center, region=region, chunk=chunk, progress=progress)
+                          optical_center=optical_center, region=region, chunk=chunk, progress=progress, fit=fit)
 
 
 def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, optical_center=None, region=None,
