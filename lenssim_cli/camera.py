@@ -319,7 +319,7 @@ def cmd_simulate(args) -> int:
         args.iso = (DEFAULT_ISO if DEFAULT_ISO in table.isos or not table.isos else table.isos[0]) \
             if args.iso is None else args.iso
         fwc = _iso_well(table, args.iso, args)
-    scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows == "fitted")
+    scheme = WindowScheme(*args.scheme, anchor=args.window_grid, fit=args.blur_windows in ("zoned", "fitted"))
     if args.rl is not None and not 1 <= args.rl <= MAX_RL_ITERATIONS:  # as richardson_lucy:iterations=N is checked
         raise ValueError(f"--rl {args.rl} is not allowed: a number of Richardson-Lucy iterations from 1 to "
                          f"{MAX_RL_ITERATIONS} (leave --rl out for none)")
@@ -351,6 +351,13 @@ def cmd_simulate(args) -> int:
     args.chain = chain
     size = _crop_size(args, ideal, source)
     geometry = psf.geometry
+    # the blur's windows: coarser where the blurring lens's PSF varies slowly (--blur-windows zoned)
+    args.zones = None
+    if args.blur_windows == "zoned":
+        from pipeline.blur import choose_stride_zones
+
+        args.zones = choose_stride_zones(psf if built is None else built, ideal.shape, scheme)
+        args.zones = None if args.zones.uniform else args.zones
     if getattr(args, "at_pixels", None):  # crops centred at the given pixels (moved inside at the edges)
         from pipeline.simulate import crop_at_pixel
 
@@ -369,7 +376,7 @@ def cmd_simulate(args) -> int:
         ideal = ideal.load()
     report = {"source": source, **meta, "iso": args.iso, "full_well_electrons": fwc, "seed": args.seed,
               "scheme_window_stride_core": list(args.scheme), "window_grid": args.window_grid,
-              "blur_windows": args.blur_windows,
+              "blur_windows": args.blur_windows, **_zones_report(args),
               "methods": list(methods), "restorations": [r.to_dict() for r in specs], "restored_method": methods[0],
               **_chain_report(chain, _sensor(psf))}
     if lens_file is None:
@@ -397,6 +404,7 @@ def cmd_simulate(args) -> int:
         else:
             with _window_bar("blur + restore crops") as bar:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
+                                         blur_zones=args.zones,
                                          sensor=_sensor(psf), progress=bar.update, chain=chain)
         report["crops"] = []
         for i, (a, r) in enumerate(zip(angles, results)):
@@ -429,6 +437,14 @@ def cmd_simulate(args) -> int:
     print(f"wrote {out}/ (index.html, crop PNGs, mosaic.png, metrics.json) in {time.perf_counter() - t0:.0f} s",
           file=sys.stderr)
     return 0
+
+
+def _zones_report(args) -> dict:
+    """The blur's stride zones for metrics.json (absent at the scheme's stride everywhere)."""
+    from pipeline.blur import BLUR_ZONE_TOL_DB
+
+    z = getattr(args, "zones", None)
+    return {} if z is None else {"blur_zones": {**z.to_dict(), "tolerance_db": BLUR_ZONE_TOL_DB}}
 
 
 def _crop_tag(entry: dict) -> str:
@@ -480,6 +496,7 @@ def _as_built_crops(ideal, nominal, built, fwc, boxes, args, specs, scheme, came
     from pipeline import simulate_crops
 
     runs = {tag: simulate_crops(ideal, built, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
+                                blur_zones=args.zones,
                                 sensor=camera.sensor, restoration_psf=prov, chain=args.chain)
             for tag, prov in (("nominal", nominal), ("calibrated", built))}
     results = runs["nominal"]
@@ -586,9 +603,10 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     blur, restorers = (psf, None) if built is None else (built, {"nominal": psf, "calibrated": built})
     n = window_count(ideal.shape, scheme)
     checkpoint = out / ".checkpoint"
-    passes = 1 + (1 if restorers is None else len(restorers))
-    with tqdm(total=passes * n, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
-        frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update,
+    passes = 1 if restorers is None else len(restorers)
+    total = passes * n + window_count(ideal.shape, scheme, zones=args.zones)
+    with tqdm(total=total, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
+        frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update, blur_zones=args.zones,
                                checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers,
                                chain=args.chain)
     if getattr(args, "raw_out", False):
@@ -721,9 +739,10 @@ def cmd_psnr_table(args) -> int:
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
                                          sensor=camera.sensor, restoration_psf=nominal, progress=bar.update,
-                                         chain=chain)
+                                         chain=chain, blur_zones="auto")
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
-                                                                  methods=(spec,), sensor=camera.sensor, chain=chain)
+                                                                  methods=(spec,), sensor=camera.sensor, chain=chain,
+                                                                  blur_zones="auto")
             for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
@@ -741,7 +760,7 @@ def cmd_psnr_table(args) -> int:
             name = lens_label(ns)
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,), sensor=psf.sensor,
-                                         progress=bar.update, chain=chain)
+                                         progress=bar.update, chain=chain, blur_zones="auto")
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, "lens_file": ns.lens,
@@ -848,10 +867,14 @@ def register(sub) -> None:
     p.add_argument("--window-grid", choices=WINDOW_ANCHORS, default=PAPER_SCHEME.anchor,
                    help="where the windows lie: 'axis' (symmetric about the optical axis, one PSF per mirror group "
                         "of up to 8 windows; default) or 'origin' (from pixel 0, the first version's grid)")
-    p.add_argument("--blur-windows", choices=("fitted", "full"), default="fitted",
-                   help="'fitted' (default): each blur window's transform sized to the local PSF's support plus the "
-                        "core, the same result to 1e-4 of the signal at a fraction of the cost; 'full': every blur "
-                        "window WINDOW px (the paper's transforms). Restoration always uses WINDOW px")
+    p.add_argument("--blur-windows", choices=("zoned", "fitted", "full"), default="zoned",
+                   help="'zoned' (default): fitted, and twice the stride and core where the PSF varies slowly enough "
+                        "(an estimated interpolation error of at most -55 dB for the paper's image model; the blurred "
+                        "frame 75+ dB from the stride's everywhere, docs/performance.md); 'fitted': each window's "
+                        "transform sized to the local PSF's support plus the core (the same result to 1e-4 of the "
+                        "signal at a fraction of the cost) at the scheme's stride everywhere; 'full': every window "
+                        "WINDOW px (the paper's transforms). The Wiener restoration's windows are fitted likewise "
+                        "(except with 'full'); its stride is always the scheme's")
     p.add_argument("--angles", type=float, nargs="+", default=None,
                    help=f"crop field angles (deg); default {' '.join(f'{a:g}' for a in DEFAULT_ANGLES_DEG)}, those of them "
                         "that fit the photo (else evenly from the axis to the largest that fits)")

@@ -408,9 +408,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
 
     def show_photo(photo, source, name):
         """Show ``photo`` (its caches dropped, the crop back at the centre)."""
-        explorer.photo, explorer.photo_source = photo, source
-        for k in ("photo", "lab", "field"):
-            explorer._caches.pop(k, None)
+        explorer.set_photo(photo, source)
         state["center"], state["photo"] = None, name
         draw_overview()
         update_photo()

@@ -29,12 +29,13 @@ PAPER_FIG8_ANGLES = PAPER_FIG8_ANGLES_DEG
 
 def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
             rms_w: Design = PAPER_DESIGNS["rms_w_paper"], e2e: Design = PAPER_DESIGNS["end_to_end_paper"],
-            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method="wiener", chain=None
-            ) -> tuple[Path, list[dict]]:
+            angles=PAPER_FIG8_ANGLES, crop: int = 128, seed: int = 0, method="wiener", chain=None,
+            blur_zones="auto") -> tuple[Path, list[dict]]:
     """The mosaic for ``camera`` with a conventional (``rms_w``) and an end-to-end (``e2e``) design,
     restored with ``method`` (a name, ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`);
     writes ``fig8_mosaic.png`` and ``.svg`` in ``out_dir``. ``chain`` (a :class:`pipeline.camera_chain.CameraChain`)
-    runs the camera chain; its sensor's ISO table then sets the full wells (:func:`chain_isos`)."""
+    runs the camera chain; its sensor's ISO table then sets the full wells (:func:`chain_isos`). ``blur_zones``: as
+    :func:`pipeline.simulate.simulate_crops` takes it (default ``"auto"``, as ``lenssim simulate``)."""
     spec = Restoration.of(method)
     method = spec.name
     boxes = [crop_at_field_angle(ideal.shape, a, crop, camera.geometry) for a in angles]
@@ -44,9 +45,10 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
     low_noise = isos[-1]
     well = table.full_well_for_iso
     runs = {("rms_w", low_noise): simulate_crops(ideal, LensPSF(camera, rms_w), well(low_noise), boxes, seed=seed,
-                                                 methods=(spec,), sensor=camera.sensor, chain=chain)}
+                                                 methods=(spec,), sensor=camera.sensor, chain=chain,
+                                                 blur_zones=blur_zones)}
     per_iso = simulate_crops(ideal, LensPSF(camera, e2e), [well(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=camera.sensor, chain=chain)
+                             methods=(spec,), sensor=camera.sensor, chain=chain, blur_zones=blur_zones)
     runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
     cols = [("ideal", img(("e2e", low_noise), "ideal"), None),
@@ -70,12 +72,13 @@ def chain_isos(sensor, preferred) -> tuple[int, ...]:
 
 
 def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: int = 128, seed: int = 0,
-                method="wiener", isos=None, sensor=None, chain=None) -> tuple[Path, list[dict]]:
+                method="wiener", isos=None, sensor=None, chain=None, blur_zones="auto") -> tuple[Path, list[dict]]:
     """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
     :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
     restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
     default the provider's), one row per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).
-    Writes ``lens_mosaic.png`` and ``.svg`` in ``out_dir``; returns the PNG's path and a row per restored tile."""
+    Writes ``lens_mosaic.png`` and ``.svg`` in ``out_dir``; returns the PNG's path and a row per restored tile.
+    ``blur_zones``: as for :func:`figure8`."""
     spec = Restoration.of(method)
     method = spec.name
     sensor = psf.sensor if sensor is None else sensor
@@ -84,7 +87,7 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
     table = sensor if chain is None else chain.sensor
     isos = chain_isos(table, isos)
     per_iso = simulate_crops(ideal, psf, [table.full_well_for_iso(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=sensor, chain=chain)
+                             methods=(spec,), sensor=sensor, chain=chain, blur_zones=blur_zones)
     runs = {(label, iso): res for iso, res in zip(isos, per_iso)}
     first = runs[(label, isos[0])]
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731

@@ -43,7 +43,8 @@ from .checks import check_image, check_provider
 
 __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "axis_positions", "scheme_positions",
            "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "grown_window",
-           "window_sizes", "largest_window", "fold_psf",
+           "window_sizes", "largest_window", "fold_psf", "StrideZones", "choose_stride_zones",
+           "interpolation_error_db", "BLUR_ZONE_TOL_DB",
            "apply_windowed", "blur_windowed", "box_mean", "blur_exact"]
 
 
@@ -58,8 +59,8 @@ MAX_WINDOW_PX = 4096
 @dataclass(frozen=True)
 class WindowScheme:
     """Local-convolution windows: ``window`` (px, even), centre ``stride`` (px), blended ``core`` (px), the
-    grid's ``anchor`` (one of :data:`WINDOW_ANCHORS`) and ``fit``: the blur's transforms sized to the local PSF
-    (see :func:`blur_windowed`; restoration always works on ``window`` px)."""
+    grid's ``anchor`` (one of :data:`WINDOW_ANCHORS`) and ``fit``: the blur's and the Wiener restoration's transforms
+    sized to the local PSF (see :func:`blur_windowed`; the other restorations work on ``window`` px)."""
 
     window: int = 512
     stride: int = 32
@@ -116,10 +117,13 @@ def scheme_positions(length: int, scheme: WindowScheme, center: float) -> torch.
     return axis_positions(length, scheme.stride, scheme.core, center)
 
 
-def window_count(shape, scheme: WindowScheme | None = None, optical_center=None) -> int:
-    """Number of windows over an image of ``shape`` ``(..., H, W)`` (one pass of :func:`apply_windowed`)."""
+def window_count(shape, scheme: WindowScheme | None = None, optical_center=None, zones=None) -> int:
+    """Number of windows over an image of ``shape`` ``(..., H, W)`` (one pass of :func:`apply_windowed`; with
+    ``zones``, a blur zoned by :class:`StrideZones`)."""
     scheme = scheme or PAPER_SCHEME
     cy, cx = optical_center if optical_center is not None else frame_center(shape)
+    if zones is not None and not zones.uniform:
+        return int(_zoned_positions(shape, scheme, (cy, cx), None, zones)[0].numel())
     return len(scheme_positions(shape[-2], scheme, cy)) * len(scheme_positions(shape[-1], scheme, cx))
 
 
@@ -345,9 +349,136 @@ class _WindowOTFs:
         return otf[:, None, None] if otf.ndim == 3 else otf[:, None]
 
 
+BLUR_ZONE_TOL_DB = 55.0
+"""The interpolation error a coarser blur stride may make (:func:`choose_stride_zones`): the RMS difference between
+the bilinear blend of four windows' PSFs and the PSF at the centre of their cell, convolved with a unit-variance image
+of the paper's image model (``rho0^|r|``), at most ``10^(-55/20)`` = 1.8e-3. The estimate is a worst case: a real
+photo has a tenth of that variance and less high-frequency content. Measured on the 24 MP forest photo with the paper's
+E2E design, a blur zoned at this bound (stride 64 beyond ~350 px from the axis) is 81-95 dB from one PSF per pixel and
+80+ dB from the paper's stride-32 blur (docs/performance.md)."""
+ZONE_MULTIPLES = (1, 2)
+"""Stride multiples a zone may take (the scheme's stride and core times each)."""
+ZONE_SAMPLES = 24
+"""Radii (from the axis to the frame's corners) at which the interpolation error is estimated."""
+ZONE_RADII_PER_BATCH = 4
+"""Radii whose PSFs (five each, float64) are computed together when estimating the error (~42 MB at 512 px)."""
+
+
+@dataclass(frozen=True)
+class StrideZones:
+    """Blur window strides by distance from the optical axis: the radii ``edges_px`` (increasing) split the frame into
+    ``len(edges_px) + 1`` rings; ring ``k`` takes windows of stride ``multiples[k] * scheme.stride`` and core
+    ``multiples[k] * scheme.core`` on the axis-anchored grid (a coarser grid's positions are the finer one's every
+    ``m``-th). A window is used where its tent reaches into its ring; where two rings' windows meet, a pixel's value
+    is the normalised blend of both (:func:`apply_windowed`)."""
+
+    edges_px: tuple[float, ...]
+    multiples: tuple[int, ...]
+
+    def __post_init__(self):
+        if len(self.multiples) != len(self.edges_px) + 1 or not all(isinstance(m, int) and m >= 1
+                                                                     for m in self.multiples):
+            raise ValueError(f"stride zones {self.multiples} / {self.edges_px}: one multiple (an integer >= 1) per "
+                             "ring, one ring more than edges")
+        if list(self.edges_px) != sorted(self.edges_px):
+            raise ValueError(f"stride zone edges {self.edges_px} are not increasing")
+
+    @property
+    def uniform(self) -> bool:
+        return set(self.multiples) == {1}
+
+    def to_dict(self) -> dict:
+        return {"edges_px": [round(float(e), 3) for e in self.edges_px], "multiples": list(self.multiples)}
+
+
+def interpolation_error_db(psf: PSFProvider, scheme: WindowScheme, multiple: int, radii_px, optical_center, *,
+                           n: int | None = None, rho0: float = 0.97, azimuth_deg: float = 45.0) -> torch.Tensor:
+    """The estimated blur interpolation error (dB, :data:`BLUR_ZONE_TOL_DB`'s measure) of windows at ``multiple``
+    times the scheme's stride, at the centre of a window cell whose centre lies ``radii_px`` from the axis at
+    ``azimuth_deg`` (from the rows' direction; default the diagonal): ``-10 log10`` of the variance of ``(mean of the
+    cell corners' PSFs - the centre's PSF) * x`` for a unit-variance ``x`` of the image model with ``rho0`` (summed
+    over the spectrum with :func:`lenssim.image_psd`), the worst channel's."""
+    from lenssim import image_psd
+
+    n = scheme.window if n is None else n
+    s = multiple * scheme.stride
+    r = torch.as_tensor(radii_px, dtype=torch.float64).reshape(-1)
+    cy, cx = optical_center
+    a = math.radians(azimuth_deg)
+    py, px = cy + r * math.sin(a), cx + r * math.cos(a)
+    off = torch.tensor([[-1, -1], [-1, 1], [1, -1], [1, 1], [0, 0]], dtype=torch.float64) * (s / 2)
+    P = image_psd(n, rho0, dtype=torch.float64)
+    P = P / P.mean()
+    var = []
+    for k in range(0, r.numel(), ZONE_RADII_PER_BATCH):  # 5 float64 PSFs per radius: a few at a time
+        ys = (py[k:k + ZONE_RADII_PER_BATCH, None] + off[None, :, 0]).reshape(-1)
+        xs = (px[k:k + ZONE_RADII_PER_BATCH, None] + off[None, :, 1]).reshape(-1)
+        p = psf.psf_at_pixels(ys, xs, (cy, cx), n, centered=False, dtype=torch.float64)
+        p = p.reshape(-1, 5, *(p.shape[1:-2] or (1,)), n, n)  # (R, 5, 1 or C, n, n)
+        d = p[:, :4].mean(dim=1) - p[:, 4]
+        var.append((torch.fft.fft2(d).abs().square() * P).mean(dim=(-2, -1)).amax(dim=-1))
+    return -10 * torch.log10(torch.cat(var).clamp_min(1e-300))
+
+
+def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, optical_center=None, *,
+                        tol_db: float = BLUR_ZONE_TOL_DB) -> StrideZones:
+    """Rings of blur stride for a frame of ``shape`` ``(..., H, W)``: at :data:`ZONE_SAMPLES` radii from the axis to
+    the frame's corners, the coarsest of :data:`ZONE_MULTIPLES` whose :func:`interpolation_error_db` is at least
+    ``tol_db`` there and at both neighbouring samples (the ring's edges halfway between samples), along the diagonal
+    for a rotationally symmetric lens (``mirror_symmetric``), else the worst of eight azimuths. The paper's single
+    stride where none is coarse enough, or for the ``"origin"`` anchor."""
+    scheme = scheme or PAPER_SCHEME
+    if scheme.anchor != "axis" or max(ZONE_MULTIPLES) == 1:
+        return StrideZones((), (1,))
+    center = optical_center if optical_center is not None else frame_center(shape)
+    H, W = shape[-2:]
+    corner = max(math.hypot(a, b) for a in (center[0], H - 1 - center[0]) for b in (center[1], W - 1 - center[1]))
+    radii = torch.linspace(0.0, corner, ZONE_SAMPLES, dtype=torch.float64)  # cells reach s/sqrt(2) px beyond
+    best = torch.ones(ZONE_SAMPLES, dtype=torch.int64)
+    for m in sorted(ZONE_MULTIPLES)[1:]:
+        if m * scheme.core > scheme.window:
+            break
+        azimuths = (45.0,) if psf.mirror_symmetric else tuple(22.5 + 45.0 * k for k in range(8))
+        err = torch.stack([interpolation_error_db(psf, scheme, m, radii, center, azimuth_deg=az) for az in azimuths])
+        ok = err.amin(dim=0) >= tol_db
+        ok = ok & torch.cat([ok[:1], ok[:-1]]) & torch.cat([ok[1:], ok[-1:]])  # and at both neighbours
+        best = torch.where(ok, torch.full_like(best, m), best)
+    edges, mults = [], [int(best[0])]
+    for i in range(1, ZONE_SAMPLES):
+        if int(best[i]) != mults[-1]:
+            edges.append(float(radii[i - 1] + radii[i]) / 2)
+            mults.append(int(best[i]))
+    return StrideZones(tuple(edges), tuple(mults))
+
+
+def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZones | None):
+    """Window positions ``(Y, X)`` (px, float64) and each one's core (px, int64) over ``region``: one grid, or with
+    ``zones`` each ring's grid, a window kept where its tent reaches into its ring."""
+    if zones is None or zones.uniform or scheme.anchor != "axis":
+        py, px = _region_positions(shape, scheme, center, region)
+        Y, X = torch.meshgrid(py, px, indexing="ij")
+        return Y.flatten(), X.flatten(), torch.full((Y.numel(),), scheme.core, dtype=torch.int64)
+    edges = (0.0,) + tuple(zones.edges_px) + (math.inf,)
+    Ys, Xs, Cs = [], [], []
+    for k, m in enumerate(zones.multiples):
+        sub = WindowScheme(scheme.window, m * scheme.stride, m * scheme.core, scheme.anchor, scheme.fit)
+        py, px = _region_positions(shape, sub, center, region)
+        Y, X = torch.meshgrid(py, px, indexing="ij")
+        Y, X = Y.flatten(), X.flatten()
+        h = sub.core / 2
+        ady, adx = (Y - center[0]).abs(), (X - center[1]).abs()
+        rmin = torch.hypot((ady - h).clamp_min(0), (adx - h).clamp_min(0))
+        rmax = torch.hypot(ady + h, adx + h)
+        keep = (rmax > edges[k]) & (rmin < edges[k + 1])
+        Ys.append(Y[keep])
+        Xs.append(X[keep])
+        Cs.append(torch.full((int(keep.sum()),), sub.core, dtype=torch.int64))
+    return torch.cat(Ys), torch.cat(Xs), torch.cat(Cs)
+
+
 def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowScheme = PAPER_SCHEME,
                    optical_center=None, region=None, chunk: int | None = None, progress=None,
-                   fit: bool = False, pedestal: bool = False) -> torch.Tensor:
+                   fit: bool = False, pedestal: bool = False, zones: StrideZones | None = None) -> torch.Tensor:
     """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
     ``patches`` is ``(k, B, C, w, w)`` (image rows ``y - w/2 .. y + w/2 - 1`` around each window's pixel
@@ -362,7 +493,8 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must take the size
     from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
     on the ``window`` grid (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
-    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px).
+    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px). ``zones``
+    (:class:`StrideZones`): windows of a coarser stride and core in the rings it names (the scheme's elsewhere).
     """
     check_image(image)
     check_provider(psf)
@@ -371,48 +503,55 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
         raise ValueError(f"the PSF provider has {psf.channels} channels and the image {C}: expected 1 or {C}")
     center = optical_center if optical_center is not None else frame_center(image.shape)
     r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    win, core = scheme.window, scheme.core
-    py, px = _region_positions(image.shape, scheme, center, region)
+    win = scheme.window
+    Y, X, cores = _zoned_positions(image.shape, scheme, center, region, zones)  # positions (px, float64), cores
+    core = int(cores.max()) if cores.numel() else scheme.core  # the accumulators' margin: the largest core
     # each window's patch and core sit on the pixel ceil(position); along an axis the positions are evenly
     # spaced from the optical centre, so every window lies the same fraction of a pixel before its pixel
-    shift_y = float(torch.ceil(py[0]) - py[0]) if py.numel() else 0.0
-    shift_x = float(torch.ceil(px[0]) - px[0]) if px.numel() else 0.0
-    Y, X = torch.meshgrid(py, px, indexing="ij")
-    Y, X = Y.flatten(), X.flatten()  # window positions (px, float64): where each PSF is evaluated
+    shift_y = float(torch.ceil(Y[0]) - Y[0]) if Y.numel() else 0.0
+    shift_x = float(torch.ceil(X[0]) - X[0]) if X.numel() else 0.0
     # the origin grid has (almost) no mirror pairs: it keeps the first version's order of work, bit for bit
     symmetric = scheme.anchor == "axis" and bool(psf.mirror_symmetric)
     # each window's support, asked once: its size (the scheme's, fitted, or grown where the PSF outgrows it)
-    sizes = window_sizes(_extents(psf, Y, X, center, symmetric), scheme, fit)
+    extents = _extents(psf, Y, X, center, symmetric)
+    sizes = torch.zeros_like(extents)
+    for c in torch.unique(cores).tolist():
+        sel = cores == c
+        sub = WindowScheme(win, scheme.stride if c == scheme.core else c // 2, c, scheme.anchor, scheme.fit)
+        sizes[sel] = window_sizes(extents[sel], sub, fit)
     pad = max([win] + sizes.tolist()) // 2 + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
     wsum = torch.zeros(H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
-    tent2 = (tent_weights(core, image.dtype, shift_y)[:, None] * tent_weights(core, image.dtype, shift_x)[None, :]).to(image.device)
+    tents = {c: (tent_weights(c, image.dtype, shift_y)[:, None] * tent_weights(c, image.dtype, shift_x)[None, :]
+                 ).to(image.device) for c in torch.unique(cores).tolist()}
     for w in torch.unique(sizes).tolist():
-        sel = sizes == w
         hw = w // 2
         k_chunk = chunk if chunk is not None else window_chunk(image, w)
         otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=max(w, win),
                            pedestal=win if pedestal else None)
-        for gy, gx in otfs.chunks(Y[sel], X[sel], max(PSF_BATCH, k_chunk)):
-            group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
-            for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
-                ys, xs, otf = gy[k:k + k_chunk], gx[k:k + k_chunk], group_otf[k:k + k_chunk]
-                anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(), torch.ceil(xs).to(torch.int64).tolist()))
-                patches = torch.stack([padded[:, :, y + pad - hw: y + pad + hw, x + pad - hw: x + pad + hw]
-                                       for y, x in anchors])  # (k, B, C, w, w)
-                res = op(patches, otf)
-                if res.is_complex():
-                    cores = core_irfft2(res, w, core)
-                else:
-                    cores = res[..., hw - core // 2: hw + core // 2, hw - core // 2: hw + core // 2]
-                for j, (y, x) in enumerate(anchors):
-                    sl = (slice(y + core - core // 2, y + core + core // 2),
-                          slice(x + core - core // 2, x + core + core // 2))
-                    out[:, :, sl[0], sl[1]] += cores[j] * tent2
-                    wsum[sl[0], sl[1]] += tent2
-                if progress is not None:
-                    progress(len(ys))
+        for c in torch.unique(cores[sizes == w]).tolist():
+            sel = (sizes == w) & (cores == c)
+            tent2 = tents[c]
+            for gy, gx in otfs.chunks(Y[sel], X[sel], max(PSF_BATCH, k_chunk)):
+                group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
+                for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
+                    ys, xs, otf = gy[k:k + k_chunk], gx[k:k + k_chunk], group_otf[k:k + k_chunk]
+                    anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(),
+                                       torch.ceil(xs).to(torch.int64).tolist()))
+                    patches = torch.stack([padded[:, :, y + pad - hw: y + pad + hw, x + pad - hw: x + pad + hw]
+                                           for y, x in anchors])  # (k, B, C, w, w)
+                    res = op(patches, otf)
+                    if res.is_complex():
+                        cores_k = core_irfft2(res, w, c)
+                    else:
+                        cores_k = res[..., hw - c // 2: hw + c // 2, hw - c // 2: hw + c // 2]
+                    for j, (y, x) in enumerate(anchors):
+                        sl = (slice(y + core - c // 2, y + core + c // 2), slice(x + core - c // 2, x + core + c // 2))
+                        out[:, :, sl[0], sl[1]] += cores_k[j] * tent2
+                        wsum[sl[0], sl[1]] += tent2
+                    if progress is not None:
+                        progress(len(ys))
     out = out[:, :, core:core + H, core:core + W]
     wsum = wsum[core:core + H, core:core + W]
     result = torch.zeros_like(image)
@@ -430,7 +569,8 @@ def _extents(psf: PSFProvider, Y, X, center, symmetric: bool) -> torch.Tensor:
 
 
 def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme = PAPER_SCHEME,
-                  optical_center=None, region=None, chunk: int | None = None, progress=None) -> torch.Tensor:
+                  optical_center=None, region=None, chunk: int | None = None, progress=None,
+                  zones: StrideZones | None = None) -> torch.Tensor:
     """Blur ``image`` ``(B, C, H, W)`` with the spatially-variant PSF of the provider ``psf``.
 
     ``region = (r0, r1, c0, c1)`` computes only those output pixels (others are zero), using only
@@ -440,13 +580,14 @@ def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme
     most ``scheme.window``; see :func:`apply_windowed`), the PSF still computed on the ``window`` grid and folded
     onto it: a core then differs from the ``window``-sized one only where the PSF's far diffraction tail wraps
     (1e-4 of the signal and less; the same > 70 dB against one PSF per pixel), at a fraction of the cost near
-    the axis. ``fit=False``: every window ``scheme.window`` px (the paper's transforms).
+    the axis. ``fit=False``: every window ``scheme.window`` px (the paper's transforms). ``zones``
+    (:class:`StrideZones`, e.g. :func:`choose_stride_zones`'s): coarser windows where the PSF varies slowly.
     """
     def convolve(patches, otf):
         return torch.fft.rfft2(patches).mul_(otf)
 
     out = apply_windowed(image, psf, convolve, scheme=scheme, optical_center=optical_center, region=region,
-                         chunk=chunk, progress=progress, fit=scheme.fit, pedestal=True)
+                         chunk=chunk, progress=progress, fit=scheme.fit, pedestal=True, zones=zones)
     fractions = psf.pedestal_fractions(scheme.window)
     if any(fractions):
         out = _add_box_mean(out, image, scheme.window, fractions, region)

@@ -36,7 +36,7 @@ from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
 from lenssim.io.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
-from .blur import PAPER_SCHEME, WindowScheme, blur_windowed, largest_window, window_count
+from .blur import PAPER_SCHEME, StrideZones, WindowScheme, blur_windowed, choose_stride_zones, largest_window, window_count
 from .camera_chain import CameraChain, PlanePSF
 from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import expose, read_noise_variance
@@ -170,11 +170,28 @@ def check_methods(methods, method_options: dict | None = None, scheme: WindowSch
     return out
 
 
+def resolve_blur_zones(blur_zones, psf: PSFProvider, shape, scheme: WindowScheme) -> StrideZones | None:
+    """``blur_zones`` as :class:`pipeline.blur.StrideZones` (``"auto"``: chosen for a frame of ``shape``), or None for
+    the scheme's stride everywhere (also when the choice is that)."""
+    if blur_zones is None:
+        return None
+    if isinstance(blur_zones, str):
+        if blur_zones != "auto":
+            raise ValueError(f"blur_zones={blur_zones!r} is not allowed: 'auto', None or a StrideZones")
+        blur_zones = choose_stride_zones(psf, shape, scheme)
+    if not isinstance(blur_zones, StrideZones):
+        raise ValueError(f"blur_zones is a {type(blur_zones).__name__}: expected 'auto', None or a StrideZones")
+    if max(blur_zones.multiples) * scheme.core > scheme.window:
+        raise ValueError(f"blur zones {blur_zones.multiples}: a core of {max(blur_zones.multiples) * scheme.core} px "
+                         f"is more than the {scheme.window}-px window")
+    return None if blur_zones.uniform else blur_zones
+
+
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
                    sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
                    restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None,
-                   blur_cache: dict | None = None):
+                   blur_cache: dict | None = None, blur_zones: StrideZones | str | None = None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
     where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
@@ -196,6 +213,9 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     there under the blur provider, the box, the window scheme, the working precision and the chain's colour matrix
     and pixel aperture, and taken from there by a later call with the same ones (a new ISO, seed, chain or restoration
     of the same crop then skips the blur). The caller keeps the photo unchanged while it keeps the dict.
+
+    ``blur_zones``: the blur's windows coarser where the PSF varies slowly (:class:`pipeline.blur.StrideZones`, or
+    ``"auto"``: :func:`pipeline.blur.choose_stride_zones` for the frame; None: the scheme's stride everywhere).
     """
     if isinstance(ideal, Photo):  # read region by region (a photo too large to keep decodes only what it needs)
         shape, peak, read, out_dtype = ideal.shape, ideal.peak, ideal.region, ideal.dtype
@@ -205,7 +225,9 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
-    blur_key = (id(psf), scheme, dtype, None if chain is None else (chain.sensor.colour_matrix, chain.sensor.fill_factor))
+    zones = resolve_blur_zones(blur_zones, psf, shape, scheme)
+    blur_key = (id(psf), scheme, dtype, None if chain is None else (chain.sensor.colour_matrix, chain.sensor.fill_factor),
+                None if zones is None else zones)
     psf, restoration_psf = _with_pixel_aperture(chain, psf), _with_pixel_aperture(chain, restoration_psf)
     specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
@@ -229,7 +251,8 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         w = scheme.window
         while True:
             reach = replace(scheme, window=w)
-            m = max([reach.window // 2 + reach.core] + [r.margin(reach) for r in specs])
+            m = max([reach.window // 2 + reach.core * (1 if zones is None else max(zones.multiples))]
+                    + [r.margin(reach) for r in specs])
             near = (max(r0 - m, 0), min(r1 + m, H), max(c0 - m, 0), min(c1 + m, W))
             most = max(largest_window(p, shape, scheme, region=near) for p in providers)
             if most <= w:
@@ -258,7 +281,8 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         key = blur_key + ((R0, R1, C0, C1), br)
         blurred = None if blur_cache is None else blur_cache.get(key)
         if blurred is None:
-            blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress)
+            blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress,
+                                    zones=zones)
             if blur_cache is not None:
                 blur_cache[key] = blurred
         rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)
@@ -391,7 +415,8 @@ def _provider_key(psf: PSFProvider):
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
-                   restoration_psf: PSFProvider | dict | None = None, chain: CameraChain | None = None) -> FrameResult:
+                   restoration_psf: PSFProvider | dict | None = None, chain: CameraChain | None = None,
+                   blur_zones: StrideZones | str | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
     ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
     ``restoration_psf`` (default ``psf``).
@@ -415,6 +440,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
 
     ``chain`` (a :class:`pipeline.camera_chain.CameraChain`) runs the camera chain as :func:`simulate_crops` does: the
     checkpoint then holds its raw data (:attr:`FrameResult.raw`), developed again on resuming.
+
+    ``blur_zones``: as for :func:`simulate_crops` (the blur only; the restoration keeps the scheme's stride).
     """
     from .io import ImageFileError, read_image, write_image
 
@@ -431,9 +458,11 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
         raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
                          f"{ideal.shape[1]} channel(s)")
     seconds = {}
+    zones = resolve_blur_zones(blur_zones, psf, ideal.shape, scheme)
     pkey = _provider_key(psf)
     params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),
               **({} if chain is None else {"chain": chain.to_dict()}),
+              **({} if zones is None else {"blur_zones": zones.to_dict()}),
               "scheme": [scheme.window, scheme.stride, scheme.core, scheme.anchor, scheme.fit], "dtype": str(dtype),
               "shape": list(ideal.shape)}
     stamp_path = sensor_path = None
@@ -462,18 +491,18 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                         noisy = torch.empty(0)
                     if chain is not None and tuple(noisy.shape) == _raw_shape(ideal.shape, chain):
                         if progress is not None:
-                            progress(window_count(ideal.shape, scheme))
+                            progress(window_count(ideal.shape, scheme, zones=zones))
                         return _develop_frame(noisy.to(device=ideal.device, dtype=torch.float64), ideal, restoration_psf,
                                               method, chain, stamp["electrons_per_unit"], full_well, scheme, progress,
                                               seconds, dtype, resumed=True)
                     if chain is None and tuple(noisy.shape) == tuple(ideal.shape):
                         if progress is not None:
-                            progress(window_count(ideal.shape, scheme))
+                            progress(window_count(ideal.shape, scheme, zones=zones))
                         return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, restoration_psf, method, sensor,
                                               stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
     t0 = time.perf_counter()
     scene = ideal.to(dtype) if chain is None else chain.scene_to_camera(ideal.to(dtype))
-    blurred = blur_windowed(scene, psf, scheme=scheme, progress=progress)
+    blurred = blur_windowed(scene, psf, scheme=scheme, progress=progress, zones=zones)
     del scene
     seconds["blur"] = time.perf_counter() - t0
     t0 = time.perf_counter()

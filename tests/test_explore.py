@@ -73,8 +73,9 @@ def test_photo_panel_is_simulate_crops_and_caches(explorer):
     pc = PhotoControls(center=(200, 300), iso=400, seed=3)
     r = explorer.photo_panel(DesignControls(), pc)
     assert r["box"] == (72, 328, 172, 428)
-    (ref,) = simulate_crops(explorer.photo, explorer._provider(DesignControls()), 800.0, [r["box"]], seed=3,
-                            sensor=PAPER_CAMERA.sensor)
+    prov = explorer._provider(DesignControls())
+    (ref,) = simulate_crops(explorer.photo, prov.base, 800.0, [r["box"]], seed=3, sensor=PAPER_CAMERA.sensor,
+                            blur_zones="auto")
     assert r["scores"]["restored"] == ref.scores["wiener"]
     assert r["scores"]["restored"]["psnr_db"] > r["scores"]["sensor"]["psnr_db"]
     assert explorer.photo_panel(DesignControls(), pc) is r
@@ -209,3 +210,17 @@ def test_the_page_s_handlers_without_a_browser(explorer):
     assert app.panes["error"].visible and "cannot read photo 'mine.png'" in app.panes["error"].object
     app.widgets["glass"].value = "N-BK7"
     assert not app.panes["error"].visible
+
+
+def test_another_photo_of_the_same_size_is_blurred_afresh():
+    """A photo picked or uploaded after another of the same size: its crops are its own (the blurred regions kept for
+    the previous photo are dropped), equal to a fresh explorer's."""
+    g = torch.Generator().manual_seed(5)
+    a, b = (torch.rand(1, 3, 320, 320, generator=g) for _ in range(2))
+    pc = PhotoControls(seed=1)
+    ex = Explorer(photo=a, photo_source="a")
+    first = ex.photo_panel(DesignControls(), pc)["scores"]
+    ex.set_photo(b, "b")
+    again = ex.photo_panel(DesignControls(), pc)["scores"]
+    assert again != first
+    assert again == Explorer(photo=b, photo_source="b").photo_panel(DesignControls(), pc)["scores"]
