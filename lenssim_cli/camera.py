@@ -1,7 +1,7 @@
 """Camera-pipeline commands: simulate a photo through a design, PSNR tables, the Fig. 8 mosaic.
 
     lenssim simulate [PHOTO|skimage:NAME] (--design NAME | --s S --Q_back Q) [--iso 100 | --full-well E]
-                     [--angles 0 4 8 12] [--crop 256] [--seed 0] [--scheme 512 32 64] [--blur-windows fitted|full]
+                     [--angles 0 4 8 12] [--crop 256] [--seed 0] [--scheme 512 32 64] [--blur-windows zoned|fitted|full]
                      [--full-frame] --out DIR
 
 writes, for crops centred at the given field angles (along the frame diagonal), the ideal, sensor
