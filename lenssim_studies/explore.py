@@ -90,20 +90,10 @@ class _CachedPSF(DerivedPSF):
         self.base = base
         self._kept = _LRU(PSF_CACHE_REQUESTS)
         self.blurred = _LRU(BLUR_CACHE_REGIONS)
-        self._zones = {}
-
-    def zones_for(self, shape):
-        """The blur's stride zones over a frame of ``shape`` (:func:`pipeline.blur.choose_stride_zones`, once per
-        shape; None where the scheme's stride holds everywhere)."""
-        from pipeline.blur import PAPER_SCHEME
-        from pipeline.simulate import resolve_blur_zones
-
-        key = tuple(shape[-2:])
-        if key not in self._zones:
-            self._zones[key] = resolve_blur_zones("auto", self.base, shape, PAPER_SCHEME)
-        return self._zones[key]
 
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
+        if dtype == torch.float64:  # not the passes' (float32): e.g. the blur zones' estimate, ~40 MB a request
+            return self.base.psf_at_pixels(rows, cols, optical_center, n, centered=centered, dtype=dtype, device=device)
         key = (tuple(torch.as_tensor(rows).tolist()), tuple(torch.as_tensor(cols).tolist()),
                tuple(float(v) for v in optical_center), int(n), bool(centered), dtype, str(device))
         return self._kept.get_or(key, lambda: self.base.psf_at_pixels(rows, cols, optical_center, n,
@@ -512,7 +502,7 @@ class Explorer:
             prov = self._provider(controls)
             (r,) = simulate_crops(self._ideal(), prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
                                   sensor=self.sensor, chain=chain, blur_cache=prov.blurred,
-                                  blur_zones=prov.zones_for(self.photo_shape))
+                                  blur_zones="auto")
             name = r.methods[0]
             return {"box": box, "field_deg": r.field_deg,
                     "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
@@ -536,14 +526,14 @@ class Explorer:
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
             ra, rb = (simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(m,),
                                      sensor=self.sensor, chain=chain, blur_cache=nominal.blurred,
-                                     blur_zones=nominal.zones_for(self.photo_shape))[0]
+                                     blur_zones="auto")[0]
                       for m in (method_a, method_b))
             a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
             sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
             built = self._built_provider(controls, grade, lens_seed)
             runs = {tag: simulate_crops(self._ideal(), built, fw, [box], seed=pc.seed, methods=(pc.restore,),
                                         sensor=self.sensor, chain=chain, restoration_psf=prov,
-                                        blur_cache=built.blurred, blur_zones=built.zones_for(self.photo_shape))[0]
+                                        blur_cache=built.blurred, blur_zones="auto")[0]
                     for tag, prov in (("nominal", nominal), ("own", built))}
             out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
             for tag, r in runs.items():

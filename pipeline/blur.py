@@ -421,12 +421,16 @@ def interpolation_error_db(psf: PSFProvider, scheme: WindowScheme, multiple: int
 
 
 def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, optical_center=None, *,
-                        tol_db: float = BLUR_ZONE_TOL_DB) -> StrideZones:
+                        tol_db: float = BLUR_ZONE_TOL_DB, region=None) -> StrideZones:
     """Rings of blur stride for a frame of ``shape`` ``(..., H, W)``: at :data:`ZONE_SAMPLES` radii from the axis to
     the frame's corners, the coarsest of :data:`ZONE_MULTIPLES` whose :func:`interpolation_error_db` is at least
     ``tol_db`` there and at both neighbouring samples (the ring's edges halfway between samples), along the diagonal
     for a rotationally symmetric lens (``mirror_symmetric``), else the worst of eight azimuths. The paper's single
-    stride where none is coarse enough, or for the ``"origin"`` anchor."""
+    stride where none is coarse enough, or for the ``"origin"`` anchor.
+
+    ``region = (r0, r1, c0, c1)`` (the frame's pixels a blur computes, e.g. a crop's): only the samples whose rings
+    its windows can reach (two beyond on either side) are estimated; over the region the rings are the whole frame's,
+    so its blur is the same, for a fraction of the PSFs."""
     scheme = scheme or PAPER_SCHEME
     if scheme.anchor != "axis" or max(ZONE_MULTIPLES) == 1:
         return StrideZones((), (1,))
@@ -434,7 +438,17 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
     H, W = shape[-2:]
     corner = max(math.hypot(a, b) for a in (center[0], H - 1 - center[0]) for b in (center[1], W - 1 - center[1]))
     radii = torch.linspace(0.0, corner, ZONE_SAMPLES, dtype=torch.float64)  # cells reach s/sqrt(2) px beyond
-    best = torch.ones(ZONE_SAMPLES, dtype=torch.int64)
+    if region is not None:
+        reach = max(ZONE_MULTIPLES) * scheme.core  # a window touching the region: its tent this far beyond
+        r0, r1, c0, c1 = (region[0] - reach, region[1] + reach, region[2] - reach, region[3] + reach)
+        dy = (max(r0 - center[0], center[0] - r1, 0.0), max(abs(r0 - center[0]), abs(r1 - center[0])))
+        dx = (max(c0 - center[1], center[1] - c1, 0.0), max(abs(c0 - center[1]), abs(c1 - center[1])))
+        lo, hi = math.hypot(dy[0], dx[0]), math.hypot(dy[1], dx[1])
+        step = corner / (ZONE_SAMPLES - 1)
+        radii = radii[(radii >= lo - 2 * step) & (radii <= hi + 2 * step)]
+        if radii.numel() == 0:
+            return StrideZones((), (1,))
+    best = torch.ones(radii.numel(), dtype=torch.int64)
     for m in sorted(ZONE_MULTIPLES)[1:]:
         if m * scheme.core > scheme.window:
             break
@@ -444,7 +458,7 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
         ok = ok & torch.cat([ok[:1], ok[:-1]]) & torch.cat([ok[1:], ok[-1:]])  # and at both neighbours
         best = torch.where(ok, torch.full_like(best, m), best)
     edges, mults = [], [int(best[0])]
-    for i in range(1, ZONE_SAMPLES):
+    for i in range(1, radii.numel()):
         if int(best[i]) != mults[-1]:
             edges.append(float(radii[i - 1] + radii[i]) / 2)
             mults.append(int(best[i]))

@@ -36,7 +36,8 @@ from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
 from lenssim.io.files import atomic_write_text
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
-from .blur import PAPER_SCHEME, StrideZones, WindowScheme, blur_windowed, choose_stride_zones, largest_window, window_count
+from .blur import (PAPER_SCHEME, ZONE_MULTIPLES, StrideZones, WindowScheme, blur_windowed, choose_stride_zones,
+                   largest_window, window_count)
 from .camera_chain import CameraChain, PlanePSF
 from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .noise import expose, read_noise_variance
@@ -170,15 +171,16 @@ def check_methods(methods, method_options: dict | None = None, scheme: WindowSch
     return out
 
 
-def resolve_blur_zones(blur_zones, psf: PSFProvider, shape, scheme: WindowScheme) -> StrideZones | None:
-    """``blur_zones`` as :class:`pipeline.blur.StrideZones` (``"auto"``: chosen for a frame of ``shape``), or None for
-    the scheme's stride everywhere (also when the choice is that)."""
+def resolve_blur_zones(blur_zones, psf: PSFProvider, shape, scheme: WindowScheme, region=None) -> StrideZones | None:
+    """``blur_zones`` as :class:`pipeline.blur.StrideZones` (``"auto"``: chosen for a frame of ``shape``, estimated
+    only where ``region`` reaches if given), or None for the scheme's stride everywhere (also when the choice is
+    that)."""
     if blur_zones is None:
         return None
     if isinstance(blur_zones, str):
         if blur_zones != "auto":
             raise ValueError(f"blur_zones={blur_zones!r} is not allowed: 'auto', None or a StrideZones")
-        blur_zones = choose_stride_zones(psf, shape, scheme)
+        blur_zones = choose_stride_zones(psf, shape, scheme, region=region)
     if not isinstance(blur_zones, StrideZones):
         raise ValueError(f"blur_zones is a {type(blur_zones).__name__}: expected 'auto', None or a StrideZones")
     if max(blur_zones.multiples) * scheme.core > scheme.window:
@@ -225,9 +227,12 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
-    zones = resolve_blur_zones(blur_zones, psf, shape, scheme)
+    if blur_zones is not None and not (blur_zones == "auto" or isinstance(blur_zones, StrideZones)):
+        resolve_blur_zones(blur_zones, psf, shape, scheme)  # refused in one line, before any work
+    zones = None if blur_zones == "auto" else resolve_blur_zones(blur_zones, psf, shape, scheme)  # "auto": per crop
+    coarsest = max((zones or StrideZones((), (1,))).multiples + ((max(ZONE_MULTIPLES),) if blur_zones == "auto" else ()))
     blur_key = (id(psf), scheme, dtype, None if chain is None else (chain.sensor.colour_matrix, chain.sensor.fill_factor),
-                None if zones is None else zones)
+                blur_zones if isinstance(blur_zones, str) else zones)
     psf, restoration_psf = _with_pixel_aperture(chain, psf), _with_pixel_aperture(chain, restoration_psf)
     specs = check_methods(methods, method_options)
     several = not isinstance(full_well, (int, float))
@@ -251,7 +256,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         w = scheme.window
         while True:
             reach = replace(scheme, window=w)
-            m = max([reach.window // 2 + reach.core * (1 if zones is None else max(zones.multiples))]
+            m = max([reach.window // 2 + reach.core * coarsest]
                     + [r.margin(reach) for r in specs])
             near = (max(r0 - m, 0), min(r1 + m, H), max(c0 - m, 0), min(c1 + m, W))
             most = max(largest_window(p, shape, scheme, region=near) for p in providers)
@@ -281,8 +286,9 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         key = blur_key + ((R0, R1, C0, C1), br)
         blurred = None if blur_cache is None else blur_cache.get(key)
         if blurred is None:
-            blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress,
-                                    zones=zones)
+            z = zones if blur_zones != "auto" else resolve_blur_zones(  # over this crop's blur region only
+                "auto", psf, shape, scheme, region=(br[0] + R0, br[1] + R0, br[2] + C0, br[3] + C0))
+            blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress, zones=z)
             if blur_cache is not None:
                 blur_cache[key] = blurred
         rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)

@@ -91,6 +91,24 @@ def test_the_paper_lens_zones_and_the_zoned_blur_against_one_psf_per_pixel(e2e):
         assert db(zoned[inner], paper[inner]) > 70
 
 
+def test_zones_chosen_over_a_region_blur_it_as_the_frame_s_do(e2e):
+    """A crop's zones (estimated only where its windows reach) blur its region exactly as the whole frame's zones."""
+    shape = (1, 1, PAPER_SENSOR.height_px, PAPER_SENSOR.width_px)
+    frame = choose_stride_zones(e2e, shape)
+    H, W = shape[-2:]
+    r0, c0 = H // 2 - 300, W // 2 + 200  # a 400 px region across the first ring's edge
+    region = (r0, r0 + 400, c0, c0 + 400)
+    local = choose_stride_zones(e2e, shape, region=region)
+    assert local.multiples == (1, 2)  # the region crosses the first ring's edge
+    R0, C0 = r0 - 400, c0 - 400
+    img = torch.rand(1, 1, 1200, 1200, generator=torch.Generator().manual_seed(4))
+    oc = ((H - 1) / 2 - R0, (W - 1) / 2 - C0)
+    br = (400, 800, 400, 800)
+    a = blur_windowed(img, e2e, optical_center=oc, region=br, zones=frame)
+    b = blur_windowed(img, e2e, optical_center=oc, region=br, zones=local)
+    assert torch.equal(a, b)
+
+
 def test_a_zoned_blur_is_a_blend_of_local_convolutions():
     """With a delta PSF the zoned blur is the identity; with one Gaussian everywhere it equals the unzoned blur."""
     delta = FunctionPSF(lambda x, y, n: torch.zeros(len(x), n, n).index_put_(
