@@ -31,6 +31,8 @@ Tensor contract: ``(B, C, H, W)`` linear float in, same shape out.
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
@@ -453,7 +455,7 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
         if m * scheme.core > scheme.window:
             break
         azimuths = (45.0,) if psf.mirror_symmetric else tuple(22.5 + 45.0 * k for k in range(8))
-        err = torch.stack([interpolation_error_db(psf, scheme, m, radii, center, azimuth_deg=az) for az in azimuths])
+        err = torch.stack([_cached_errors(psf, scheme, m, radii, center, az) for az in azimuths])
         ok = err.amin(dim=0) >= tol_db
         ok = ok & torch.cat([ok[:1], ok[:-1]]) & torch.cat([ok[1:], ok[-1:]])  # and at both neighbours
         best = torch.where(ok, torch.full_like(best, m), best)
@@ -463,6 +465,42 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
             edges.append(float(radii[i - 1] + radii[i]) / 2)
             mults.append(int(best[i]))
     return StrideZones(tuple(edges), tuple(mults))
+
+
+ZONE_CACHE_ENTRIES = 4096
+"""Interpolation-error estimates kept in this process (by provider fingerprint, scheme, multiple, azimuth and radius):
+another crop, command or design asks only for the radii it has not seen."""
+_ZONE_ERRORS: OrderedDict = OrderedDict()
+_ZONE_LOCK = threading.Lock()
+
+
+def _cached_errors(psf: PSFProvider, scheme: WindowScheme, m: int, radii: torch.Tensor, center, az: float):
+    """:func:`interpolation_error_db` at ``radii``, each (radius, ...) estimated once per process for a provider with
+    a fingerprint (the estimate depends on the offsets from the axis only, not on where the axis is)."""
+    fp = getattr(psf, "fingerprint", None)
+    fp = fp() if callable(fp) else None
+    if fp is None:
+        return interpolation_error_db(psf, scheme, m, radii, center, azimuth_deg=az)
+    keys = [(fp, scheme.window, scheme.stride, m, az, round(float(r), 6)) for r in radii]
+    with _ZONE_LOCK:
+        missing = [i for i, k in enumerate(keys) if k not in _ZONE_ERRORS]
+    if missing:
+        values = interpolation_error_db(psf, scheme, m, radii[missing], center, azimuth_deg=az)
+        with _ZONE_LOCK:
+            for i, v in zip(missing, values.tolist()):
+                _ZONE_ERRORS[keys[i]] = v
+            while len(_ZONE_ERRORS) > ZONE_CACHE_ENTRIES:
+                _ZONE_ERRORS.popitem(last=False)
+    with _ZONE_LOCK:
+        out = []
+        for k in keys:
+            if k in _ZONE_ERRORS:
+                _ZONE_ERRORS.move_to_end(k)
+                out.append(_ZONE_ERRORS[k])
+            else:  # dropped meanwhile by another thread's entries: estimated again
+                out.append(float(interpolation_error_db(psf, scheme, m, torch.tensor([k[-1]]), center,
+                                                        azimuth_deg=az)[0]))
+    return torch.tensor(out, dtype=torch.float64)
 
 
 def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZones | None):

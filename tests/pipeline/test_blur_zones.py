@@ -139,3 +139,18 @@ def test_crops_with_auto_zones(e2e):
         assert -10 * math.log10(max(float(d), 1e-30)) > 70
         for k in ("sensor", "wiener"):
             assert a.scores[k]["psnr_db"] == pytest.approx(b.scores[k]["psnr_db"], abs=0.1)
+
+
+def test_the_estimates_are_kept_per_provider(e2e, monkeypatch):
+    """A second choice over the same frame (another crop, command or design view) estimates nothing again and gives
+    the same zones."""
+    import pipeline.blur as blur
+
+    shape = (1, 1, 900, 1300)
+    first = choose_stride_zones(e2e, shape)
+    calls = []
+    real = blur.interpolation_error_db
+    monkeypatch.setattr(blur, "interpolation_error_db", lambda *a, **k: calls.append(1) or real(*a, **k))
+    assert choose_stride_zones(e2e, shape) == first and not calls
+    choose_stride_zones(e2e, (1, 1, 901, 1300))  # other radii: estimated
+    assert calls
