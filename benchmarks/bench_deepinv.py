@@ -50,6 +50,7 @@ import torch.nn.functional as F
 from lenssim import LensPSF, frame_center
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import load_photo
+from workload import agreement_db, reference_seconds
 from pipeline.blur import blur_exact, blur_windowed, choose_stride_zones, window_count
 
 PSF_N = 512
@@ -63,21 +64,6 @@ takes about 3.5 GB)."""
 TPS_CHUNK = 2**18
 """Pixels per band when evaluating the thin-plate-spline multipliers."""
 PSF_BATCH = 16
-
-
-def reference_seconds(pairs: int = 200) -> float:
-    x = torch.rand(4, 3, 512, 512)
-    torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    t0 = time.perf_counter()
-    for _ in range(pairs):
-        torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    return time.perf_counter() - t0
-
-
-def _db(a: torch.Tensor, b: torch.Tensor) -> float:
-    """10 log10(1 / mean square difference) (dB, signal peak 1)."""
-    d = float((a.double() - b.double()).square().mean())
-    return math.inf if d == 0 else -10 * math.log10(d)
 
 
 def best_of(repeat: int, fn):
@@ -259,8 +245,8 @@ def main() -> None:
 
     def row(label, setup, apply, out=None, ours=None):
         total = setup + apply
-        vs_exact = _db(out[0, 0, rows, cols], exact[0, 0]) if out is not None else math.nan
-        vs_ours = _db(out[inner], ours[inner]) if (out is not None and ours is not None) else math.nan
+        vs_exact = agreement_db(out[0, 0, rows, cols], exact[0, 0]) if out is not None else math.nan
+        vs_ours = agreement_db(out[inner], ours[inner]) if (out is not None and ours is not None) else math.nan
         table.append((label, setup, apply, total, vs_exact, vs_ours, _peak_gib()))
         print(f"  {label:58s} setup {setup:6.1f} s, blur {apply:6.1f} s, total {total:6.1f} s = {total / ref:5.1f} x "
               f"ref; {_fmt(vs_exact)} dB vs exact, {_fmt(vs_ours)} dB vs ours; peak {_peak_gib():.2f} GiB", flush=True)

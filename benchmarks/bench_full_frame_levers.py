@@ -21,7 +21,6 @@ Each time is also given in units of a fixed FFT workload timed in the same proce
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import torch
 from lenssim import LensPSF
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SENSOR
 from pipeline import load_photo
+from workload import agreement_db, reference_seconds
 from pipeline.blur import blur_windowed, choose_stride_zones, window_count
 from pipeline.noise import expose, read_noise_variance
 from pipeline.restoration.wiener import wiener_windowed
@@ -37,21 +37,6 @@ from pipeline.simulate import FrameResult, score_frame, simulate_frame
 
 FULL_WELL = 3200.0
 """ISO 100's full well (e-), the paper's."""
-
-
-def reference_seconds(pairs: int = 200) -> float:
-    x = torch.rand(4, 3, 512, 512)
-    torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    t0 = time.perf_counter()
-    for _ in range(pairs):
-        torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    return time.perf_counter() - t0
-
-
-def _db(a: torch.Tensor, b: torch.Tensor) -> float:
-    """10 log10(1 / mean square difference): the two linear frames' agreement (dB, signal peak 1)."""
-    d = float((a.double() - b.double()).square().mean())
-    return math.inf if d == 0 else -10 * math.log10(d)
 
 
 def main() -> None:
@@ -95,7 +80,7 @@ def main() -> None:
     line("lever 1: fitted restoration windows", t_rest1,
          f"  ({t_rest0 / t_rest1:.2f}x); restored PSNR {s1['psnr_restored_db'] - s0['psnr_restored_db']:+.4f} dB, "
          f"SSIM {s1['ssim_restored'] - s0['ssim_restored']:+.5f}; the restored frames agree to "
-         f"{_db(restored1, restored0):.1f} dB")
+         f"{agreement_db(restored1, restored0):.1f} dB")
     del restored1
 
     t0 = time.perf_counter()
@@ -106,7 +91,7 @@ def main() -> None:
     t_blur2 = time.perf_counter() - t0
     line(f"lever 2: choosing the zones {zones.to_dict()}", t_zones)
     line(f"lever 2: zoned blur ({window_count(ideal.shape, zones=zones)} windows)", t_blur2,
-         f"  ({t_blur0 / (t_blur2 + t_zones):.2f}x with the choice); blurred frame {_db(blurred2, blurred0):.1f} dB "
+         f"  ({t_blur0 / (t_blur2 + t_zones):.2f}x with the choice); blurred frame {agreement_db(blurred2, blurred0):.1f} dB "
          "from the baseline's")
     del blurred2, blurred0, noisy0
 
@@ -120,7 +105,7 @@ def main() -> None:
     print(f"  both levers, whole frame: PSNR sensor {s2['psnr_sensor_db']:.4f} dB -> restored "
           f"{s2['psnr_restored_db']:.4f} dB ({s2['psnr_restored_db'] - s0['psnr_restored_db']:+.4f}), SSIM "
           f"{s2['ssim_restored']:.4f} ({s2['ssim_restored'] - s0['ssim_restored']:+.5f}); its noise is another draw")
-    print(f"  restored frames, both levers vs baseline: {_db(frame.restored, restored0):.1f} dB")
+    print(f"  restored frames, both levers vs baseline: {agreement_db(frame.restored, restored0):.1f} dB")
 
 
 if __name__ == "__main__":

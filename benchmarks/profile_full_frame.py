@@ -27,11 +27,11 @@ import torch
 from lenssim import LensPSF
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline import load_photo
+from workload import reference_seconds
 from pipeline.simulate import score_frame, simulate_frame
 
 FULL_WELL = 3200.0
 """ISO 100's full well (e-), the paper's."""
-REFERENCE_PAIRS = 200
 INTERESTING = ("psf_at_pixels", "fft_rfft2", "fft_irfft2", "core_irfft2", "apply_windowed", "_psfs", "restore",
                "box_blur", "wiener_windowed", "blur_windowed", "expose", "encode_srgb", "scores_encoded",
                "linear_to_srgb", "srgb_to_linear", "read_image")
@@ -60,15 +60,6 @@ class PeakRSS:
     def __exit__(self, *exc):
         self._stop = True
         self._t.join()
-
-
-def reference_seconds() -> float:
-    x = torch.rand(4, 3, 512, 512)
-    torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    t0 = time.perf_counter()
-    for _ in range(REFERENCE_PAIRS):
-        torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape[-2:])
-    return time.perf_counter() - t0
 
 
 def _profile_lines(prof: cProfile.Profile, top: int) -> list[str]:

@@ -163,6 +163,41 @@ def _png(rgb: torch.Tensor) -> bytes:
     return buf.getvalue()
 
 
+def psf_mtf_figure(psfs, angles_deg, pitch_um: float, title: str) -> bytes:
+    """PNG: each PSF (``(n, n)``, centred at ``[n//2, n//2]``) in log10 on a window of :data:`PSF_WINDOW_UM` (axes in
+    um), labelled by its field angle (deg), and the MTFs along x and y (line spreads' transforms) against cycles/mm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(psfs) + 1, figsize=(3.0 * (len(psfs) + 1), 3.2), constrained_layout=True)
+    for ax, a, p in zip(axes, angles_deg, psfs):
+        n = p.shape[-1]
+        c = n // 2
+        h = min(c, max(8, int(PSF_WINDOW_UM / pitch_um / 2)))
+        e = h * pitch_um
+        ax.imshow(torch.log10(p[c - h:c + h, c - h:c + h].clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,
+                  extent=[-e, e, e, -e])
+        ax.set_title(f"PSF at {a:.3g} deg", fontsize=9)
+        ax.set_xlabel("x [um]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        f = torch.fft.rfftfreq(n, d=pitch_um * 1e-3)  # cycles/mm
+        mtf_x = torch.fft.rfft(p.sum(0)).abs()
+        mtf_y = torch.fft.rfft(p.sum(1)).abs()
+        axes[-1].plot(f.numpy(), (mtf_x / mtf_x[0]).numpy(), label=f"{a:.3g} deg, x")
+        axes[-1].plot(f.numpy(), (mtf_y / mtf_y[0]).numpy(), "--", label=f"{a:.3g} deg, y")
+    axes[0].set_ylabel("y [um]  (log10 PSF)", fontsize=8)
+    axes[-1].set_xlabel("spatial frequency [cycles/mm]", fontsize=8)
+    axes[-1].set_ylabel("MTF", fontsize=8)
+    axes[-1].set_title("MTF across the field", fontsize=9)
+    axes[-1].set_ylim(0, 1.02)
+    axes[-1].legend(fontsize=6, ncol=2)
+    axes[-1].tick_params(labelsize=7)
+    fig.suptitle(title, fontsize=10)
+    return _figure_png(fig)
+
+
 def _figure_png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
@@ -273,47 +308,18 @@ class Explorer:
         """PNG: the PSF at each field angle of ``angles`` (along the sensor's diagonal, log10 scale, axes in um) and
         the MTF (radial and tangential) at each angle, against spatial frequency in cycles/mm."""
         def make():
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
             from lenssim import psf_at
 
             d = self.check(controls)
             cam = self.camera_for(controls)
             pitch = cam.sensor.pixel_pitch_um
             azi = math.atan2(cam.sensor.height_px, cam.sensor.width_px)
-            fig, axes = plt.subplots(1, len(angles) + 1, figsize=(3.0 * (len(angles) + 1), 3.2),
-                                     constrained_layout=True)
-            half = int(PSF_WINDOW_UM / pitch / 2)
-            for ax, a in zip(axes, angles):
+            psfs = []
+            for a in angles:
                 r = float(cam.geometry.image_height_mm(a))
-                p, n = psf_at(cam, d, r * math.cos(azi), r * math.sin(azi))
-                c = n // 2
-                h = min(half, c)
-                win = p[c - h:c + h, c - h:c + h]
-                e = h * pitch
-                ax.imshow(torch.log10(win.clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,
-                          extent=[-e, e, e, -e])
-                ax.set_title(f"PSF at {a:g} deg", fontsize=9)
-                ax.set_xlabel("x [um]", fontsize=8)
-                ax.tick_params(labelsize=7)
-                f = torch.fft.rfftfreq(n, d=pitch * 1e-3)  # cycles/mm
-                mtf_x = torch.fft.rfft(p.sum(0)).abs()
-                mtf_y = torch.fft.rfft(p.sum(1)).abs()
-                axes[-1].plot(f.numpy(), (mtf_x / mtf_x[0]).numpy(), label=f"{a:g} deg, x")
-                axes[-1].plot(f.numpy(), (mtf_y / mtf_y[0]).numpy(), "--", label=f"{a:g} deg, y")
-            axes[0].set_ylabel("y [um]  (log10 PSF)", fontsize=8)
-            axes[-1].set_xlabel("spatial frequency [cycles/mm]", fontsize=8)
-            axes[-1].set_ylabel("MTF", fontsize=8)
-            axes[-1].set_title("MTF across the field", fontsize=9)
-            axes[-1].set_ylim(0, 1.02)
-            axes[-1].legend(fontsize=6, ncol=2)
-            axes[-1].tick_params(labelsize=7)
+                psfs.append(psf_at(cam, d, r * math.cos(azi), r * math.sin(azi))[0])
             glass = "" if controls.glass == "paper" else f", {controls.glass}"
-            fig.suptitle(f"{d.label()}{glass}: PSFs (log10, {pitch:g} um pixels) and MTFs", fontsize=10)
-            return _figure_png(fig)
+            return psf_mtf_figure(psfs, angles, pitch, f"{d.label()}{glass}: PSFs (log10, {pitch:g} um pixels) and MTFs")
         return self._cache("optics").get_or(controls.key() + tuple(angles), make)
 
     # ---- the cost map --------------------------------------------------------------------------------------------

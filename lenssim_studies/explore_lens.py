@@ -28,7 +28,7 @@ import torch
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from lenssim.model.prescription import Prescription
 
-from .explore import MAP_CRITERIA, PSF_WINDOW_UM, Explorer, Slider, _CachedPSF, _figure_png
+from .explore import MAP_CRITERIA, Explorer, Slider, _CachedPSF, psf_mtf_figure
 from .lens_tradeoff import (MAX_GRID_PARAMETERS, LensTradeoffRun, _score, design_prescription, photo_field,
                             sequential_provider)
 
@@ -222,11 +222,6 @@ class LensExplorer(Explorer):
         angles = tuple(f * amax for f in LENS_PSF_FIELDS) if angles is None else tuple(angles)
 
         def make():
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
             from lenssim.optics.sequential_psf import image_scale_mm
 
             q, seq = self.check(controls)
@@ -242,33 +237,9 @@ class LensExplorer(Explorer):
             n = max(32, n + n % 2)
             psfs = prov.psf_at_pixels(torch.tensor(rows), torch.tensor(cols), (0.0, 0.0), n, dtype=torch.float64)
             psfs = psfs.reshape(len(angles), -1, n, n).mean(1)
-            fig, axes = plt.subplots(1, len(angles) + 1, figsize=(3.0 * (len(angles) + 1), 3.2),
-                                     constrained_layout=True)
-            half = min(n // 2, max(8, int(PSF_WINDOW_UM / pitch / 2)))
-            c = n // 2
-            for ax, a, p in zip(axes, shown, psfs):
-                win = p[c - half:c + half, c - half:c + half]
-                e = half * pitch
-                ax.imshow(torch.log10(win.clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,
-                          extent=[-e, e, e, -e])
-                ax.set_title(f"PSF at {a:.3g} deg", fontsize=9)
-                ax.set_xlabel("x [um]", fontsize=8)
-                ax.tick_params(labelsize=7)
-                f = torch.fft.rfftfreq(n, d=pitch * 1e-3)  # cycles/mm
-                mtf_x = torch.fft.rfft(p.sum(0)).abs()
-                mtf_y = torch.fft.rfft(p.sum(1)).abs()
-                axes[-1].plot(f.numpy(), (mtf_x / mtf_x[0]).numpy(), label=f"{a:.3g} deg, x")
-                axes[-1].plot(f.numpy(), (mtf_y / mtf_y[0]).numpy(), "--", label=f"{a:.3g} deg, y")
-            axes[0].set_ylabel("y [um]  (log10 PSF)", fontsize=8)
-            axes[-1].set_xlabel("spatial frequency [cycles/mm]", fontsize=8)
-            axes[-1].set_ylabel("MTF", fontsize=8)
-            axes[-1].set_title("MTF across the field", fontsize=9)
-            axes[-1].set_ylim(0, 1.02)
-            axes[-1].legend(fontsize=6, ncol=2)
-            axes[-1].tick_params(labelsize=7)
-            fig.suptitle(f"{self.design_label(controls)}: PSFs (log10, {pitch:.4g} um "
-                         f"{'point samples' if self._sampling == 'point' else 'pixels'}) and MTFs", fontsize=10)
-            return _figure_png(fig)
+            kind = "point samples" if self._sampling == "point" else "pixels"
+            return psf_mtf_figure(list(psfs), shown, pitch,
+                                  f"{self.design_label(controls)}: PSFs (log10, {pitch:.4g} um {kind}) and MTFs")
         return self._cache("optics").get_or(controls.key() + angles, make)
 
     # ---- the cost map --------------------------------------------------------------------------------------------

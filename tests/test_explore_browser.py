@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 import urllib.request
+from contextlib import contextmanager
 from urllib.parse import urlparse
 
 import pytest
@@ -87,8 +88,10 @@ def _wait_change(fn, before, timeout=60.0):
     raise AssertionError(f"no change from {before!r} within {timeout} s")
 
 
-def test_the_explorer_page_in_a_real_browser(server):
-    url, d = server
+@contextmanager
+def _browser_page(url):
+    """Headless Chromium (the system binary) at ``url``: ``(page, outside, errors)``, the requests that leave this
+    machine and the console's errors recorded as the page runs."""
     outside, errors = [], []
     with playwright.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
@@ -97,6 +100,13 @@ def test_the_explorer_page_in_a_real_browser(server):
         page.on("request", lambda r: outside.append(r.url) if urlparse(r.url).hostname not in (
             "127.0.0.1", "localhost") and not r.url.startswith(("data:", "blob:")) else None)
         page.goto(url)
+        yield page, outside, errors
+        browser.close()
+
+
+def test_the_explorer_page_in_a_real_browser(server):
+    url, d = server
+    with _browser_page(url) as (page, outside, errors):
         page.wait_for_selector("text=MSE_R at 27.6 dB", timeout=120_000)
         criteria = lambda: _text(page, "table")  # noqa: E731
         optics = lambda: page.locator("img").first.get_attribute("src")  # noqa: E731  (the PSF/MTF figure)
@@ -135,7 +145,6 @@ def test_the_explorer_page_in_a_real_browser(server):
         page.keyboard.press("ArrowRight")
         _wait_change(criteria, before_c)
         page.screenshot(path=str(d / "page.png"), full_page=True)
-        browser.close()
     assert not outside, f"requests off this machine: {outside[:5]}"
     assert not errors, f"console errors: {errors[:5]}"
 
@@ -144,14 +153,7 @@ def test_any_lens_in_a_real_browser(lens_server):
     """``--lens`` with two free parameters: their sliders on the page; moving one changes the criteria (real rays)
     and the PSF figure; the lens file and the command line are offered on the photo tab."""
     url, _ = lens_server
-    outside, errors = [], []
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1500, "height": 1100})
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.on("request", lambda r: outside.append(r.url) if urlparse(r.url).hostname not in (
-            "127.0.0.1", "localhost") and not r.url.startswith(("data:", "blob:")) else None)
-        page.goto(url)
+    with _browser_page(url) as (page, outside, errors):
         page.wait_for_selector("text=EFL [mm]", timeout=120_000)
         page.wait_for_selector("text=S2.conic", timeout=10_000)
         page.wait_for_selector("text=E1.bending", timeout=10_000)
@@ -166,6 +168,5 @@ def test_any_lens_in_a_real_browser(lens_server):
         page.locator(".bk-tab", has_text="Photo").first.click()
         page.wait_for_selector("text=download the lens (explored_lens.toml)", timeout=60_000)
         page.wait_for_selector("text=--lens explored_lens.toml", timeout=60_000)
-        browser.close()
     assert not outside, f"requests off this machine: {outside[:5]}"
     assert not errors, f"console errors: {errors[:5]}"
