@@ -190,10 +190,12 @@ leaves out (measured on a photo 9-12 deg off axis: no margin 73.3 dB against one
 512 px windows 88.6 dB)."""
 
 
-def fitted_windows(need: torch.Tensor, window: int) -> torch.Tensor:
-    """Blur window size (px) for each need ``(P,)`` (PSF support + core, px; 0 where unknown): the smallest of
-    :data:`FIT_SIZES` (below ``window``) holding ``need +`` :data:`FIT_MARGIN_PX`, else ``window``."""
-    table = torch.tensor([w for w in FIT_SIZES if w < window] + [window], dtype=torch.int64)
+def fitted_windows(need: torch.Tensor, window: int, least: int | None = None) -> torch.Tensor:
+    """Window size (px) for each need ``(P,)`` (PSF support + core, px; 0 where unknown): the smallest of
+    :data:`FIT_SIZES` (below ``window``, at least ``least``, default the least of them) holding ``need +``
+    :data:`FIT_MARGIN_PX`, else ``window``."""
+    least = FIT_SIZES[0] if least is None else least
+    table = torch.tensor([w for w in FIT_SIZES if least <= w < window] + [window], dtype=torch.int64)
     w = table[torch.searchsorted(table, (need + FIT_MARGIN_PX).clamp(max=window))]
     return torch.where(need > 0, w, window)
 
@@ -204,16 +206,16 @@ def grown_window(need: int) -> int:
     return nice_fft_size(int(need) + FIT_MARGIN_PX)
 
 
-def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool) -> torch.Tensor:
+def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool, least: int | None = None) -> torch.Tensor:
     """Each window's size (px, ``(P,)`` int64) for PSF supports ``extents`` (px, ``(P,)``; 0 where unknown).
 
     A window whose PSF support plus core fits ``scheme.window`` takes the scheme's window, or with ``fit`` its
-    :func:`fitted_windows` size; one whose PSF does not fit takes :func:`grown_window` px (its PSF then computed on
-    that grid, not folded), so no PSF wraps into a core. ``ValueError`` where that is over :data:`MAX_WINDOW_PX`.
+    :func:`fitted_windows` size (at least ``least`` px); one whose PSF does not fit takes :func:`grown_window` px
+    (its PSF then computed on that grid, not folded), so no PSF wraps into a core. ``ValueError`` where that is over :data:`MAX_WINDOW_PX`.
     """
     win, core = scheme.window, scheme.core
     need = torch.where(extents > 0, extents + core, 0).to(torch.int64)
-    sizes = fitted_windows(need, win) if fit else torch.full_like(need, win)
+    sizes = fitted_windows(need, win, least) if fit else torch.full_like(need, win)
     over = need > win
     if bool(over.any()):
         most = int(need.max())
@@ -530,7 +532,8 @@ def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZ
 
 def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowScheme = PAPER_SCHEME,
                    optical_center=None, region=None, chunk: int | None = None, progress=None,
-                   fit: bool = False, pedestal: bool = False, zones: StrideZones | None = None) -> torch.Tensor:
+                   fit: bool = False, pedestal: bool = False, zones: StrideZones | None = None,
+                   least_fit: int | None = None) -> torch.Tensor:
     """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
     ``patches`` is ``(k, B, C, w, w)`` (image rows ``y - w/2 .. y + w/2 - 1`` around each window's pixel
@@ -540,8 +543,8 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     their spectra (complex, ``rfft2`` layout), of which only the core is inverse transformed
     (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or with ``fit`` (for an ``op`` that convolves with
     the PSF, whose core then does not depend on the window beyond the PSF's reach) the :func:`fitted_windows`
-    size of the PSF's support at the window's position plus the core, the PSF computed on the ``window`` grid
-    and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus core) takes
+    size of the PSF's support at the window's position plus the core (at least ``least_fit`` px), the PSF computed on
+    the ``window`` grid and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus core) takes
     :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must take the size
     from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
     on the ``window`` grid (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
@@ -570,7 +573,7 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     for c in torch.unique(cores).tolist():
         sel = cores == c
         sub = WindowScheme(win, scheme.stride if c == scheme.core else c // 2, c, scheme.anchor, scheme.fit)
-        sizes[sel] = window_sizes(extents[sel], sub, fit)
+        sizes[sel] = window_sizes(extents[sel], sub, fit, least_fit)
     pad = max([win] + sizes.tolist()) // 2 + core
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)

@@ -38,11 +38,11 @@ from lenssim import PSFProvider, image_psd
 
 from lenssim.validate import check_real
 
-from ..blur import FIT_SIZES, PAPER_SCHEME, WindowScheme, apply_windowed
+from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
 from ..checks import check_image
 from . import RestorationMethod, register
 
-__all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX"]
+__all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
@@ -58,6 +58,13 @@ flat regions get the 1/4 level's smoothing at most."""
 WIENER_PIXEL_STATS_PX = 9
 """Side (px) of the box over which the per-pixel local variance is taken."""
 
+WIENER_FIT_LEAST_PX = 384
+"""Least transform (px) of a Wiener window fitted to the local PSF (the blur's least is 256). The filter's impulse
+response reaches beyond the PSF's support, and what the window's edges wrap into the core comes back ringing: on a
+sharp photo near the axis (scikit-image's astronaut at ISO 100, supports of 20-40 px) 256 px windows moved the
+restored SSIM by -0.0043 and PSNR by -0.025 dB from 512 px windows, 320 px by -0.0012 / -0.011 dB, 384 px by -0.0002
+/ -0.004 dB, 448 px by -0.0003 / -0.001 dB (issue 33's bounds: 0.001 and 0.02 dB)."""
+
 WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
@@ -72,10 +79,9 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
 
     ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
     noise variance in squared image units. ``fit`` (default ``scheme.fit``): each window's transform sized to the
-    local PSF's support plus the core as the blur's are (:func:`pipeline.blur.fitted_windows`, at least 256 px), its
-    statistics still over the central ``stats`` px; on the 24 MP frame half the transform work of 512 px windows
-    everywhere, the restored PSNR within 0.003 dB of theirs (docs/performance.md); off where ``stats`` is over the
-    smallest fitted window. Returns the same shape.
+    local PSF's support plus the core as the blur's are (:func:`pipeline.blur.fitted_windows`), but at least
+    :data:`WIENER_FIT_LEAST_PX`, its statistics still over the central ``stats`` px (docs/performance.md); off where
+    ``stats`` is over that size. Returns the same shape.
     """
     check_image(observed, "observed")
     if not (isinstance(electrons_per_unit, (int, float)) and not isinstance(electrons_per_unit, bool)
@@ -91,7 +97,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         raise ValueError(f"pixel_stats={pixel_stats!r} is not allowed: an odd number of px, >= 3 and at most the "
                          f"window less the core ({scheme.window - scheme.core})")
     fit = scheme.fit if fit is None else fit
-    if fit and stats > FIT_SIZES[0]:  # the statistics need windows of at least ``stats`` px
+    if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
     inv_e = 0.0 if math.isinf(electrons_per_unit) else 1.0 / electrons_per_unit
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
@@ -183,7 +189,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
 
     return apply_windowed(observed, psf, restore_per_pixel if local == "pixel" else restore, scheme=scheme,
                           optical_center=optical_center, region=region, chunk=chunk, progress=progress,
-                          fit=fit)
+                          fit=fit, least_fit=WIENER_FIT_LEAST_PX)
 
 
 def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, optical_center=None, region=None,
