@@ -636,30 +636,41 @@ def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry
     """Whole-frame scores of a :class:`FrameResult` against ``ideal`` (linear ``(1, C, H, W)``): PSNR and SSIM in
     sRGB of the sensor and the restored images, their PSNR maps over ``tile`` px tiles and the tiles' field
     angles (deg, in ``geometry``). Each image is sRGB-encoded once; ``on_encoded(kind, encoded, linear)`` (kind
-    ``"sensor"`` or ``"restored"``, encoded ``(1, C, H, W)`` float32 on the device) may write it meanwhile. Returns
+    ``"sensor"`` or ``"restored"``, encoded ``(1, C, H, W)`` float32 on the device) may write it meanwhile: it runs in a
+    worker thread while that image is scored (one image at a time; an error it raises is raised here). Returns
     ``{"psnr_sensor_db", "psnr_restored_db", "ssim_sensor", "ssim_restored", "maps": {"sensor_db", "restored_db",
-    "field_deg"}, "seconds": {"write", "metrics"}}``. A frame restored with several providers
-    (:attr:`FrameResult.restorations`) has kind ``"restored_TAG"`` for each in place of ``"restored"``:
-    ``psnr_restored_TAG_db``, ``ssim_restored_TAG`` and the map ``restored_TAG_db``.
+    "field_deg"}, "seconds": {"write", "metrics"}}`` (``write``: the callbacks' own time, overlapping the metrics'). A
+    frame restored with several providers (:attr:`FrameResult.restorations`) has kind ``"restored_TAG"`` for each in
+    place of ``"restored"``: ``psnr_restored_TAG_db``, ``ssim_restored_TAG`` and the map ``restored_TAG_db``.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     from .quality import encode_srgb, scores_encoded
 
     if min(ideal.shape[-2:]) < tile:
         raise ValueError(f"a frame of {ideal.shape[-1]} x {ideal.shape[-2]} px is smaller than one {tile}-px tile of "
                          "the PSNR map")
     seconds = {"write": 0.0, "metrics": 0.0}
+
+    def timed_write(kind, enc, img):
+        t0 = time.perf_counter()
+        on_encoded(kind, enc, img)
+        seconds["write"] += time.perf_counter() - t0
+
     ref = encode_srgb(ideal)
     scores = {}
-    for kind, img in {"sensor": frame.sensor, **frame.restored_images()}.items():
-        enc = encode_srgb(img)
-        t0 = time.perf_counter()
-        if on_encoded is not None:
-            on_encoded(kind, enc, img)
-        t1 = time.perf_counter()
-        scores[kind] = scores_encoded(ref, enc, tile=tile)
-        del enc
-        seconds["write"] += t1 - t0
-        seconds["metrics"] += time.perf_counter() - t1
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="write") as pool:
+        writing = None
+        for kind, img in {"sensor": frame.sensor, **frame.restored_images()}.items():
+            enc = encode_srgb(img)
+            if on_encoded is not None:  # written (PNG compression, one core) while the scores run on the others
+                writing = pool.submit(timed_write, kind, enc, img)
+            t1 = time.perf_counter()
+            scores[kind] = scores_encoded(ref, enc, tile=tile)
+            seconds["metrics"] += time.perf_counter() - t1
+            del enc
+            if writing is not None:  # before the next image is encoded: at most one encoded frame being written
+                writing.result()
     return {**{f"psnr_{k}_db": v["psnr_db"] for k, v in scores.items()},
             **{f"ssim_{k}": v["ssim"] for k, v in scores.items()},
             "maps": {**{f"{k}_db": v["psnr_map_db"] for k, v in scores.items()},

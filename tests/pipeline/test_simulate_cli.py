@@ -285,6 +285,18 @@ def test_score_frame_equals_the_per_image_metrics():
     assert s["maps"]["restored_db"].shape == (1, 2) and s["maps"]["field_deg"].shape == (1, 2)
     with pytest.raises(ValueError, match="smaller than one 512-px tile"):
         score_frame(ideal, frame, PAPER_CAMERA.geometry, tile=512)
+    # the callback runs in a worker thread while the image is scored: its error comes back to the caller
+    import threading
+
+    where = []
+
+    def failing(kind, enc, img):
+        where.append(threading.current_thread() is threading.main_thread())
+        raise OSError(f"disk full writing {kind}")
+
+    with pytest.raises(OSError, match="disk full writing sensor"):
+        score_frame(ideal, frame, PAPER_CAMERA.geometry, on_encoded=failing)
+    assert where == [False]
 
 
 @pytest.mark.parametrize("shape,size", [((400, 600), 256), ((512, 512), 128), ((2848, 4272), 256), ((4000, 6000), 256)])
