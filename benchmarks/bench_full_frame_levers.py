@@ -8,8 +8,8 @@ The misty forest (default, ../shared/photos) or PHOTO, the paper's E2E design, I
 * **baseline**: today's frame before issue 33's levers: the blur at the scheme's stride, the adaptive Wiener
   restoration on 512 px windows everywhere;
 * **lever 1, fitted restoration windows**: the same noisy frame restored with windows sized to the local PSF as the
-  blur's (``WindowScheme.fit``; :func:`pipeline.restoration.wiener.wiener_windowed`'s ``fit``): the restored PSNR and
-  SSIM against the baseline's;
+  blur's but at least ``WIENER_FIT_LEAST_PX`` (``WindowScheme.fit``; :func:`pipeline.restoration.wiener.wiener_windowed`'s
+  ``fit``): the restored PSNR and SSIM against the baseline's;
 * **lever 2, blur zones**: the blur with a coarser stride where the PSF varies slowly
   (:func:`pipeline.blur.choose_stride_zones`): the blurred frame against the baseline's (dB), then the whole
   :func:`pipeline.simulate.simulate_frame` with both levers (its own noise draw; the scores against the baseline's).
