@@ -211,7 +211,8 @@ def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool, least: 
 
     A window whose PSF support plus core fits ``scheme.window`` takes the scheme's window, or with ``fit`` its
     :func:`fitted_windows` size (at least ``least`` px); one whose PSF does not fit takes :func:`grown_window` px
-    (its PSF then computed on that grid, not folded), so no PSF wraps into a core. ``ValueError`` where that is over :data:`MAX_WINDOW_PX`.
+    (its PSF then computed on that grid, not folded), so no PSF wraps into a core. ``ValueError`` where that is over
+    :data:`MAX_WINDOW_PX`.
     """
     win, core = scheme.window, scheme.core
     need = torch.where(extents > 0, extents + core, 0).to(torch.int64)
@@ -544,9 +545,9 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or with ``fit`` (for an ``op`` that convolves with
     the PSF, whose core then does not depend on the window beyond the PSF's reach) the :func:`fitted_windows`
     size of the PSF's support at the window's position plus the core (at least ``least_fit`` px), the PSF computed on
-    the ``window`` grid and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus core) takes
-    :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must take the size
-    from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
+    the ``window`` grid and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus
+    core) takes :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must
+    take the size from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
     on the ``window`` grid (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
     convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px). ``zones``
     (:class:`StrideZones`): windows of a coarser stride and core in the rings it names (the scheme's elsewhere).

@@ -42,7 +42,8 @@ from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
 from ..checks import check_image
 from . import RestorationMethod, register
 
-__all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX"]
+__all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
+           "WIENER_PIXEL_STATS_PX"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
