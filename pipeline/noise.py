@@ -30,13 +30,14 @@ def read_out(electrons: torch.Tensor, sensor: Sensor | None, full_well: float, *
     out = electrons
     if sensor is None:  # an ideal sensor: photon noise only
         return out
+    owned = False  # whether ``out`` is this function's own buffer (``electrons`` is never changed)
     if sensor.read_noise_e > 0:
         noise = torch.randn(out.shape, generator=generator, dtype=out.dtype, device=out.device)
-        out = out + sensor.read_noise_e * noise
+        out, owned = noise.mul_(sensor.read_noise_e).add_(out), True  # electrons + read noise, in the noise's buffer
     if sensor.bit_depth is not None:
         levels = 2**sensor.bit_depth - 1
         gain = full_well / levels  # electrons per digital number
-        out = torch.round(out / gain).clamp_(0, levels) * gain
+        out = (out.div_(gain) if owned else out / gain).round_().clamp_(0, levels).mul_(gain)
     return out
 
 
@@ -56,8 +57,11 @@ def expose(image: torch.Tensor, electrons_per_unit: float, sensor: Sensor | None
     draws the same counts on any CPU (a float32 rate that moves by one rounding between hosts can flip a count).
     """
     rate = (image.to(torch.float64) * electrons_per_unit).clamp_min_(0)
-    electrons = read_out(torch.poisson(rate, generator=generator), sensor, full_well, generator=generator)
-    return (electrons / electrons_per_unit).to(image.dtype)
+    counts = torch.poisson(rate, generator=generator)
+    del rate  # float64 frames: at most two alive at a time (a 24 MP colour frame's is 580 MB)
+    electrons = read_out(counts, sensor, full_well, generator=generator)
+    del counts
+    return electrons.div_(electrons_per_unit).to(image.dtype)
 
 
 def add_poisson_noise(image: torch.Tensor, full_well: float, *, generator: torch.Generator | None = None,

@@ -92,6 +92,37 @@ def test_poisson_noise_statistics(iso):
     torch.testing.assert_close(add_poisson_noise(img, fwc, seed=1)[..., 1:, :], noisy)  # reproducible
 
 
+def _sensor(**kw):
+    from lenssim import Sensor
+
+    return Sensor(pixel_pitch_um=1.5625, width_px=64, height_px=64, **kw)
+
+
+@pytest.mark.parametrize("sensor", [None, PAPER_SENSOR, _sensor(read_noise_e=3.0), _sensor(bit_depth=10),
+                                    _sensor(read_noise_e=3.0, bit_depth=12)], ids=["ideal", "paper", "read", "adc", "both"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_expose_is_poisson_then_read_noise_then_the_adc(sensor, dtype):
+    """expose works in place on its own float64 buffers (two frames at most, not four); the numbers are those of the
+    chain written out (Poisson counts, then Gaussian read noise, then rounding to the ADC's levels, drawn from one
+    generator in that order) and its input is left as it was."""
+    from pipeline.noise import expose
+
+    fwc = 3200.0
+    img = torch.rand(1, 3, 40, 36, generator=torch.Generator().manual_seed(2), dtype=dtype)
+    keep = img.clone()
+    e = fwc / float(img.amax())
+    got = expose(img, e, sensor, fwc, generator=torch.Generator().manual_seed(5))
+    g = torch.Generator().manual_seed(5)
+    x = torch.poisson(img.double() * e, generator=g)
+    if sensor is not None and sensor.read_noise_e > 0:
+        x = x + sensor.read_noise_e * torch.randn(x.shape, generator=g, dtype=x.dtype)
+    if sensor is not None and sensor.bit_depth is not None:
+        levels = 2**sensor.bit_depth - 1
+        x = torch.round(x / (fwc / levels)).clamp(0, levels) * (fwc / levels)
+    assert got.dtype == dtype and torch.equal(got, (x / e).to(dtype))
+    assert torch.equal(img, keep)
+
+
 def test_noise_errors():
     img = torch.ones(1, 1, 4, 4)
     with pytest.raises(ValueError, match="exactly one of generator= or seed="):
