@@ -99,8 +99,9 @@ def _psnr_kornia(a: torch.Tensor, b: torch.Tensor) -> float:
     its last digits moved with the thread count, past the regression pins' tolerance)."""
     if torch.equal(a, b):
         return float("inf")
-    mse = float((a - b).square_().sum(dtype=torch.float64)) / a.numel()
-    return 10 * math.log10(1.0 / mse)
+    sse = sum(float((a[..., r0:r0 + SSIM_BAND_ROWS, :] - b[..., r0:r0 + SSIM_BAND_ROWS, :]).square_()
+                    .sum(dtype=torch.float64)) for r0 in range(0, a.shape[-2], SSIM_BAND_ROWS))  # no frame-sized copy
+    return 10 * math.log10(a.numel() / sse)
 
 
 def _box_sum_valid(x: torch.Tensor, k: int, dim: int) -> torch.Tensor:
@@ -149,10 +150,14 @@ def _ssim_kornia(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def _mse_tiles_torch(a: torch.Tensor, b: torch.Tensor, tile: int) -> torch.Tensor:
+    """The MSE of each ``tile`` x ``tile`` block, one row of tiles at a time (no frame-sized copy)."""
+    B, C = a.shape[:2]
     H, W = a.shape[-2] // tile * tile, a.shape[-1] // tile * tile
-    d = (a[..., :H, :W] - b[..., :H, :W]).square_()
-    d = d.reshape(a.shape[0], a.shape[1], H // tile, tile, W // tile, tile).sum(dim=(0, 1, 3, 5), dtype=torch.float64)
-    return (d / (a.shape[0] * a.shape[1] * tile * tile)).cpu()
+    rows = []
+    for r0 in range(0, H, tile):
+        d = (a[..., r0:r0 + tile, :W] - b[..., r0:r0 + tile, :W]).square_()
+        rows.append(d.reshape(B, C, tile, W // tile, tile).sum(dim=(0, 1, 2, 4), dtype=torch.float64))
+    return (torch.stack(rows) / (B * C * tile * tile)).cpu()
 
 
 SCORERS.register(Scorer("kornia", _encode_kornia, _psnr_kornia, _ssim_kornia, _mse_tiles_torch,
