@@ -258,7 +258,7 @@ class Lens:
         """Raise :class:`LensError` if a design's third-order transverse blur at the largest field angle, bounded by
         ``(|S_I| + |S_II| + |S_III| + |S_IV|) / u'`` (mm, ``u' = y / t`` the image-space marginal ray angle), is not
         finite or reaches the focal length: no lens (a conic of -1e308 overflows the wavefront and its PSF)."""
-        alpha = torch.tensor(max(self.field_angles_deg), dtype=torch.float64)
+        alpha = torch.tensor(max(self.field_angles_deg), dtype=torch.float64, device=design["s"].device)
         sums = self.seidel_sums(design, alpha)
         blur = sums.abs().sum(dim=-1) / (self.pupil_radius_mm / self.image_distance_mm)
         bad = ~(blur < self.focal_length_mm)  # NaN and inf included

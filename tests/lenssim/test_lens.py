@@ -88,3 +88,17 @@ def test_undefined_conic_is_refused():
     with pytest.raises(LensError, match="surface 1 .spherical. is smaller than"):
         PAPER_LENS.check_design(Design(s=40.0, Q_back=-10.0))
     PAPER_LENS.check_design(Design(s=torch.linspace(-2, 1, 7), Q_back=torch.tensor(-10.0)))
+
+
+def test_the_blur_check_makes_its_tensors_on_the_designs_device():
+    """Issue 43: every `--device cuda` command stopped at `Lens._check_blur`, whose field angle was a CPU tensor
+    stacked with the design's CUDA tensors. CI has no GPU: with the default device set to another one (meta), a
+    tensor made without the design's device lands there and mixing it with the design's CPU tensors fails."""
+    from lenssim_studies.paper import PAPER
+
+    design = PAPER.designs["end_to_end_paper"]
+    torch.set_default_device("meta")
+    try:
+        PAPER.camera.lens._check_blur(design)  # raises "Tensor on device meta is not on the expected device cpu"
+    finally:
+        torch.set_default_device(None)

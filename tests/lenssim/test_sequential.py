@@ -228,8 +228,11 @@ def test_aiming_that_does_not_converge_beyond_the_pupil_leaves_the_ray_untraced(
     lens = SequentialLens(read_lens("double_gauss"))
     px = torch.tensor([-0.21945074326026714, 0.21945074326026714, 0.0], dtype=torch.float64)
     py = torch.tensor([1.0297304106827916, 1.0297304106827916, 0.5], dtype=torch.float64)
-    w = lens.wavefront(6.205, px, py, vignette=False)  # the margin's rays miss a surface extended (ratio 8-9)
-    assert torch.isfinite(w.opd_waves[2]) and (w.aperture_ratio[:2] > 5).all()
+    w = lens.wavefront(6.205, px, py, vignette=False)  # no error, whatever the margin's rays do
+    assert torch.isfinite(w.opd_waves[2]) and bool(w.valid[2])
+    # where an unconverged iterate stops (its aperture ratio, 2.3 to 9 across hosts) depends on the host's rounding:
+    # only what the code promises is tested, a ray either traced (finite) or left untraced (NaN, not valid)
+    assert all(bool(torch.isfinite(w.opd_waves[i])) == bool(w.valid[i]) for i in range(2))
     monkeypatch.setattr(seq_mod, "AIM_ITERATIONS", 20)
     w20 = lens.wavefront(6.205, px, py, vignette=False)
     assert torch.isnan(w20.opd_waves[:2]).all() and not w20.valid[:2].any()
