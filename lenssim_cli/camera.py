@@ -32,7 +32,9 @@ from pipeline.denoise import DENOISE_STRENGTH_RANGE
 from pipeline.photo import PHOTO_KEEP_BYTES, Photo
 from pipeline.simulate import MAP_TILE_PX
 
-from .lens import add_lens_arguments, check_lens_arguments, each_lens, lens_label, lens_psf_from_args
+from .optics import add_fft_limit_argument
+from .lens import (add_lens_arguments, check_lens_arguments, each_lens, lens_label, lens_psf_from_args,
+                   note_lens_field)
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, add_tolerance_arguments,
                      camera_from_args, design_from_args, designs, tolerances_from_args)
 
@@ -390,9 +392,10 @@ def cmd_simulate(args) -> int:
                                                          PAPER_CAMERA.lens.glass or camera.channels else [])
                                      + ([f"{args.spectrum} RGB"] if camera.channels else []))
     else:
+        note_lens_field(args, psf)
         report.update(_lens_report(args, psf))
         report["optics"] = ", ".join([report["lens"]["name"]] + ([f"{args.spectrum} RGB"] if psf.colour_channels
-                                                                  else []))
+                                                                  else []) + [_lens_sampling_words(psf)])
     with staged_output_dir(out) as stage:
         if args.full_frame:
             results = _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, specs[0], built)
@@ -410,7 +413,7 @@ def cmd_simulate(args) -> int:
         for i, (a, r) in enumerate(zip(angles, results)):
             asked = {"requested_deg": a} if not getattr(args, "at_pixels", None) else \
                 {"requested_at_row_col": list(args.at_pixels[i])}
-            tag = _crop_tag(asked)
+            tag = _crop_tag({**asked, "field_deg": round(r.field_deg, 3)})
             for kind in ("ideal", "sensor") + methods:
                 if kind in r.images:
                     write_image(stage / f"{tag}_{_file_kind(kind)}.png", linear_to_srgb(r.images[kind].clamp(0, 1)))
@@ -448,11 +451,15 @@ def _zones_report(args) -> dict:
 
 
 def _crop_tag(entry: dict) -> str:
-    """A crop's file-name stem from its metrics entry: by the angle asked (``--angles``) or the pixel (``--at``)."""
+    """A crop's file-name stem from its metrics entry: by the angle asked (``--angles``) or the pixel (``--at``); a crop
+    moved inside the frame by more than :data:`pipeline.simulate.CROP_SHIFT_WARN_DEG` names where it went too."""
+    from pipeline.simulate import CROP_SHIFT_WARN_DEG
+
     if "requested_at_row_col" in entry:
         r, c = entry["requested_at_row_col"]
         return f"crop_r{r}_c{c}"
-    return f"crop_{entry['requested_deg']:g}deg"
+    asked, field = entry["requested_deg"], entry["field_deg"]
+    return f"crop_{asked:g}deg" + (f"_moved_to_{field:.2f}deg" if abs(field - asked) > CROP_SHIFT_WARN_DEG else "")
 
 
 def _index_page(stage, title, report, results, methods) -> None:
@@ -577,14 +584,21 @@ def _lens_report(args, psf) -> dict:
                      "refocus": args.refocus or "file", "image_shift_mm": seq.image_shift_mm,
                      "image_scale_mm": psf.image_scale_mm, "pixel_pitch_um": psf.sensor.pixel_pitch_um,
                      "pixel_pitch_from": "--pixel-pitch" if args.pixel_pitch is not None else
-                     "the photo spanning the lens's largest field at its corners",
-                     "corner_field_deg": psf.max_field_deg, "psf_sampling": psf.sampling,
+                     "the photo spanning the lens's largest field (its corners and the blur's margin beyond them)",
+                     "corner_field_deg": psf.geometry.max_field_angle_deg((psf.sensor.height_px, psf.sensor.width_px)),
+                     "psf_field_deg": psf.max_field_deg, "lens_field_deg": max(p.fields), "psf_sampling": psf.sampling,
                      "samples_per_pixel": psf.oversample(),
                      "wavefront_table_angles_deg": [round(float(a), 6) for a in table.angles_deg],
                      "wavefront_table_error_waves": table.interpolation_error_waves},
             "wavefront": "real rays (sequential ray trace)",
             "spectrum": [c.name for c in psf.colour_channels] if psf.colour_channels else psf.light.name,
             "wavelengths_um": list(lams), "wavelength_weights": list(weights)}
+
+
+def _lens_sampling_words(psf) -> str:
+    """What a figure's title says of the sensor a lens's photo is taken on: the pixel pitch and the corners' field."""
+    corner = psf.geometry.max_field_angle_deg((psf.sensor.height_px, psf.sensor.width_px))
+    return f"{psf.sensor.pixel_pitch_um:.3g} um pixels, corners at {corner:.3g} deg"
 
 
 def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme, method, built=None):
@@ -731,6 +745,9 @@ def cmd_psnr_table(args) -> int:
             lens_jobs.append((ns, psf, lens_angles,
                               [crop_at_field_angle(ideal.shape, a, size, psf.geometry) for a in lens_angles]))
         plans.append((ideal, source, angles, boxes, lens_jobs))
+    for _, _, _, _, lens_jobs in plans:  # every crop placed: the sensors the lenses' photos are taken on
+        for ns, psf, _, _ in lens_jobs:
+            note_lens_field(ns, psf)
     for ideal, source, angles, boxes, lens_jobs in plans:
         for name in args.designs:
             d = named[name]
@@ -836,12 +853,15 @@ def cmd_fig8(args) -> int:
         from pipeline import crop_at_field_angle
 
         crop_at_field_angle(ideal.shape, a, size, geometry)
+    if psf is not None:
+        note_lens_field(args, psf)
     t0 = time.perf_counter()
     with staged_output_dir(out) as stage:
         if psf is None:
             png, tiles = figure8(ideal, stage, angles=angles, crop=size, seed=args.seed, method=spec, chain=chain)
         else:
-            png, tiles = lens_mosaic(ideal, stage, psf, lens_file.name or lens_label(args), angles=angles, crop=size,
+            png, tiles = lens_mosaic(ideal, stage, psf, lens_file.name or lens_label(args), about=_lens_sampling_words(psf),
+                                     angles=angles, crop=size,
                                      seed=args.seed, method=spec, chain=chain)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles,
                                                                **_chain_report(chain, PAPER_CAMERA.sensor)}))
@@ -857,6 +877,7 @@ def register(sub) -> None:
     add_design_arguments(p)
     add_camera_arguments(p)
     add_lens_arguments(p)
+    add_fft_limit_argument(p)  # --lens: a lens whose PSF needs more is refused before any work
     p.add_argument("--iso", type=int, help="one of " + ", ".join(
         f"{i} ({PAPER_CAMERA.sensor.full_well_for_iso(i):g} e- full well)" for i in camera_isos)
         + f" (default {DEFAULT_ISO})")
@@ -918,6 +939,7 @@ def register(sub) -> None:
     f.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration method and its options ({methods}; default: wiener)")
     add_lens_arguments(f)
+    add_fft_limit_argument(f)  # --lens: a lens whose PSF needs more is refused before any work
     add_chain_arguments(f)
     add_device_argument(f)
     f.add_argument("--out", required=True)
@@ -928,6 +950,7 @@ def register(sub) -> None:
     t.add_argument("--designs", nargs="+", default=None, help="named designs (see `lenssim designs`; default: the "
                    "paper's, or none when --lens is given)")
     add_lens_arguments(t, many=True)
+    add_fft_limit_argument(t)
     t.add_argument("--designs-file", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
     t.add_argument("--isos", type=int, nargs="+", default=None,
                    help=f"ISOs (default: the sensor's, highest first; the paper's {' '.join(map(str, sorted(isos, reverse=True)))})")

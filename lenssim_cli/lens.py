@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 from .common import table
 
@@ -84,13 +85,18 @@ def cmd_inspect(args) -> int:
     key = "field_angles_deg" if p.object_at_infinity else "object_heights_mm"
     rows = []
     for i, f in enumerate(rep[key]):
-        mtf = " / ".join(f"{a:.3f},{b:.3f}" for a, b in zip(rep["mtf_sagittal"][i], rep["mtf_tangential"][i]))
+        sampled = rep["psf_not_sampled"][i] is None
+        mtf = " / ".join(f"{a:.3f},{b:.3f}" for a, b in zip(rep["mtf_sagittal"][i], rep["mtf_tangential"][i])) \
+            if sampled else "n/a *"
         rows.append([f"{f:g}", f"{rep['paraxial_image_heights_mm'][i]:.4f}", f"{rep['rms_opd_waves'][i]:.4f}",
-                     f"{rep['pv_opd_waves'][i]:.4f}", f"{rep['rms_spot_um'][i]:.3f}", f"{rep['strehl'][i]:.4f}",
-                     f"{100 * rep['vignetted_fraction'][i]:.1f}", mtf])
+                     f"{rep['pv_opd_waves'][i]:.4f}", f"{rep['rms_spot_um'][i]:.3f}",
+                     f"{rep['strehl'][i]:.4f}" if sampled else "n/a *", f"{100 * rep['vignetted_fraction'][i]:.1f}", mtf])
     print()
     print(table(rows, [f"field {unit}", "image height mm", "RMS OPD waves", "PV OPD waves", "RMS spot um", "Strehl",
                        "vignetted %", "MTF sag,tan at " + ", ".join(f"{v:g}" for v in freqs) + " c/mm"]))
+    unsampled = [(f, why) for f, why in zip(rep[key], rep["psf_not_sampled"]) if why is not None]
+    if unsampled:
+        print(f"\n* field {', '.join(f'{f:g}' for f, _ in unsampled)} {unit}: {unsampled[-1][1]}")
     return 0
 
 
@@ -179,16 +185,39 @@ def lens_psf_from_args(args, shape, *, progress=None):
     the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
     and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
     field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
-    from lenssim_studies.lens_tradeoff import photo_field
+    from lenssim_studies.lens_tradeoff import PhotoFieldError, photo_field
 
     p = check_lens_arguments(args)
     seq, _ = refocused_lens(p, args.refocus or "file")
     H, W = shape[-2:]
     if args.pixel_pitch is None and max(p.fields) <= 0:
         raise ValueError(f"--lens {args.lens} has only the axial field: give --pixel-pitch UM for the sensor")
-    pitch, amax = photo_field(p, seq, shape, pitch_um=args.pixel_pitch,
-                              margin_px=args.scheme[2] if getattr(args, "scheme", None) else 0)
-    return lens_provider(args, p, seq, pitch_um=pitch, width_px=int(W), height_px=int(H), max_field_deg=amax)
+    margin = args.scheme[2] if getattr(args, "scheme", None) else 0
+    try:
+        pitch, amax = photo_field(p, seq, shape, pitch_um=args.pixel_pitch, margin_px=margin)
+    except PhotoFieldError as exc:
+        fit = "; or leave --pixel-pitch out (the photo then spans the lens's field)" if exc.fit_um else ""
+        raise ValueError(f"--pixel-pitch {args.pixel_pitch:g} is not allowed with --lens {args.lens} on this "
+                         f"{W} x {H} px photo: {exc}{fit}") from None
+    psf = lens_provider(args, p, seq, pitch_um=pitch, width_px=int(W), height_px=int(H), max_field_deg=amax)
+    # the work bounded before any PSF: the PSF's size from a few rays, then its FFT against --max-fft-size
+    extent = psf.estimated_extent_px()
+    if extent > max(H, W):
+        raise ValueError(f"--lens {args.lens}: its PSF spans about {extent} px ({extent * pitch * 1e-3:.3g} mm) on "
+                         f"{pitch:.4g} um pixels, more than the {W} x {H} px photo: nothing of the scene would be "
+                         "resolved (is the lens far out of focus? try --refocus best)")
+    psf.check_fft_size(extent, f"--lens {args.lens}")
+    return psf
+
+
+def note_lens_field(args, psf) -> None:
+    """Say on stderr (once every input is checked, as the work starts) the sensor a lens's photo is taken on: the pixel
+    pitch, where it comes from, and the field angles of the photo's corners and of the farthest PSF the blur asks for."""
+    corner = psf.geometry.max_field_angle_deg((psf.sensor.height_px, psf.sensor.width_px))
+    how = "--pixel-pitch" if args.pixel_pitch is not None else "chosen so the photo spans the lens's field"
+    print(f"lenssim {args.command}: note: {lens_label(args)}: pixel pitch {psf.sensor.pixel_pitch_um:.4g} um ({how}); "
+          f"the photo's corners at {corner:.4g} deg, PSFs traced to {psf.max_field_deg:.4g} deg (the lens's field: "
+          f"{max(psf.lens.prescription.fields):g} deg)", file=sys.stderr)
 
 
 def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: int, max_field_deg: float,
@@ -204,8 +233,11 @@ def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: in
     spec = getattr(args, "spectrum", "paper") or "paper"
     chans = () if spec == "paper" else channel_spectra(spec, args.illuminant or DEFAULT_ILLUMINANT,
                                                        args.wavelengths_per_channel)
+    from .common import numerics_from_args
+
     return sequential_provider(p, seq, pitch_um=pitch_um, sampling=sampling, max_field_deg=max_field_deg,
-                               width_px=width_px, height_px=height_px, colour_channels=chans)
+                               width_px=width_px, height_px=height_px, colour_channels=chans,
+                               numerics=numerics_from_args(args))
 
 
 def cmd_evaluate_lens(args) -> int:

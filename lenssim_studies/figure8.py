@@ -72,13 +72,14 @@ def chain_isos(sensor, preferred) -> tuple[int, ...]:
 
 
 def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: int = 128, seed: int = 0,
-                method="wiener", isos=None, sensor=None, chain=None, blur_zones="auto") -> tuple[Path, list[dict]]:
+                method="wiener", isos=None, sensor=None, chain=None, blur_zones="auto", about: str = ""
+                ) -> tuple[Path, list[dict]]:
     """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
     :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
     restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
     default the provider's), one row per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).
     Writes ``lens_mosaic.png`` and ``.svg`` in ``out_dir``; returns the PNG's path and a row per restored tile.
-    ``blur_zones``: as for :func:`figure8`."""
+    ``blur_zones``: as for :func:`figure8`; ``about``: words the title adds after the label (e.g. the pixel pitch)."""
     spec = Restoration.of(method)
     method = spec.name
     sensor = psf.sensor if sensor is None else sensor
@@ -94,7 +95,7 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
     cols = [("ideal", img((label, isos[0]), "ideal"), None),
             ("sensor (no noise)", img((label, isos[0]), "blurred"), None)]
     cols += [(f"restored, ISO {iso}", img((label, iso), method), (label, iso)) for iso in isos]
-    title = (f"{label}\nthe sensor image and its restoration ({spec.method.label}) at ISO "
+    title = (f"{label}{', ' + about if about else ''}\nthe sensor image and its restoration ({spec.method.label}) at ISO "
              f"{', '.join(str(i) for i in isos)}; PSNR / SSIM in sRGB against the ideal image")
     if chain is not None:
         title += f"\ncamera chain: {chain.label()}"

@@ -81,21 +81,46 @@ def sequential_provider(p: Prescription, seq: SequentialLens, *, pitch_um: float
 def photo_field(p: Prescription, seq: SequentialLens, shape, *, pitch_um: float | None = None,
                 margin_px: float = 0.0) -> tuple[float, float]:
     """The pixel pitch (um) and the largest field angle (deg) of a photo of ``shape`` ``(..., H, W)`` taken through
-    ``seq``: by default the pitch that puts the lens's largest field at the photo's corners (``pitch_um``: the given
-    one); the angle reaches ``margin_px`` past the corners (the blur's windows reach past the frame's edges by up to
-    half a core on each axis: their PSFs too)."""
+    ``seq``, where the angle reaches ``margin_px`` past the photo's corners (the blur's windows reach past the frame's
+    edges by up to half a core on each axis: their PSFs too). By default the pitch puts that reach at the lens's
+    largest field, so the photo spans the lens's field and every PSF asked for lies within it; ``pitch_um``: the given
+    pitch, refused (:class:`PhotoFieldError`, with the pitch that would fit) where the lens's chief ray does not pass
+    at the reach it gives."""
     from lenssim.optics.sequential_psf import image_scale_mm
 
     H, W = shape[-2:]
-    corner_px = math.hypot(H - 1, W - 1) / 2
+    reach_px = math.hypot(H - 1, W - 1) / 2 + margin_px
     scale = image_scale_mm(seq)
+    amax = max(p.fields)
+    fit_um = scale * math.tan(math.radians(amax)) / reach_px * 1e3 if amax > 0 else None
     if pitch_um is None:
-        amax = max(p.fields)
-        if amax <= 0:
+        if fit_um is None:
             raise ValueError("the lens has only the axial field: give a pixel pitch (um) for the sensor")
-        pitch_um = scale * math.tan(math.radians(amax)) / corner_px * 1e3
-    reach_px = corner_px + margin_px
-    return float(pitch_um), math.degrees(math.atan(reach_px * pitch_um * 1e-3 / scale))
+        return float(fit_um), float(amax)
+    reach = math.degrees(math.atan(reach_px * pitch_um * 1e-3 / scale))
+    if reach > amax:
+        from lenssim.optics.sequential import RayTraceError
+        from lenssim.optics.sequential_psf import chief_point_mm
+
+        try:
+            for lam in p.wavelengths_um:
+                chief_point_mm(seq, reach, lam)
+        except RayTraceError as exc:
+            where = f"{reach:.4g} deg at the photo's corners" + (f" and the blur's {margin_px:g} px margin beyond them"
+                                                                 if margin_px else "")
+            hint = (f"a pitch of at most {fit_um:.4g} um keeps the photo within the lens's {amax:g} deg field"
+                    if fit_um is not None else "the lens gives no field to fit the photo in")
+            raise PhotoFieldError(f"a pixel pitch of {pitch_um:g} um puts {where}, where this lens forms no image "
+                                  f"({exc}); {hint}", fit_um) from None
+    return float(pitch_um), reach
+
+
+class PhotoFieldError(ValueError):
+    """A pixel pitch that puts a photo's corners beyond the field a lens images; ``fit_um`` the pitch that fits."""
+
+    def __init__(self, message: str, fit_um: float | None):
+        super().__init__(message)
+        self.fit_um = fit_um
 
 
 @dataclass(frozen=True)

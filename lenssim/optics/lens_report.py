@@ -24,12 +24,18 @@ import torch
 
 from .sequential import SequentialLens
 
-__all__ = ["lens_report", "field_quality", "REPORT_GRID", "PSF_PADDING", "DEFAULT_MTF_FREQUENCIES_CPMM"]
+__all__ = ["lens_report", "field_quality", "REPORT_GRID", "PSF_PADDING", "DEFAULT_MTF_FREQUENCIES_CPMM",
+           "MAX_PHASE_STEP_WAVES", "MAX_REPORT_GRID"]
 
 REPORT_GRID = 64
 """Pupil samples across the entrance pupil's diameter for the per-field figures."""
 PSF_PADDING = 8
 """The PSF's FFT is this many times the pupil grid (PSF samples of ``lambda N_w / PSF_PADDING``)."""
+MAX_PHASE_STEP_WAVES = 0.5
+"""The largest OPD step (waves) between neighbouring pupil samples whose PSF is faithful: the Nyquist limit of the
+pupil's phase (a steeper wavefront's rays land beyond the PSF grid's half width and wrap round it)."""
+MAX_REPORT_GRID = 512
+"""The finest pupil grid a field's figures are computed on (its PSF's FFT is ``PSF_PADDING`` times that: 4096)."""
 DEFAULT_MTF_FREQUENCIES_CPMM = (10.0, 30.0, 50.0)
 """MTF frequencies (cycles/mm) reported when none are asked (the photographic lens's customary three)."""
 
@@ -40,10 +46,9 @@ def _square_pupil(n: int):
     return X, Y, X**2 + Y**2 <= 1
 
 
-def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MTF_FREQUENCIES_CPMM, *,
-                  grid: int = REPORT_GRID, wavelength_um: float | None = None) -> dict:
-    """The figures of one field (see the module docstring): a dict of floats and lists."""
-    lam = seq.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+def _pupil_phase(seq: SequentialLens, field: float, lam: float, grid: int):
+    """The traced wavefront of one field on a ``grid x grid`` pupil: ``(w, amp, phase, step)``, ``step`` the largest
+    OPD difference (waves) between neighbouring unvignetted samples."""
     X, Y, inside = _square_pupil(grid)
     w = seq.wavefront(field, X[inside], Y[inside], lam)
     if not bool(w.valid.any()):
@@ -54,6 +59,37 @@ def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MT
     v = w.valid
     amp[idx[0][v], idx[1][v]] = 1.0
     phase[idx[0][v], idx[1][v]] = w.opd_waves[v] - w.opd_waves[v].mean()
+    both_x, both_y = (amp[:, 1:] * amp[:, :-1]) > 0, (amp[1:] * amp[:-1]) > 0
+    dx, dy = (phase[:, 1:] - phase[:, :-1]).abs()[both_x], (phase[1:] - phase[:-1]).abs()[both_y]
+    step = max(float(dx.max()) if dx.numel() else 0.0, float(dy.max()) if dy.numel() else 0.0)
+    return w, amp, phase, step
+
+
+def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MTF_FREQUENCIES_CPMM, *,
+                  grid: int = REPORT_GRID, wavelength_um: float | None = None) -> dict:
+    """The figures of one field (see the module docstring): a dict of floats and lists.
+
+    The PSF, and with it the Strehl ratio and the MTF, holds the blur only where the pupil's phase is sampled finely
+    enough: at most :data:`MAX_PHASE_STEP_WAVES` between neighbouring samples (beyond, the rays' slopes alias and the
+    PSF wraps round its grid). The grid is doubled until it is (up to :data:`MAX_REPORT_GRID`); where it cannot be,
+    the Strehl ratio and the MTF are None and ``psf_not_sampled`` says why (the ray figures stay: they are exact)."""
+    lam = seq.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+    w, amp, phase, step = _pupil_phase(seq, field, lam, grid)
+    while step > MAX_PHASE_STEP_WAVES and grid < MAX_REPORT_GRID:
+        need = grid * step / MAX_PHASE_STEP_WAVES  # the step shrinks as the grid grows (a smooth wavefront)
+        if need > 2 * MAX_REPORT_GRID:
+            break  # no grid within the bound would do: not traced again
+        grid = min(MAX_REPORT_GRID, 2 ** math.ceil(math.log2(need)))
+        w, amp, phase, step = _pupil_phase(seq, field, lam, grid)
+    rays = {"rms_opd_waves": w.rms_waves(), "pv_opd_waves": w.pv_waves(), "rms_spot_um": w.rms_spot_mm() * 1e3,
+            "vignetted_fraction": w.vignetted_fraction, "chief_ray_image_height_mm": float(w.chief_mm[1]),
+            "pupil_grid": grid}
+    if step > MAX_PHASE_STEP_WAVES:
+        return {**rays, "strehl": None, "mtf_sagittal": [None] * len(frequencies_cpmm),
+                "mtf_tangential": [None] * len(frequencies_cpmm),
+                "psf_not_sampled": f"the wavefront changes by up to {step:.3g} waves between neighbouring samples of a "
+                                   f"{grid} x {grid} pupil grid (at most {MAX_PHASE_STEP_WAVES:g} resolves the PSF): "
+                                   "the blur is too large for a diffraction PSF; no Strehl ratio or MTF"}
     m = grid * PSF_PADDING
     pupil = torch.zeros(m, m, dtype=torch.complex128)
     pupil[:grid, :grid] = amp * torch.exp(2j * math.pi * phase)
@@ -74,9 +110,7 @@ def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MT
         k0, frac = int(math.floor(k)), k - math.floor(k)
         out_s.append(float((1 - frac) * mtf[0, k0] + frac * mtf[0, k0 + 1]))
         out_t.append(float((1 - frac) * mtf[k0, 0] + frac * mtf[k0 + 1, 0]))
-    return {"rms_opd_waves": w.rms_waves(), "pv_opd_waves": w.pv_waves(), "rms_spot_um": w.rms_spot_mm() * 1e3,
-            "strehl": strehl, "mtf_sagittal": out_s, "mtf_tangential": out_t,
-            "vignetted_fraction": w.vignetted_fraction, "chief_ray_image_height_mm": float(w.chief_mm[1])}
+    return {**rays, "strehl": strehl, "mtf_sagittal": out_s, "mtf_tangential": out_t, "psf_not_sampled": None}
 
 
 def lens_report(seq: SequentialLens, fields=None, frequencies_cpmm=DEFAULT_MTF_FREQUENCIES_CPMM, *,

@@ -55,7 +55,7 @@ from .psf_provider import PSFProvider
 from .sequential import SequentialLens
 
 __all__ = ["SequentialPSF", "WavefrontTable", "wavefront_table", "psfs_from_table", "image_scale_mm", "SAMPLINGS",
-           "TABLE_GRID", "TABLE_TOLERANCE_WAVES", "MIN_PUPIL_RADIUS_SAMPLES"]
+           "TABLE_GRID", "TABLE_TOLERANCE_WAVES", "MIN_PUPIL_RADIUS_SAMPLES", "chief_point_mm"]
 
 SAMPLINGS = ("area", "point")
 """How a PSF is sampled on the pixels: integrated over each pixel's area, or at the pixel centres."""
@@ -84,9 +84,13 @@ TABLE_CACHE_SIZE = 8
 """Wavefront tables kept in the process (each a few MB)."""
 _TABLES: dict = {}
 CHUNK_BYTES = 2**28
+"""PSFs are computed in batches whose complex FFT grids take at most this many bytes."""
+EXTENT_PUPIL_POINTS = 96
+"""Pupil points traced per field and wavelength for :meth:`SequentialPSF.estimated_extent_px` (half on the rim)."""
+EXTENT_FIELDS = 5
+"""Field angles (evenly from the axis to the largest) of :meth:`SequentialPSF.estimated_extent_px`."""
 APERTURE_UNTRACED = 2.0
 """The aperture ratio given to a pupil sample whose ray cannot be traced at all (well beyond the pass level 1)."""
-"""PSFs are computed in batches whose complex FFT grids take at most this many bytes."""
 
 
 def _meridional_grid(grid: int):
@@ -197,7 +201,7 @@ class WavefrontTable:
         return out[:, 0], out[:, 1]
 
 
-def _chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
+def chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
     """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``(x, y)`` (mm; ``x`` is 0
     for a centred lens, and taken as exactly 0 there)."""
     zero = torch.zeros(1, dtype=torch.float64)
@@ -213,7 +217,7 @@ def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: 
     Y, X = torch.meshgrid(coords, coords, indexing="ij")
     inside = X**2 + Y**2 <= (1 + 2 * (coords[1] - coords[0])) ** 2
     paraxial = scale_mm * math.tan(math.radians(alpha))
-    chief_x, chief = _chief_point_mm(seq, alpha, seq.primary_wavelength_um)
+    chief_x, chief = chief_point_mm(seq, alpha, seq.primary_wavelength_um)
     out = []
     for lam in lams:
         w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(chief_x, chief), vignette=False)
@@ -438,6 +442,44 @@ class SequentialPSF(PSFProvider):
         need = math.ceil(MIN_PUPIL_RADIUS_SAMPLES * 2 * lam_max * self.working_f_number / fine_um)
         return nice_fft_size(max((n + 1) * s, need))  # the window n s around the centre, for odd and even n
 
+    def estimated_extent_px(self) -> int:
+        """The PSF diameter (px) over the whole traced field, estimated from a few rays before any wavefront table is
+        traced (the table of a badly blurred lens takes minutes): :data:`EXTENT_PUPIL_POINTS` pupil points (the rim
+        and a grid inside) at :data:`EXTENT_FIELDS` field angles from the axis to :attr:`max_field_deg`, every
+        wavelength, the largest distance of a ray's image point from the paraxial point doubled, + :meth:`margin_px`
+        (as :meth:`extents_px`; a few percent below it at most where the worst ray lies between the samples)."""
+        n_rim = EXTENT_PUPIL_POINTS // 2
+        t = torch.arange(n_rim, dtype=torch.float64) * (2 * math.pi / n_rim)
+        g = torch.linspace(-1, 1, math.isqrt(EXTENT_PUPIL_POINTS - n_rim), dtype=torch.float64)
+        gy, gx = torch.meshgrid(g, g, indexing="ij")
+        inside = gx**2 + gy**2 < 1
+        px = torch.cat([torch.cos(t), gx[inside]])
+        py = torch.cat([torch.sin(t), gy[inside]])
+        spot = 0.0
+        for k in range(EXTENT_FIELDS):
+            alpha = self.max_field_deg * k / (EXTENT_FIELDS - 1)
+            paraxial = self.image_scale_mm * math.tan(math.radians(alpha))
+            for lam in self.quadrature()[0]:
+                w = self.lens.wavefront(alpha, px, py, lam)
+                pts = w.image_mm[w.valid][:, :2]
+                if pts.numel():
+                    spot = max(spot, float(torch.hypot(pts[:, 0], pts[:, 1] - paraxial).max()))
+        return math.ceil(2 * spot / (self.sensor.pixel_pitch_um * 1e-3)) + self.margin_px()
+
+    def check_fft_size(self, n: int, what: str = "") -> int:
+        """:meth:`fft_size` of ``n x n``-pixel PSFs, refused (:class:`lenssim.validate.ResourceLimitError`, setting
+        ``max_fft_size``) above ``numerics.max_fft_size``: one such FFT grid is ``16 N^2`` bytes (complex128)."""
+        N = self.fft_size(n)
+        if N > self.numerics.max_fft_size:
+            from ..validate import ResourceLimitError
+
+            raise ResourceLimitError(
+                f"{what or 'the lens'}: its PSF spans {n} px ({n * self.sensor.pixel_pitch_um * 1e-3:.3g} mm) on "
+                f"{self.sensor.pixel_pitch_um:.4g} um pixels, sampled {self.oversample()} times per pixel for its F/"
+                f"{self.working_f_number:.3g} beam: an FFT of {N} samples ({16 * N * N / 2**30:.3g} GiB per PSF), more "
+                f"than the limit max_fft_size = {self.numerics.max_fft_size}", "max_fft_size")
+        return N
+
     def margin_px(self) -> int:
         """Pixels added to the geometric PSF diameter for diffraction: :data:`DIFFRACTION_MARGIN_AIRY` times
         ``lambda N_w`` at the longest wavelength, at least :data:`MIN_MARGIN_PX`."""
@@ -501,7 +543,7 @@ class SequentialPSF(PSFProvider):
         k = min(n, k + (n - k) % 2)
         small, captured = psfs_from_table(
             self.table() if table is None else table, self.quadrature()[1], alpha_deg, phi_rad, k, self.oversample(),
-            self.fft_size(k), self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
+            self.check_fft_size(k), self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
             complex_dtype=complex_dtype, distortion=distortion)
         out = torch.zeros(*small.shape[:-2], n, n, dtype=small.dtype)
         o = n // 2 - k // 2

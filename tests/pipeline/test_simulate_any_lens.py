@@ -32,11 +32,14 @@ def test_simulate_any_lens_spans_its_field_and_reports_it(lens_file, tmp_path, c
     seq = SequentialLens(read_lens(str(lens_file)))
     par = seq.paraxial()
     assert lens["efl_mm"] == pytest.approx(par.efl_mm) and lens["f_number"] == pytest.approx(par.f_number)
-    # skimage's camera is 512 x 512: the corner pixel's centre lies at the lens's largest field, 3 degrees
-    corner_px = math.hypot(511, 511) / 2
-    assert lens["pixel_pitch_um"] == pytest.approx(lens["image_scale_mm"] * math.tan(math.radians(3.0)) / corner_px * 1e3)
+    # skimage's camera is 512 x 512: the farthest PSF the blur asks for, the blur windows' 64 px core margin past the
+    # corner pixel's centre, lies at the lens's largest field, 3 degrees (issue 43: the photo spans the lens's field)
+    reach_px = math.hypot(511, 511) / 2 + 64
+    assert lens["pixel_pitch_um"] == pytest.approx(lens["image_scale_mm"] * math.tan(math.radians(3.0)) / reach_px * 1e3)
     assert lens["image_scale_mm"] == pytest.approx(par.efl_mm, rel=1e-3)  # focused near infinity: the scale is f
-    assert lens["corner_field_deg"] > 3.0  # the table reaches past the corner, where the blur's windows reach
+    assert lens["psf_field_deg"] == 3.0 == lens["lens_field_deg"]  # the table reaches the lens's field, not beyond
+    corner = math.degrees(math.atan(math.hypot(511, 511) / 2 * lens["pixel_pitch_um"] * 1e-3 / lens["image_scale_mm"]))
+    assert lens["corner_field_deg"] == pytest.approx(corner) and corner < 3.0
     assert lens["wavefront_table_error_waves"] <= 0.01
     assert rep["wavelengths_um"] == [0.55]
     crops = rep["crops"]
@@ -47,6 +50,7 @@ def test_simulate_any_lens_spans_its_field_and_reports_it(lens_file, tmp_path, c
     for f in ("mosaic.png", "index.html", "crop_0deg_sensor.png"):
         assert (out / f).exists(), f
     assert rep["optics"].startswith("Test plano-convex singlet")
+    assert f"{lens['pixel_pitch_um']:.3g} um pixels, corners at {corner:.3g} deg" in rep["optics"]  # the figures' titles
 
 
 def test_a_finer_pixel_pitch_blurs_more_pixels(lens_file, tmp_path):
@@ -156,3 +160,55 @@ def test_psnr_table_places_every_crop_of_every_photo_before_any_work(lens_file, 
     err = capsys.readouterr().err
     assert "field angle=2.0 is not allowed" in err and len(err.strip().splitlines()) == 1
     assert not calls and not (tmp_path / "t").exists()
+
+
+def _far_out_of_focus(tmp_path):
+    """The paper's singlet with its back radius -2.05 mm: an F/1 lens ~21 mm out of focus (issue 43)."""
+    text = (Path(__file__).parents[2] / "configs" / "lenses" / "paper_singlet.toml").read_text()
+    path = tmp_path / "fast.toml"
+    path.write_text(text.replace("curvature_per_mm = -0.071", "curvature_per_mm = -0.487804878"))
+    return path
+
+
+@pytest.mark.parametrize("extra, match", [
+    ((), "its PSF spans about"),  # the blur is wider than the photo
+    (("--pixel-pitch", "1"), "its PSF spans about"),
+])
+def test_a_lens_whose_psf_is_out_of_bounds_is_refused_before_any_work(tmp_path, capsys, extra, match):
+    """Issue 43: such a lens took 11.5 GB and minutes with no message. Its PSF's size comes from a few rays before any
+    wavefront table or PSF: refused in one line, nothing written."""
+    import time
+
+    t0 = time.perf_counter()
+    assert main(["simulate", "skimage:camera", "--lens", str(_far_out_of_focus(tmp_path)), "--crop", "128", "--angles",
+                 "0", *extra, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and len(err.splitlines()) == 1 and not (tmp_path / "o").exists()
+    assert time.perf_counter() - t0 < 60  # bounded: not the minutes of a wavefront table
+
+
+def test_a_psf_whose_fft_exceeds_the_limit_is_refused_with_the_flag_that_raises_it(lens_file, tmp_path, capsys):
+    assert main(["simulate", "skimage:camera", "--lens", str(lens_file), "--crop", "64", "--angles", "0",
+                 "--max-fft-size", "32", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "an FFT of" in err and "max_fft_size = 32" in err and "--max-fft-size" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_pixel_pitch_beyond_the_lens_field_says_what_fits_and_a_moved_crop_is_named_where_it_went(tmp_path, capsys):
+    """Issue 43: a pitch putting the photo's corners where the chief ray no longer passes was a ray-trace error; now
+    one line with the pitch that fits. A crop asked beyond the photo's reach is moved inside and named by both."""
+    assert main(["simulate", "skimage:camera", "--lens", "cooke_triplet", "--pixel-pitch", "400", "--crop", "64",
+                 "--angles", "0", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--pixel-pitch 400 is not allowed" in err and "at most" in err
+    fit = float(err.split("at most ")[1].split(" um")[0])
+    out = tmp_path / "ok"
+    assert main(["simulate", "skimage:camera", "--lens", "cooke_triplet", "--pixel-pitch", f"{fit:g}", "--crop",
+                 "128", "--angles", "9.5", "--iso", "100", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"pixel pitch {fit:.4g} um (--pixel-pitch)" in err
+    m = json.loads((out / "metrics.json").read_text())
+    c = m["crops"][0]
+    assert c["requested_deg"] == 9.5 and c["field_deg"] < 9.25  # moved inside the frame
+    assert (out / f"crop_9.5deg_moved_to_{c['field_deg']:.2f}deg_sensor.png").exists()
