@@ -195,20 +195,30 @@ def test_a_psf_whose_fft_exceeds_the_limit_is_refused_with_the_flag_that_raises_
     assert not (tmp_path / "o").exists()
 
 
-def test_a_pixel_pitch_beyond_the_lens_field_says_what_fits_and_a_moved_crop_is_named_where_it_went(tmp_path, capsys):
-    """Issue 43: a pitch putting the photo's corners where the chief ray no longer passes was a ray-trace error; now
-    one line with the pitch that fits. A crop asked beyond the photo's reach is moved inside and named by both."""
+def test_a_pixel_pitch_beyond_the_lens_field_says_what_fits(tmp_path, capsys):
+    """Issue 43: a pitch putting the photo's corners where the chief ray no longer passes was a ray-trace error deep in
+    the work; now one line, before any work, with the pitch that fits, which does."""
+    from lenssim_studies.lens_tradeoff import photo_field
+
     assert main(["simulate", "skimage:camera", "--lens", "cooke_triplet", "--pixel-pitch", "400", "--crop", "64",
                  "--angles", "0", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--pixel-pitch 400 is not allowed" in err and "at most" in err
+    assert not (tmp_path / "o").exists()
     fit = float(err.split("at most ")[1].split(" um")[0])
+    p = read_lens("cooke_triplet")
+    pitch, reach = photo_field(p, SequentialLens(p), (1, 3, 512, 512), pitch_um=fit, margin_px=64)
+    assert pitch == fit and reach == pytest.approx(max(p.fields), rel=1e-3)  # the lens's field, to the 4 digits given
+
+
+def test_a_crop_moved_inside_the_frame_is_named_where_it_went(lens_file, tmp_path, capsys):
+    """Issue 43: a crop asked at 26 deg and moved to 22.2 deg was still named crop_26deg_*."""
     out = tmp_path / "ok"
-    assert main(["simulate", "skimage:camera", "--lens", "cooke_triplet", "--pixel-pitch", f"{fit:g}", "--crop",
-                 "128", "--angles", "9.5", "--iso", "100", "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert f"pixel pitch {fit:.4g} um (--pixel-pitch)" in err
-    m = json.loads((out / "metrics.json").read_text())
-    c = m["crops"][0]
-    assert c["requested_deg"] == 9.5 and c["field_deg"] < 9.25  # moved inside the frame
-    assert (out / f"crop_9.5deg_moved_to_{c['field_deg']:.2f}deg_sensor.png").exists()
+    assert main(["simulate", "skimage:camera", "--lens", str(lens_file), "--pixel-pitch", "5", "--crop", "128",
+                 "--angles", "0", "2", "--iso", "100", "--out", str(out)]) == 0
+    assert "pixel pitch 5 um (--pixel-pitch)" in capsys.readouterr().err
+    c0, c2 = json.loads((out / "metrics.json").read_text())["crops"]
+    assert c2["requested_deg"] == 2 and c2["field_deg"] < 1.75  # the corners lie at 2.08 deg: moved inside
+    assert (out / "crop_0deg_sensor.png").exists()
+    assert (out / f"crop_2deg_moved_to_{c2['field_deg']:.2f}deg_sensor.png").exists()
+    assert not (out / "crop_2deg_sensor.png").exists()
