@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .dng import D65_ILLUMINANT
 from .io import ImageFileError
 
 __all__ = ["RAW_EXTENSIONS", "RawInfo", "is_raw_path", "raw_info", "read_raw", "RAW_FULL_SCALE", "POSTPROCESS_SETTINGS"]
@@ -262,8 +263,6 @@ DNG_COLOR_MATRICES = ((50721, "ColorMatrix1", 50778, "CalibrationIlluminant1"),
                       (50722, "ColorMatrix2", 50779, "CalibrationIlluminant2"))
 """A DNG's colour matrices (XYZ -> camera, SRATIONAL, row by row) and the tags of the illuminants they were calibrated
 under (EXIF LightSource codes), as numbered in Adobe's DNG Specification 1.4.0.0, IFD 0."""
-DNG_D65 = 21
-"""The EXIF LightSource code of D65: of two colour matrices, the one calibrated under it is recorded."""
 EXIF_LIGHT_SOURCES = {0: "unknown", 1: "daylight", 2: "fluorescent", 3: "tungsten", 4: "flash", 9: "fine weather",
                       10: "cloudy", 11: "shade", 12: "daylight fluorescent", 13: "day white fluorescent",
                       14: "cool white fluorescent", 15: "white fluorescent", 16: "warm white fluorescent",
@@ -279,10 +278,10 @@ _NOTE_CHARS = 200
 def _dng_color_matrix(path) -> tuple[tuple[tuple[float, float, float], ...] | None, str | None, str | None]:
     """A DNG's own colour matrix (XYZ -> camera, 3 x 3) from its IFD 0 tags (read by tifffile), its source (which tag,
     under which illuminant) and a one-line note of the tags that could not be used (None if none): of two usable
-    matrices the one calibrated under D65, else ColorMatrix1. A tag with the wrong type or count (not 3 x 3: a
-    4-colour camera), a zero denominator or all zeros is not used and is named in the note, as is a DNG without either
-    tag; a file whose tags cannot be read at all gives ``(None, None, note)``. Nothing is printed: tifffile's log is
-    caught while it reads."""
+    matrices the one calibrated under D65 (:data:`pipeline.dng.D65_ILLUMINANT`), else ColorMatrix1. A tag with the
+    wrong type or count (not 3 x 3: a 4-colour camera), a zero denominator or all zeros is not used and is named in
+    the note, as is a DNG without either tag; a file whose tags cannot be read at all gives ``(None, None, note)``.
+    Nothing is printed: tifffile's log is caught while it reads."""
     import logging
 
     import tifffile
@@ -325,7 +324,7 @@ def _dng_color_matrix(path) -> tuple[tuple[tuple[float, float, float], ...] | No
         usable.append((matrix, f"DNG {name} ({ill_name} {light})", ill))
     if not usable:
         return None, None, _one_line("; ".join(notes))
-    matrix, source, _ = next((u for u in usable if u[2] == DNG_D65), usable[0]) if len(usable) > 1 else usable[0]
+    matrix, source, _ = next((u for u in usable if u[2] == D65_ILLUMINANT), usable[0]) if len(usable) > 1 else usable[0]
     return matrix, source, _one_line("; ".join(notes)) if notes else None
 
 
@@ -336,7 +335,10 @@ def _rational_matrix(dtype: int, count: int, value) -> tuple[tuple[tuple[float, 
         return None, f"is of TIFF type {dtype}, not a rational"
     if count != 9:
         return None, f"has {count} values, not 9 (3 x 3: a 3-colour camera)"
-    v = np.asarray(value, dtype=np.float64).reshape(-1)
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        return None, "has values that are not numbers"
     if v.size != 18:
         return None, f"has {v.size // 2} rationals, not 9"
     num, den = v[0::2], v[1::2]
