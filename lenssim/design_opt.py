@@ -1,7 +1,7 @@
 """Gradient-based trade-off without a grid (paper Section 5): optimise quality along an iso-cost curve.
 
 The whole chain ``(s, Q) -> W -> pupil -> PSF -> OTF -> MSE`` is differentiable torch code, and so
-is the cost ``C_a`` (the best-fit-sphere Gauss-Newton iterations are unrolled). At each step the
+is the cost ``C_a`` (a Newton step at the converged best-fit sphere carries its gradient). At each step the
 quality gradient is projected on the subspace orthogonal to the cost gradient, a backtracking
 step is taken along it, and the point is pulled back onto ``C_a = level`` by Newton steps along
 the cost gradient. FFT sizes are fixed per field angle at the start (piecewise-constant in the

@@ -1,7 +1,8 @@
 """RAW in: a camera's RAW file (DNG, NEF, CR2/CR3, ARW, RAF, ...) read by LibRaw (rawpy) as a linear camera-RGB image.
 
 :func:`raw_info` reads what a file's header says (:class:`RawInfo`: output size in px, Bayer pattern, black and white
-levels in digital numbers (DN), the as-shot white balance, LibRaw's camera <- XYZ matrix). :func:`read_raw` checks the
+levels in digital numbers (DN), the as-shot white balance, the camera <- XYZ matrix: LibRaw's, or for a DNG, whose
+matrix LibRaw gives as zeros, the file's own ColorMatrix1 or ColorMatrix2 tag, and which one). :func:`read_raw` checks the
 output pixel count from the header against a limit *before* anything is decoded, then has LibRaw demosaic the file and
 returns a float32 tensor ``(1, 3, H, W)`` in [0, 1], linear in light, in the camera's own RGB (no colour matrix), white
 balanced with the camera's as-shot multipliers (a grey card comes back grey).
@@ -42,6 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .dng import D65_ILLUMINANT
 from .io import ImageFileError
 
 __all__ = ["RAW_EXTENSIONS", "RawInfo", "is_raw_path", "raw_info", "read_raw", "RAW_FULL_SCALE", "POSTPROCESS_SETTINGS"]
@@ -108,7 +110,9 @@ class RawInfo:
     black_level_dn: tuple[int, ...]  # per channel, DN
     white_level_dn: int  # DN
     camera_white_balance: tuple[float, ...]  # as-shot multipliers (4, or 3 when LibRaw gives no fourth)
-    rgb_xyz_matrix: tuple[tuple[float, float, float], ...] | None  # 3 x 3, camera <- XYZ; None if LibRaw has none
+    rgb_xyz_matrix: tuple[tuple[float, float, float], ...] | None  # 3 x 3, camera <- XYZ; None if the file has none
+    rgb_xyz_matrix_source: str | None = None  # where it came from: LibRaw, or a DNG's own tag and its illuminant
+    rgb_xyz_matrix_note: str | None = None  # why a DNG's colour-matrix tags were not used (one line), if they were not
 
     @property
     def pixels(self) -> int:
@@ -125,6 +129,7 @@ class RawInfo:
             "black_level_dn": [num(v) for v in self.black_level_dn], "white_level_dn": num(self.white_level_dn),
             "camera_white_balance": [num(v) for v in self.camera_white_balance],
             "rgb_xyz_matrix": None if self.rgb_xyz_matrix is None else [[num(v) for v in row] for row in self.rgb_xyz_matrix],
+            "rgb_xyz_matrix_source": self.rgb_xyz_matrix_source, "rgb_xyz_matrix_note": self.rgb_xyz_matrix_note,
         }
 
 
@@ -220,8 +225,12 @@ def _open(path, what: str, max_pixels: int | None):
             raise ImageFileError(f"{what} {str(path)!r} has {width} x {height} = {width * height:,} pixels: more than "
                                  f"the limit of {max_pixels:,}")
         _libraw(raw.unpack, path, what)
+        matrix = _matrix(raw.rgb_xyz_matrix)
+        source, note = ("LibRaw", None) if matrix is not None else (None, None)
+        if matrix is None and Path(p).suffix.lower() == ".dng":  # LibRaw gives a DNG's matrix as zeros: its own tags
+            matrix, source, note = _dng_color_matrix(p)
         info = RawInfo(str(path), width, height, _pattern(raw), tuple(int(v) for v in raw.black_level_per_channel),
-                       int(raw.white_level), _white_balance(raw.camera_whitebalance), _matrix(raw.rgb_xyz_matrix))
+                       int(raw.white_level), _white_balance(raw.camera_whitebalance), matrix, source, note)
     except BaseException:
         raw.close()
         raise
@@ -248,6 +257,103 @@ def _matrix(values) -> tuple[tuple[float, float, float], ...] | None:
     if m.shape != (3, 3) or not np.isfinite(m).all() or not m.any():
         return None
     return tuple(tuple(float(v) for v in row) for row in m)
+
+
+DNG_COLOR_MATRICES = ((50721, "ColorMatrix1", 50778, "CalibrationIlluminant1"),
+                      (50722, "ColorMatrix2", 50779, "CalibrationIlluminant2"))
+"""A DNG's colour matrices (XYZ -> camera, SRATIONAL, row by row) and the tags of the illuminants they were calibrated
+under (EXIF LightSource codes), as numbered in Adobe's DNG Specification 1.4.0.0, IFD 0."""
+EXIF_LIGHT_SOURCES = {0: "unknown", 1: "daylight", 2: "fluorescent", 3: "tungsten", 4: "flash", 9: "fine weather",
+                      10: "cloudy", 11: "shade", 12: "daylight fluorescent", 13: "day white fluorescent",
+                      14: "cool white fluorescent", 15: "white fluorescent", 16: "warm white fluorescent",
+                      17: "standard light A", 18: "standard light B", 19: "standard light C", 20: "D55", 21: "D65",
+                      22: "D75", 23: "D50", 24: "ISO studio tungsten", 255: "other"}
+"""The EXIF 2.3 LightSource codes (the DNG's CalibrationIlluminant values), for the recorded matrix's source."""
+_SRATIONAL, _RATIONAL = 10, 5
+"""TIFF type codes of a signed and an unsigned rational (two 32-bit integers: numerator, denominator)."""
+_NOTE_CHARS = 200
+"""The longest note of unusable colour-matrix tags kept (a reader's message is cut there: one line)."""
+
+
+def _dng_color_matrix(path) -> tuple[tuple[tuple[float, float, float], ...] | None, str | None, str | None]:
+    """A DNG's own colour matrix (XYZ -> camera, 3 x 3) from its IFD 0 tags (read by tifffile), its source (which tag,
+    under which illuminant) and a one-line note of the tags that could not be used (None if none): of two usable
+    matrices the one calibrated under D65 (:data:`pipeline.dng.D65_ILLUMINANT`), else ColorMatrix1. A tag with the
+    wrong type or count (not 3 x 3: a 4-colour camera), a zero denominator or all zeros is not used and is named in
+    the note, as is a DNG without either tag; a file whose tags cannot be read at all gives ``(None, None, note)``.
+    Nothing is printed: tifffile's log is caught while it reads."""
+    import logging
+
+    import tifffile
+
+    said: list[str] = []
+
+    class _Keep(logging.Handler):
+        def emit(self, record):
+            said.append(record.getMessage())
+
+    log = logging.getLogger("tifffile")
+    keep, propagate = _Keep(), log.propagate
+    log.addHandler(keep)
+    log.propagate = False
+    try:
+        with open(path, "rb") as fh, tifffile.TiffFile(fh) as tif:
+            tags = tif.pages.first.tags
+            found = [(name, tags.get(code), ill_name, tags.get(ill)) for code, name, ill, ill_name in DNG_COLOR_MATRICES]
+            found = [(name, None if t is None else (int(t.dtype), t.count, t.value), ill_name,
+                      None if i is None else i.value) for name, t, ill_name, i in found]
+    except Exception as exc:  # noqa: BLE001 - any reader failure: the matrix is optional, the note says why
+        return None, None, _one_line(f"the DNG's colour-matrix tags could not be read ({type(exc).__name__}: {exc})")
+    finally:
+        log.removeHandler(keep)
+        log.propagate = propagate
+    notes = [f"a colour-matrix tag could not be read (tifffile: {m})" for m in said
+             if any(str(code) in m for code, *_ in DNG_COLOR_MATRICES)]
+    if not notes and all(tag is None for _, tag, _, _ in found):
+        return None, None, "the DNG has no ColorMatrix1 or ColorMatrix2 tag"
+    usable = []
+    for name, tag, ill_name, ill in found:
+        if tag is None:
+            continue
+        matrix, why = _rational_matrix(*tag)
+        if matrix is None:
+            notes.append(f"{name} {why}: not used")
+            continue
+        ill = ill if isinstance(ill, int) and not isinstance(ill, bool) else None
+        light = "absent" if ill is None else f"{ill}, {EXIF_LIGHT_SOURCES.get(ill, 'not an EXIF light source')}"
+        usable.append((matrix, f"DNG {name} ({ill_name} {light})", ill))
+    if not usable:
+        return None, None, _one_line("; ".join(notes))
+    matrix, source, _ = next((u for u in usable if u[2] == D65_ILLUMINANT), usable[0]) if len(usable) > 1 else usable[0]
+    return matrix, source, _one_line("; ".join(notes)) if notes else None
+
+
+def _rational_matrix(dtype: int, count: int, value) -> tuple[tuple[tuple[float, float, float], ...] | None, str]:
+    """A 3 x 3 matrix from a rational tag's ``(type, count, value)`` as tifffile gives it (flat numerator, denominator
+    pairs), or None and why not."""
+    if dtype not in (_SRATIONAL, _RATIONAL):
+        return None, f"is of TIFF type {dtype}, not a rational"
+    if count != 9:
+        return None, f"has {count} values, not 9 (3 x 3: a 3-colour camera)"
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        return None, "has values that are not numbers"
+    if v.size != 18:
+        return None, f"has {v.size // 2} rationals, not 9"
+    num, den = v[0::2], v[1::2]
+    if not den.all():
+        return None, "has a zero denominator"
+    m = (num / den).reshape(3, 3)
+    if not m.any():
+        return None, "is all zeros"
+    return tuple(tuple(float(x) for x in row) for row in m), ""
+
+
+def _one_line(text: str) -> str:
+    """``text`` on one line, at most :data:`_NOTE_CHARS` characters."""
+    text = " ".join(text.split())
+    return text if len(text) <= _NOTE_CHARS else text[:_NOTE_CHARS - 3] + "..."
 
 
 def raw_info(path: str | os.PathLike, what: str = "RAW photo", *, max_pixels: int | None = None) -> RawInfo:

@@ -11,8 +11,13 @@ posterior conic of curvature ``c = c2`` and conic constant ``Q`` has the exact p
 
     C_a = min_k sqrt( mean_i (z'(r_i) - k r_i / sqrt(1 - k^2 r_i^2))^2 )
 
-in slope units (dimensionless). ``k`` is found by Gauss-Newton from the third-order optimum
-``k0 = c + 3 Q c^3 y^2 / 10``; 12 iterations reach float64 precision on the paper's grid.
+in slope units (dimensionless), the minimum over every sphere that exists over the aperture
+(``|k| y < 1``). ``k`` is found in the sphere's rim slope ``T = k y / sqrt(1 - k^2 y^2)`` (any real
+number, so no sphere is out of reach) by safeguarded Newton steps from the best of a scan of spheres,
+the sphere of the surface's own rim slope and the third-order optimum ``k0 = c + 3 Q c^3 y^2 / 10``.
+That start alone is not enough: for a phone lens's strongly hyperbolic last surface with large
+``A4`` it lies beyond the hemisphere (``|k0| y`` of 1.7-25), and iterations in ``k`` held at the
+hemisphere's edge priced such a surface at ~100 instead of ~0.2 (issue 43).
 
 Third-order check: for large ``n`` and small apertures ``C_a -> |Q| |c|^3 y^3 / sqrt(175)``.
 Sensitivity to ``n`` (paper's lens, s = -0.775, Q = -2.4): see ``docs/reproduction.md``.
@@ -52,42 +57,132 @@ def _radii(y, n, like):
     return torch.linspace(0, y, n, dtype=like.dtype, device=like.device)
 
 
-def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS, iterations: int = 12):
+SPHERE_SCAN_POINTS = 64
+"""Spheres tried before the Newton iterations of the best-fit sphere start from the best of them: rim slopes
+``T = tan(theta)``, ``theta`` at the centres of 64 equal steps of (-90, 90) deg (``|T|`` up to 41). A third-order
+start alone can lie far from the optimum, even beyond the hemisphere (a phone lens's strongly hyperbolic last
+surface with large A4: ``|k0| y`` of 1.7-25); the scan puts the iterations in the basin of the least RMS departure
+(only a basin narrower than 1/64 of the rim-slope angle can be missed: none was in 3000 random even aspheres,
+24 of them with two local minima, each checked against a dense search)."""
+
+SPHERE_FIT_ITERATIONS = 40
+"""Most safeguarded Newton iterations of the best-fit sphere: from the best scanned sphere they reach a fixed point in
+2-6 on every surface tried (the paper's grid, phone-lens aspheres, oblate and near-flat ones); one that has not
+converged after this many returns ``NaN`` rather than a wrong sphere."""
+
+SPHERE_FIT_STEP_TOL = 1e-12
+"""Convergence of the best-fit sphere: the last Newton step in the rim slope ``T`` at most this times ``1 + |T|`` (the
+step is taken: Newton's quadratic convergence leaves ``T`` at float64's resolution)."""
+
+SPHERE_FIT_SMALL_STEP = 1e-8
+"""Newton steps in ``T`` at most this times ``1 + |T|`` are taken without comparing the departures: near the minimum
+the sum of squared departures changes by less than its rounding (``~ step^2``: ``sqrt`` of float64's epsilon), so the
+comparison would stall the iterations ~1e-13 short of the minimum (measured: 2e-14 relative in ``k``)."""
+
+_HALVINGS = 60
+"""Most halvings of a Newton step that would increase the departure (2^-60: below float64's resolution of ``T``)."""
+
+
+def best_fit_sphere_curvature(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS):
     """Curvature (1/mm) of the sphere of least RMS slope departure from the conic ``(c, Q)``.
 
-    Gauss-Newton from the third-order optimum, safeguarded: a step is halved until it stays inside
-    the sphere's domain (``|k| y < 1``) and does not increase the residual (needed only near the
-    conic's limit ``(1 + Q) c^2 y^2 -> 1``, where the rim slope diverges). ``c`` and ``Q`` broadcast
-    to ``(*)``; returns ``(*)``. Differentiable (the iterations are unrolled).
+    The sphere is sought over every sphere that exists over the aperture (``|k| y < 1``; see :func:`_fit_sphere`),
+    starting from the best of the third-order optimum ``k0 = c + 3 Q c^3 y^2 / 10`` and a scan. ``c`` and ``Q``
+    broadcast to ``(*)``; returns ``(*)``. Differentiable (one Newton step at the converged sphere carries the
+    implicit-function gradient).
     """
     c, Q = torch.broadcast_tensors(as_tensor(c), as_tensor(Q, like=as_tensor(c)))
     r = _radii(y_mm, n_points, c)
     target = conic_slope(r, c[..., None], Q[..., None])
-    return _fit_sphere(target, r, c + 0.3 * Q * c**3 * y_mm**2, y_mm, iterations)
+    return _fit_sphere(target, r, y_mm, c + 0.3 * Q * c**3 * y_mm**2)
 
 
-def _fit_sphere(target, r, k0, y_mm: float, iterations: int):
-    """The sphere curvature ``(*)`` of least RMS departure from the slopes ``target`` ``(*, n)`` at radii ``r``
-    ``(n,)``, by Gauss-Newton from ``k0`` (see :func:`best_fit_sphere_curvature`)."""
-    k_max = (1 - 1e-12) / y_mm
+def _sphere_in_rim_slope(T, rho):
+    """Slope ``(*, n)`` at the relative radii ``rho = r / y`` ``(n,)`` of the sphere whose slope at the rim is ``T``
+    ``(*, 1)``: ``g = T rho / sqrt(1 + T^2 (1 - rho^2))``, :func:`sphere_slope` with ``k = T / (y sqrt(1 + T^2))``.
+    Every real ``T`` is a sphere that exists over the aperture (``|k| y < 1``) and ``dg/dT = rho w^-1.5`` (``w = 1 +
+    T^2 (1 - rho^2)``) is at most 1: the fit needs no domain bound and cannot stall where the derivative in the
+    curvature diverges (``|k| y -> 1``)."""
+    return T * rho / torch.sqrt(1 + (1 - rho * rho) * T * T)
 
-    def residual(k):
-        kk = k[..., None]
-        q = 1 - kk**2 * r**2
-        return target - kk * r / torch.sqrt(q), q
 
-    k = k0.clamp(-k_max, k_max)
-    for _ in range(iterations):
-        res, q = residual(k)
-        ssr = (res * res).sum(-1)
-        jac = r / q**1.5  # d(sphere slope)/dk
-        step = (res * jac).sum(-1) / (jac * jac).sum(-1).clamp_min(torch.finfo(target.dtype).tiny)
-        ok, t = _backtrack(k.detach(), step.detach(), ssr.detach(), target.detach(), r, k_max)
-        k_next = torch.where(ok, k + t * step, k)
-        if not k_next.requires_grad and torch.equal(k_next, k):
-            break  # a fixed point: every further iteration would compute the same (the result is bit for bit the same)
-        k = k_next
-    return k
+def _newton_step(T, target, rho):
+    """The Newton step in ``T`` ``(*)`` towards the least sum of squared departures of the spheres
+    (:func:`_sphere_in_rim_slope`) from ``target`` ``(*, n)`` (the Gauss-Newton step where that sum's curvature is not
+    positive: a descent direction either way), and that sum ``(*)``."""
+    a = 1 - rho * rho
+    w = 1 + a * T[..., None] ** 2
+    res = target - T[..., None] * rho / torch.sqrt(w)
+    g_t = rho / w**1.5  # dg/dT
+    g_tt = -3 * a * T[..., None] * rho / w**2.5
+    grad = (res * g_t).sum(-1)
+    gn = (g_t * g_t).sum(-1)  # >= 1: the rim term alone gives 1
+    hess = gn - (res * g_tt).sum(-1)
+    return grad / torch.where(hess > 0, hess, gn), (res * res).sum(-1)
+
+
+def _ssr(T, target, rho):
+    """Sum of squared slope departures ``(*)`` of the spheres of rim slope ``T`` ``(*)`` from ``target`` ``(*, n)``."""
+    res = target - _sphere_in_rim_slope(T[..., None], rho)
+    return (res * res).sum(-1)
+
+
+def _fit_sphere(target, r, y_mm: float, k0=None):
+    """The sphere curvature ``(*)`` of least RMS departure from the slopes ``target`` ``(*, n)`` at radii ``r`` ``(n,)``
+    (``r[-1] = y_mm``), among all spheres that exist over the aperture.
+
+    Parametrised by the sphere's rim slope ``T`` (:func:`_sphere_in_rim_slope`: no domain, bounded derivative). The
+    start is the best of :data:`SPHERE_SCAN_POINTS` scanned spheres, the sphere of the target's own rim slope and
+    ``k0`` where given and inside the aperture; safeguarded Newton steps (halved until the departure does not grow)
+    then run to a fixed point, without a graph. Where an input requires a gradient one Newton step more is taken at
+    the converged sphere with the graph: at a minimum it leaves the value where it is and its derivative is the exact
+    implicit-function derivative. ``NaN`` where the target is not finite or the iterations did not converge."""
+    rho, n = r / y_mm, r.shape[-1]
+    with torch.no_grad():
+        tgt = target.detach()
+        theta = (torch.arange(SPHERE_SCAN_POINTS, dtype=r.dtype, device=r.device) + 0.5) / SPHERE_SCAN_POINTS - 0.5
+        scan = torch.tan(math.pi * theta)
+        g = _sphere_in_rim_slope(scan[:, None], rho)  # (G, n): the same spheres for every element
+        ssr_scan = (g * g).sum(-1) - 2 * tgt @ g.T  # + sum(tgt^2), the same for every sphere: enough to rank them
+        candidates = [scan[ssr_scan.nan_to_num(math.inf).argmin(-1)], tgt[..., -1]]
+        if k0 is not None:
+            ky = torch.broadcast_to(k0.detach() * y_mm, tgt.shape[:-1])
+            candidates.append(torch.where(ky.abs() < 1, ky / torch.sqrt((1 - ky * ky).clamp_min(0)), tgt[..., -1]))
+        T, best = candidates[0], _ssr(candidates[0], tgt, rho)
+        for cand in candidates[1:]:
+            ssr = _ssr(cand, tgt, rho)
+            better = ssr < best
+            T, best = torch.where(better, cand, T), torch.where(better, ssr, best)
+        active = torch.isfinite(best)  # each element iterates until its own fixed point, then is left alone
+        for _ in range(SPHERE_FIT_ITERATIONS):
+            if not bool(active.any()):
+                break
+            step, ssr = _newton_step(T, tgt, rho)
+            T_next, todo = T.clone(), torch.nonzero(active.reshape(-1))[:, 0]
+            T_flat, step, ssr, tgt_flat = T.reshape(-1), step.reshape(-1), ssr.reshape(-1), tgt.reshape(-1, n)
+            for _ in range(_HALVINGS):  # halve each element's step until the departure does not grow (those only)
+                cand = T_flat[todo] + step[todo]
+                small = step[todo].abs() <= SPHERE_FIT_SMALL_STEP * (1 + T_flat[todo].abs())
+                ok = small | (_ssr(cand, tgt_flat[todo], rho) <= ssr[todo])
+                T_next.view(-1)[todo[ok]] = cand[ok]
+                todo = todo[~ok]
+                if not todo.numel():
+                    break
+                step[todo] = 0.5 * step[todo]
+            active = active & ((T_next - T).abs() > SPHERE_FIT_STEP_TOL * (1 + T.abs()))
+            T = T_next
+        T = torch.where(active | ~torch.isfinite(best), torch.full_like(T, math.nan), T)
+    if target.requires_grad:
+        T = T + _newton_step(T, target, rho)[0]  # zero at the minimum; carries d T / d(parameters)
+    k = T / (y_mm * torch.sqrt(1 + T * T))
+    if k0 is None:
+        return k
+    with torch.no_grad():  # k0 where it is as good: exactly the sphere itself for a sphere (k0 = c), cost exactly 0
+        k0 = torch.broadcast_to(k0, k.shape)
+        inside = k0.detach().abs() * y_mm < 1
+        ssr0 = ((tgt - sphere_slope(r, torch.where(inside, k0.detach(), 0)[..., None])) ** 2).sum(-1)
+        use_k0 = inside & (ssr0 <= ((tgt - sphere_slope(r, k.detach()[..., None])) ** 2).sum(-1))
+    return torch.where(use_k0, k0, k)
 
 
 def even_asphere_slope(r_mm, c, Q, coefficients):
@@ -100,48 +195,29 @@ def even_asphere_slope(r_mm, c, Q, coefficients):
     return out
 
 
-def even_asphere_cost(c: float, Q: float, coefficients, y_mm: float, n_points: int = DEFAULT_COST_POINTS,
-                      iterations: int = 12) -> float:
+def even_asphere_cost(c: float, Q: float, coefficients, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> float:
     """``C_a`` (slope units) of one even-asphere surface (curvature ``c`` 1/mm, conic ``Q``, ``A4, A6, ...``) over the
     radius ``y_mm``: the paper's Eq. (3) with the even asphere's exact slope (:func:`even_asphere_slope`) at the ``n``
-    radii ``r_i = y i / (n - 1)``, the sphere fitted in slope from the third-order start ``k0 = c + 3 (Q c^3 + 8 A4)
-    y^2 / 10`` (the ``A4`` term is a conic's fourth-order term ``Q c^3 / 8``). For ``A4 = ... = 0`` it is
-    :func:`surface_cost` of the conic; ``NaN`` where the conic is not defined out to ``y``."""
+    radii ``r_i = y i / (n - 1)``, the sphere of least RMS departure among all that exist over the aperture
+    (:func:`_fit_sphere`; its third-order start ``k0 = c + 3 (Q c^3 + 8 A4) y^2 / 10`` is one of the candidates, the
+    ``A4`` term being a conic's fourth-order term ``Q c^3 / 8``). For ``A4 = ... = 0`` it is :func:`surface_cost` of the
+    conic; ``NaN`` where the conic is not defined out to ``y``."""
     c64 = torch.tensor(float(c), dtype=torch.float64)
     r = _radii(y_mm, n_points, c64)
     coefficients = tuple(float(a) for a in coefficients)
     target = even_asphere_slope(r, c64, torch.tensor(float(Q), dtype=torch.float64), coefficients)
     a4 = coefficients[0] if coefficients else 0.0
-    k0 = c64 + 0.3 * (float(Q) * c64**3 + 8 * a4) * y_mm**2
-    k = _fit_sphere(target, r, k0, y_mm, iterations)
+    k = _fit_sphere(target, r, y_mm, c64 + 0.3 * (float(Q) * c64**3 + 8 * a4) * y_mm**2)
     dep = target - sphere_slope(r, k)
     return float(torch.sqrt((dep**2).mean()))
 
 
-def _backtrack(k, step, ssr, target, r, k_max, halvings: int = 60):
-    """The step lengths ``t`` (halved from 1, at most ``halvings`` times) at which each Gauss-Newton step ``k + t step``
-    stays in the sphere's domain and does not increase the residual, and whether one was found (``ok``): each element
-    is tried on its own (a residual for the elements still searching only), so an element's result does not depend
-    on the others'."""
-    shape = k.shape
-    k, step, ssr = k.reshape(-1), step.reshape(-1), ssr.reshape(-1)
-    target = target.reshape(-1, target.shape[-1])
-    t = torch.ones_like(k)
-    ok = torch.zeros(k.shape, dtype=torch.bool, device=k.device)
-    todo = torch.arange(k.numel(), device=k.device)
-    for _ in range(halvings):  # backtracking: full steps everywhere but close to the conic's limit
-        kt = k[todo]
-        cand = kt + t[todo] * step[todo]
-        good = cand.abs() < k_max
-        kk = torch.where(good, cand, kt)[:, None]
-        res_c = target[todo] - kk * r / torch.sqrt(1 - kk**2 * r**2)
-        good = good & ((res_c * res_c).sum(-1) <= ssr[todo])
-        ok[todo] = good
-        todo = todo[~good]
-        if not todo.numel():
-            break
-        t[todo] = 0.5 * t[todo]
-    return ok.reshape(shape), t.reshape(shape)
+def _why_not_finite(c: float, Q: float, y_mm: float, conic: str) -> str:
+    """Why a cost came out ``NaN``: the conic not defined out to ``y_mm`` (``(1 + Q) c^2 y^2 >= 1``), else the best-fit
+    sphere's iterations did not converge (:data:`SPHERE_FIT_ITERATIONS`)."""
+    if (1 + Q) * c * c * y_mm * y_mm >= 1:
+        return f"{conic} is at its limit over the aperture: (1 + conic) c^2 y^2 >= 1"
+    return f"its best-fit sphere did not converge within {SPHERE_FIT_ITERATIONS} Newton iterations"
 
 
 def surface_cost(c, Q, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
@@ -184,8 +260,10 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
             if not bool(torch.isfinite(cost).all()):
                 bad = int(torch.nonzero(~torch.isfinite(cost.reshape(-1)))[0])
                 at = ", ".join(f"{k}={float(torch.broadcast_to(v, cost.shape).reshape(-1)[bad])!r}" for k, v in d64.values.items())
-                raise LensError(f"the asphere cost of the design {at} is not finite (the conic {surf.conic_name} is at "
-                                "its limit over the aperture)")
+                cb, Qb = float(c.reshape(-1)[bad]), float(Q.reshape(-1)[bad])
+                raise LensError(f"the asphere cost of the design {at} is not finite ("
+                                + _why_not_finite(cb, Qb, surf.semi_aperture_mm or lens.pupil_radius_mm,
+                                                  f"the conic {surf.conic_name}") + ")")
             total = cost if total is None else total + cost
     if total is None:
         total = torch.zeros(d64.shape, dtype=torch.float64)
@@ -222,7 +300,7 @@ def prescription_costs(prescription, n_points: int = DEFAULT_COST_POINTS) -> dic
             y = max(seq.paraxial_beam_heights_mm(lam)[i] for lam in prescription.wavelengths_um)
         cost = even_asphere_cost(s.curvature_per_mm, s.conic, s.aspheric_coefficients, y, n_points)
         if not math.isfinite(cost):
-            raise LensError(f"surface {i + 1}: its asphere cost is not finite over the radius {y:g} mm (the conic is "
-                            "not defined out to there)")
+            raise LensError(f"surface {i + 1}: its asphere cost is not finite over the radius {y:g} mm ("
+                            + _why_not_finite(s.curvature_per_mm, s.conic, y, "the conic") + ")")
         out[i + 1] = {"cost": cost, "radius_mm": float(y)}
     return out

@@ -1,5 +1,6 @@
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -150,3 +151,128 @@ def test_a_prescription_s_aspheres_cost_what_the_paper_s_singlet_costs():
     assert list(costs) == [2] and costs[2]["radius_mm"] == 2.0
     assert costs[2]["cost"] == float(_cost(PAPER_LENS, Design(s=-0.775, Q_back=-2.4)))
     assert prescription_costs(read_lens("cooke_triplet")) == {}
+
+
+# --- Any asphere against a brute-force Eq. (3) (issue 43) -------------------------------------------------------------
+# A phone lens's strongly hyperbolic last surfaces were priced at ~96.5 (the sphere fit, iterating in the curvature from
+# a third-order start beyond the hemisphere, stayed at the hemisphere's edge). The reference below shares nothing with
+# the library but the definition: slopes by a complex step of the sag (not the analytic slope), every sphere that exists
+# over the aperture by its rim half-angle (k y = sin(theta)) densely searched and then refined by a bounded scalar
+# minimiser (not Newton in the rim slope), the RMS over the paper's n equally spaced radii by numpy.
+
+PHONE_LENS = Path(__file__).parents[1] / "data" / "lenses" / "phone_4element.toml"
+REFERENCE_ANGLES = 20001
+"""Spheres of the reference's dense search: rim half-angles equally spaced over (-90, 90) deg (0.009 deg apart)."""
+
+
+def _sag(c, Q, coeffs, r):
+    """An even asphere's sag (mm) at radius ``r`` (numpy; real or complex)."""
+    return c * r**2 / (1 + np.sqrt(1 - (1 + Q) * c**2 * r**2)) + sum(a * r ** (2 * j + 4) for j, a in enumerate(coeffs))
+
+
+def _reference_cost(c, Q, coeffs, y, n=101):
+    """(C_a, best sphere's curvature) of Eq. (3) by brute force."""
+    r = np.linspace(0, y, n)
+    h = 1e-30
+    slope = _sag(c, Q, coeffs, r + 1j * h).imag / h  # complex step: the sag's derivative to rounding
+
+    def rms(theta):
+        k = np.sin(np.asarray(theta))[..., None] / y
+        return np.sqrt(np.mean((slope - k * r / np.sqrt(1 - (k * r) ** 2)) ** 2, axis=-1))
+
+    grid = np.linspace(-np.pi / 2, np.pi / 2, REFERENCE_ANGLES)[1:-1]
+    i = int(np.argmin(rms(grid)))
+    best = optimize.minimize_scalar(lambda t: float(rms(t)), bounds=(grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]),
+                                    method="bounded", options={"xatol": 1e-14})
+    return float(best.fun), math.sin(best.x) / y
+
+
+ANY_ASPHERES = {  # (c 1/mm, Q, (A4, A6, ...), y mm)
+    "hyperbola Q -25, no terms": (1 / 1.5, -25.0, (), 2.5),
+    "hyperbola Q -6.5 + A4..A10, inflection (a phone lens's last surface)": (1 / 1.05, -6.5, (-0.08, 0.025, -0.005, 4e-4), 2.0),
+    "hyperbola Q -20 + A4..A10, sag turning back": (1 / 2.2, -20.0, (-0.09, 0.02, -0.003, 2e-4), 2.6),
+    "concave hyperbola Q -6 + A4..A10": (-1 / 1.8, -6.0, (-0.1, 0.03, -0.005, 3e-4), 2.4),
+    "oblate Q 3": (1 / 4, 3.0, (), 1.8),
+    "oblate Q 0.8 + A4, A6": (-1 / 3, 0.8, (0.01, -0.002), 2.0),
+    "flat base, A4..A10 only (inflection)": (0.0, 0.0, (0.05, -0.02, 0.003, -2e-4), 2.5),
+    "near-flat paraboloid + A4": (1 / 5000, -1.0, (1e-7,), 3.0),
+    "best sphere 0.3% short of the hemisphere": (0.4, -10.0, (-0.1, 0.05, -0.01, 0.001), 2.5),
+    "two local minima, the least near the hemisphere": (0.27428920077943236, 1.0411692667699284,
+                                                         (0.256517895355879, -0.10216382071025419, -0.001909390603070043,
+                                                          0.0016585017726759993), 2.5117334447057678),
+}
+
+
+@pytest.mark.parametrize("name", list(ANY_ASPHERES))
+def test_any_asphere_costs_what_a_brute_force_eq3_gives(name):
+    """The cost and the best sphere agree with the brute force: the cost to 1e-9 relative (both are minima, where the
+    value is flat), the curvature to 1e-6 (a minimum's abscissa is known to ~sqrt(float64 epsilon) of its scale)."""
+    from lenssim.optics.cost import _fit_sphere, even_asphere_cost, even_asphere_slope
+
+    c, Q, coeffs, y = ANY_ASPHERES[name]
+    ref, k_ref = _reference_cost(c, Q, coeffs, y)
+    got = even_asphere_cost(c, Q, coeffs, y)
+    assert got == pytest.approx(ref, rel=1e-9)
+    r = torch.linspace(0, y, 101, dtype=D)
+    k = float(_fit_sphere(even_asphere_slope(r, torch.tensor(c, dtype=D), torch.tensor(Q, dtype=D), coeffs), r, y))
+    assert abs(k - k_ref) <= 1e-6 * max(abs(k_ref), 1 / y)
+    assert abs(k) * y < 1  # a sphere that exists over the aperture
+
+
+def test_a_phone_lens_s_aspheres_cost_what_a_brute_force_eq3_gives():
+    """A hand-written 4-element phone lens (even aspheres to A10 on every surface, the last three strongly hyperbolic):
+    each surface's cost over its semi-diameter is the brute force's (its last three were ~96.5 each), and none is
+    absurd (a slope departure of a moulded phone-lens surface is a fraction of a unit)."""
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.optics.cost import prescription_costs
+
+    p = read_lens(str(PHONE_LENS))
+    costs = prescription_costs(p)
+    assert list(costs) == list(range(1, 9))
+    for i, s in enumerate(p.surfaces, start=1):
+        ref, _ = _reference_cost(s.curvature_per_mm, s.conic, s.aspheric_coefficients, s.semi_diameter_mm)
+        assert costs[i]["radius_mm"] == s.semi_diameter_mm
+        assert costs[i]["cost"] == pytest.approx(ref, rel=1e-9), i
+        assert 1e-3 < costs[i]["cost"] < 0.3, i
+
+
+def test_the_fit_is_the_same_for_a_surface_alone_or_in_a_batch():
+    """Each element iterates to its own fixed point: its sphere does not depend on the others in the batch."""
+    s = torch.tensor([-2.0, -0.775, 0.5, 1.0, -0.3], dtype=D)
+    Q = torch.tensor([-10.0, -2.4, 1.2, -3.0, 0.0], dtype=D)
+    c = torch.stack([torch.as_tensor(PAPER_LENS.curvatures(v)[1], dtype=D) for v in s.tolist()])
+    batch = best_fit_sphere_curvature(c, Q, 2.0)
+    for i in range(len(s)):
+        assert torch.equal(batch[i], best_fit_sphere_curvature(c[i], Q[i], 2.0))
+    assert float(batch[-1]) == float(c[-1])  # Q = 0: the surface's own sphere, exactly (its cost exactly 0)
+
+
+@pytest.mark.parametrize("s0, q0", [(-0.775, -2.4), (-2.0, -10.0), (0.5, 1.2), (-0.775, 48.5)])
+def test_the_cost_s_gradient_is_its_finite_difference(s0, q0):
+    """The gradient (one Newton step at the converged sphere, with the graph: the implicit-function derivative)
+    agrees with central differences of the cost itself, near the conic's limit (Q = 48.5) too."""
+    import warnings
+
+    s = torch.tensor(s0, dtype=D, requires_grad=True)
+    Q = torch.tensor(q0, dtype=D, requires_grad=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the third-order-validity warning of the strong conic
+        slope_departure_cost(PAPER_LENS, s, Q).backward()
+        h = 1e-6
+        f = lambda a, b: float(slope_departure_cost(PAPER_LENS, a, b))  # noqa: E731
+        fd_s = (f(s0 + h, q0) - f(s0 - h, q0)) / (2 * h)
+        fd_q = (f(s0, q0 + h) - f(s0, q0 - h)) / (2 * h)
+    assert float(s.grad) == pytest.approx(fd_s, rel=1e-6)
+    assert float(Q.grad) == pytest.approx(fd_q, rel=1e-6)
+
+
+def test_a_sphere_fit_that_does_not_converge_is_one_line_not_a_number(monkeypatch):
+    """A fit stopped before its fixed point returns NaN, and the prescription's cost says so in one line (not that the
+    conic is at its limit, which it is not)."""
+    import lenssim.optics.cost as cost
+    from lenssim.io.prescription_file import read_lens
+
+    monkeypatch.setattr(cost, "SPHERE_FIT_ITERATIONS", 1)
+    assert math.isnan(cost.even_asphere_cost(1 / 1.05, -6.5, (-0.08, 0.025, -0.005, 4e-4), 2.0))
+    with pytest.raises(LensError, match=r"surface 1: .*\(its best-fit sphere did not converge within 1 Newton iterations\)"):
+        cost.prescription_costs(read_lens(str(PHONE_LENS)))

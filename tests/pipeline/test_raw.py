@@ -48,7 +48,9 @@ def test_header_values_and_a_flat_grey_read_back_linear(tmp_path, pattern):
     assert (info.width_px, info.height_px, info.raw_pattern) == (W, H, pattern)
     assert info.black_level_dn == (BLACK,) * 4 and info.white_level_dn == WHITE
     assert info.camera_white_balance == pytest.approx((2.0, 1.0, 1.25))
-    assert info.rgb_xyz_matrix is None  # LibRaw leaves a DNG's matrix out of rgb_xyz_matrix (all zeros)
+    # LibRaw gives a DNG's matrix as zeros: the file's own ColorMatrix1 (write_dng's default, the identity) is read
+    assert info.rgb_xyz_matrix == ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    assert info.rgb_xyz_matrix_source == "DNG ColorMatrix1 (CalibrationIlluminant1 21, D65)"
     json.dumps(info.to_dict(), allow_nan=False)
 
     # a flat mosaic with a neutral (1, 1, 1) white balance: grey at (DN - black) / (white - black), truncated
@@ -136,3 +138,125 @@ def test_bad_files_are_refused_in_one_line_naming_the_file(tmp_path, monkeypatch
             with pytest.raises(ImageFileError, match=f"'{name}'"):
                 raw_info(name, what="photo")
     assert capfd.readouterr().err == ""  # LibRaw's own messages went into the errors, not onto the terminal
+
+
+# --- A DNG's own colour matrix (issue 43): LibRaw gives a DNG's rgb_xyz_matrix as zeros ------------------------------
+
+CAMERA_MATRIX = ((0.6722, -0.0635, -0.0963), (-0.4287, 1.246, 0.2046), (-0.0908, 0.2067, 0.6018))
+"""An XYZ -> camera matrix with a real camera's four-decimal entries (each an exact rational: read back exactly)."""
+
+
+def _rationals(values):
+    """Numerator, denominator pairs (SRATIONAL) of exact decimal ``values``."""
+    from fractions import Fraction
+
+    return [x for v in values for x in (Fraction(str(v)).numerator, Fraction(str(v)).denominator)]
+
+
+def _dng_with_tags(path, monkeypatch, add=(), drop=()):
+    """A grey DNG by pipeline.dng.write_dng (ColorMatrix1 = :data:`CAMERA_MATRIX`, D65) with the tags ``add`` (tifffile
+    extratags) written besides or instead of (``drop``, by code) its own."""
+    import tifffile
+
+    real = tifffile.imwrite
+
+    def imwrite(tmp, data, **kw):
+        kw["extratags"] = [t for t in kw["extratags"] if t[0] not in drop] + list(add)
+        return real(tmp, data, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(tifffile, "imwrite", imwrite)
+        return write_dng(path, torch.full((H, W), 1000.0), "RGGB", black_level=BLACK, white_level=WHITE,
+                         color_matrix=CAMERA_MATRIX)
+
+
+def _second(matrix, illuminant):
+    return [(50722, "2i", 9, _rationals(np.ravel(matrix)), True), (50779, "H", 1, (illuminant,), True)]
+
+
+def test_a_dng_s_color_matrix_is_read_back_exactly_and_recorded_with_its_source(tmp_path, monkeypatch):
+    from pipeline.photo import open_photo
+
+    path = _dng_with_tags(tmp_path / "cm.dng", monkeypatch)
+    for info in (raw_info(path), read_raw(path, max_pixels=H * W)[1]):
+        assert info.rgb_xyz_matrix == CAMERA_MATRIX  # exactly: the rationals' quotients
+        assert info.rgb_xyz_matrix_source == "DNG ColorMatrix1 (CalibrationIlluminant1 21, D65)"
+        assert info.rgb_xyz_matrix_note is None
+    raw = open_photo(str(path)).metadata["raw"]  # what metrics.json records under raw
+    assert raw["rgb_xyz_matrix"] == [list(r) for r in CAMERA_MATRIX]
+    assert raw["rgb_xyz_matrix_source"].startswith("DNG ColorMatrix1") and raw["rgb_xyz_matrix_note"] is None
+    json.dumps(raw, allow_nan=False)
+
+
+A_MATRIX = ((0.8, -0.2, -0.1), (-0.5, 1.3, 0.2), (-0.1, 0.25, 0.55))
+"""A second matrix, told apart from :data:`CAMERA_MATRIX`."""
+
+
+@pytest.mark.parametrize("ill1, ill2, want", [(17, 21, 2), (21, 17, 1), (17, 23, 1), (21, 21, 1)])
+def test_of_two_color_matrices_the_d65_one_is_recorded(tmp_path, monkeypatch, ill1, ill2, want):
+    """ColorMatrix2 is recorded only when it alone is calibrated under D65 (21); else ColorMatrix1."""
+    path = _dng_with_tags(tmp_path / "two.dng", monkeypatch, add=[(50778, "H", 1, (ill1,), True)] + _second(A_MATRIX, ill2),
+                          drop=(50778,))
+    info = raw_info(path)
+    assert info.rgb_xyz_matrix == (CAMERA_MATRIX if want == 1 else A_MATRIX)
+    ill = ill1 if want == 1 else ill2
+    name = {17: "standard light A", 21: "D65", 23: "D50"}[ill]
+    assert info.rgb_xyz_matrix_source == f"DNG ColorMatrix{want} (CalibrationIlluminant{want} {ill}, {name})"
+    assert info.rgb_xyz_matrix_note is None
+
+
+def test_a_dng_without_a_color_matrix_records_null_and_says_so(tmp_path, monkeypatch):
+    info = raw_info(_dng_with_tags(tmp_path / "none.dng", monkeypatch, drop=(50721, 50778)))
+    assert info.rgb_xyz_matrix is None and info.rgb_xyz_matrix_source is None
+    assert info.rgb_xyz_matrix_note == "the DNG has no ColorMatrix1 or ColorMatrix2 tag"
+    assert info.to_dict()["rgb_xyz_matrix"] is None
+
+
+HOSTILE = {  # ColorMatrix1 as written instead of the real one, and what the note must say
+    "six values": ((50721, "2i", 6, _rationals([1, 0, 0, 0, 1, 0]), True), "ColorMatrix1 has 6 values, not 9"),
+    "a 4-colour camera's 4 x 3": ((50721, "2i", 12, _rationals([1, 0, 0, 0, 1, 0, 0, 0, 1, 0.5, 0.5, 0]), True),
+                                  "ColorMatrix1 has 12 values, not 9"),
+    "zero denominators": ((50721, "2i", 9, [1, 0] * 9, True), "ColorMatrix1 has a zero denominator"),
+    "one zero denominator": ((50721, "2i", 9, _rationals([1, 0, 0, 0, 1, 0, 0, 0]) + [1, 0], True),
+                             "ColorMatrix1 has a zero denominator"),
+    "all zeros": ((50721, "2i", 9, [0, 1] * 9, True), "ColorMatrix1 is all zeros"),
+    "text": ((50721, "s", 0, "XYZ to camera", True), "ColorMatrix1 is of TIFF type 2, not a rational"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_a_hostile_color_matrix_is_not_used_and_noted_in_one_line(tmp_path, monkeypatch, capfd, case):
+    tag, said = HOSTILE[case]
+    path = _dng_with_tags(tmp_path / "bad.dng", monkeypatch, add=[tag], drop=(50721,))
+    img, info = read_raw(path, max_pixels=H * W)  # the photo itself reads as ever
+    assert img.shape == (1, 3, H, W)
+    assert info.rgb_xyz_matrix is None and info.rgb_xyz_matrix_source is None
+    assert info.rgb_xyz_matrix_note.startswith(said) and info.rgb_xyz_matrix_note.endswith(": not used")
+    assert "\n" not in info.rgb_xyz_matrix_note
+    json.dumps(info.to_dict(), allow_nan=False)
+    # the same tag as ColorMatrix1 beside a good ColorMatrix2: the good one is recorded, the bad one noted
+    path = _dng_with_tags(tmp_path / "bad2.dng", monkeypatch, add=[tag] + _second(A_MATRIX, 17), drop=(50721,))
+    info = raw_info(path)
+    assert info.rgb_xyz_matrix == A_MATRIX and info.rgb_xyz_matrix_source.startswith("DNG ColorMatrix2")
+    assert info.rgb_xyz_matrix_note.startswith(said)
+    assert capfd.readouterr().err == ""
+
+
+def test_a_color_matrix_tag_that_points_past_the_file_is_noted_not_a_traceback(tmp_path, monkeypatch, capfd):
+    """ColorMatrix1's count patched to 2^31 - 1 (its values would lie far past the file's end): tifffile drops the tag;
+    its complaint becomes the note, not a line on standard error."""
+    import struct
+
+    import tifffile
+
+    path = _dng_with_tags(tmp_path / "count.dng", monkeypatch)
+    with tifffile.TiffFile(path) as tif:
+        at = tif.pages.first.tags[50721].offset
+    with open(path, "r+b") as fh:
+        fh.seek(at + 4)  # an IFD entry: tag (2 bytes), type (2), count (4), value or offset (4); little-endian
+        fh.write(struct.pack("<I", 2**31 - 1))
+    info = raw_info(path)
+    assert info.rgb_xyz_matrix is None
+    assert info.rgb_xyz_matrix_note.startswith("a colour-matrix tag could not be read (tifffile: ")
+    assert "50721" in info.rgb_xyz_matrix_note and len(info.rgb_xyz_matrix_note) <= 200
+    assert capfd.readouterr().err == ""
