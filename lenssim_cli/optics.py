@@ -152,6 +152,9 @@ def cmd_optimum(args) -> int:
         raise ValueError(f"{str(path)!r} is not a sweep file or a trade-off (NetCDF written by `lenssim sweep` or "
                          "`lenssim tradeoff`)") from None
     if is_lens_tradeoff(ds):
+        from lenssim_studies.lens_optimum import verify_lens_tradeoff
+
+        verify_lens_tradeoff(ds, path)  # its checksum and its sense, before any number of it is read
         return _tradeoff_optimum(args, ds, path, folder if folder is not None else path.parent, max_cost)
     if "config_digest" not in ds.attrs:
         raise ValueError(f"{str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
