@@ -22,6 +22,10 @@ DEFAULT_GRADE = "commercial"
 WORKERS_PER_CPU = 4
 """``--workers`` may ask for at most this many local processes per CPU core (more only thrash)."""
 
+MAX_WORKER_THREADS = 1024
+"""``--worker-threads`` at most: torch threads per task beyond the cores of any one machine (the largest have a few
+hundred) only thrash, and the count may be for a cluster's machines, not this one's."""
+
 
 def check_arguments(args) -> None:
     """Values of the common flags, checked before any work (each command has its own further checks): empty names,
@@ -58,6 +62,9 @@ def check_arguments(args) -> None:
         v = getattr(args, name, None)
         if v is not None and v < 1:
             raise ValueError(f"{flag} {v} is not allowed: a number of {what} >= 1")
+    t = getattr(args, "worker_threads", None)
+    if t is not None and t > MAX_WORKER_THREADS:
+        raise ValueError(f"--worker-threads {t} is not allowed: at most {MAX_WORKER_THREADS} threads per task")
     for flag, name in (("--snr", "snr"), ("--reference-snr", "reference_snr")):  # the criteria's rule (evaluate's)
         values = getattr(args, name, None)
         if values is not None:  # refused here; outside the validated range, warned where a run computes

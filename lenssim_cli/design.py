@@ -15,6 +15,9 @@ __all__ = ["register", "cmd_tradeoff", "parse_vary"]
 
 DEFAULT_GRID_VALUES = 9
 """Values of a ``--vary NAME=LO:HI`` range without a step (LO and HI included)."""
+MAX_VARY_VALUES = 100_000
+"""Values of one ``--vary`` range at most (a grid holds at most ``MAX_GRID_DESIGNS`` designs in all: this bounds the
+list itself, before the grid is counted)."""
 TRADEOFF_LEVELS = 30
 """Cost levels of the front by default (the paper's 30)."""
 GRADIENT_LEVELS = 5
@@ -51,11 +54,13 @@ def parse_vary(text: str) -> tuple[str, tuple[float, ...]]:
             if not (math.isfinite(step) and step > 0):
                 raise ValueError(f"--vary {text!r} is not allowed: LO <= HI and a STEP > 0")
             count = (hi - lo) / step
+            if not count < MAX_VARY_VALUES:  # also a count that overflowed to inf
+                raise ValueError(f"--vary {text!r} is not allowed: more than {MAX_VARY_VALUES} values")
             n = round(count)
             if abs(count - n) > 1e-9 * max(1.0, count):
                 raise ValueError(f"--vary {text!r} is not allowed: HI - LO is not a whole number of STEPs")
-            if n + 1 > 100_000:
-                raise ValueError(f"--vary {text!r} is not allowed: {n + 1} values (at most 100000)")
+            if n + 1 > MAX_VARY_VALUES:
+                raise ValueError(f"--vary {text!r} is not allowed: {n + 1} values (at most {MAX_VARY_VALUES})")
             values = tuple(lo + step * k for k in range(n + 1))
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"--vary {text!r} is not allowed: finite numbers")
@@ -86,8 +91,9 @@ def cmd_tradeoff(args) -> int:
     from lenssim.optics.sequential import SequentialLens
     from lenssim.torch_utils import select_device
     from lenssim_studies.html import image, markdown, table, write_page
+    from lenssim_studies.chunks import finished_result
     from lenssim_studies.lens_tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
-                                               write_design_files)
+                                               tradeoff_mismatch, write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
     vary = [parse_vary(v) for v in args.vary]
@@ -135,6 +141,7 @@ def cmd_tradeoff(args) -> int:
                           levels=levels, wavefront=args.wavefront)
     run.check_sampling()  # pixels on which no design could be scored: refused before the grid
     out = check_output_dir(args.out)
+    finished_result(out / "tradeoff.nc", run.digest(), "trade-off", tradeoff_mismatch)  # a damaged one: refused now
     select_device(args.device)
     t0 = time.perf_counter()
     with output_lock(out):  # one run at a time writes this folder; a second run resumes the sweep

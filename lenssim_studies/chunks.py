@@ -20,7 +20,7 @@ from lenssim.metrics import evaluate
 
 __all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
            "read_stamped_chunk", "finished_result", "dataset_checksum", "stamp_result", "verify_result",
-           "result_mismatch"]
+           "result_mismatch", "is_netcdf", "damaged_netcdf"]
 
 
 @contextmanager
@@ -174,9 +174,6 @@ def read_stamped_chunk(path: Path, keys, digest: str, index: int, *, run: str, r
         return "fails its checksum (corrupted)"
     if chunk[rows_key].shape[:1] != (rows,):
         return f"has {chunk[rows_key].shape[0]} {what}, not {rows}"
-    short = [k for k in keys if chunk[k].shape[:1] != (rows,)]
-    if short:
-        return f"holds {', '.join(short)} not of its {rows} {what}"
     return chunk
 
 
@@ -193,6 +190,25 @@ def _canonical(a: np.ndarray) -> tuple[str, bytes]:
         a = coerce_nc3_dtype(a)
     a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("="))
     return a.dtype.str, a.tobytes()
+
+
+NETCDF_MAGIC = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF")
+"""The first bytes of a NetCDF file (classic, 64-bit offset, 64-bit data; NetCDF-4 is HDF5)."""
+
+
+def is_netcdf(path) -> bool:
+    """Whether ``path`` begins as a NetCDF file does (:data:`NETCDF_MAGIC`)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) in NETCDF_MAGIC
+    except OSError:
+        return False
+
+
+def damaged_netcdf(path, again: str) -> str:
+    """The one line that refuses a NetCDF result whose data cannot be read back whole."""
+    return (f"{str(path)!r} fails its checksum: a NetCDF file whose data cannot be read back (truncated or damaged); "
+            f"{again}")
 
 
 def dataset_checksum(ds) -> str:
@@ -265,6 +281,8 @@ def finished_result(out: Path, digest: str, run: str, check=None):
         with xr.open_dataset(out, engine="scipy") as old:
             same = old.attrs.get("config_digest") == digest
     except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
+        if is_netcdf(out):
+            raise ValueError(damaged_netcdf(out, f"remove it and run the {run} again")) from None
         same = False
     if not same:
         raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this {run}; choose another "
@@ -273,8 +291,7 @@ def finished_result(out: Path, digest: str, run: str, check=None):
     try:
         ds = xr.load_dataset(out, engine="scipy")
     except Exception:  # noqa: BLE001 - a header that reads but data that do not (truncated)
-        raise ValueError(f"{str(out)!r} fails its checksum: its data cannot be read (truncated or damaged); "
-                         f"{again}") from None
+        raise ValueError(damaged_netcdf(out, again)) from None
     verify_result(ds, out, run, again)
     why = check(ds) if check is not None else None
     if why:

@@ -47,7 +47,7 @@ from .chunks import finish_resumable, open_resumable, partial_folder, read_stamp
 from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "design_prescription",
-           "write_design_files", "TRADEOFF_CRITERIA", "tradeoff_mismatch",
+           "write_design_files", "TRADEOFF_CRITERIA", "tradeoff_mismatch", "check_psf_sampling",
            "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES", "WAVEFRONTS"]
 
 TRADEOFF_CRITERIA = ("rms_w", "mse_s", "mse_r", "strehl", "mtf50")
@@ -214,7 +214,6 @@ class LensTradeoffRun:
         reason."""
         from lenssim.optics.aberrations import TERMS
         from lenssim.optics.psf_bank import fft_size
-        from lenssim.sequential_metrics import _grid_size
         from lenssim.sequential_third_order import third_order_camera
         from lenssim.validate import ResourceLimitError
 
@@ -226,17 +225,27 @@ class LensTradeoffRun:
                 fft_size(camera, torch.zeros(len(self.evaluation_angles), len(camera.spectrum), len(TERMS),
                                              dtype=torch.float64), self.numerics, terms=TERMS)
                 return
-            psf = sequential_provider(self.prescription, seq, pitch_um=self.pitch_um, sampling=self.sampling,
-                                      max_field_deg=self.max_field_deg, numerics=self.numerics, coarse=self.coarse)
-            n = _grid_size(psf, psf.margin_px(), self.numerics)
-            if psf.fft_size(n) > self.numerics.max_fft_size:
-                raise ResourceLimitError(f"a PSF sampled over the pixels' area needs an FFT of {psf.fft_size(n)} "
-                                         f"samples ({psf.oversample()} per pixel); the limit is max_fft_size = "
-                                         f"{self.numerics.max_fft_size}", "max_fft_size")
+            check_psf_sampling(sequential_provider(self.prescription, seq, pitch_um=self.pitch_um,
+                                                   sampling=self.sampling, max_field_deg=self.max_field_deg,
+                                                   numerics=self.numerics, coarse=self.coarse), self.numerics)
         except ResourceLimitError as exc:
             raise ResourceLimitError(f"{what}: even an aberration-free design: {exc}", exc.setting) from None
         except ValueError as exc:
             raise ValueError(f"{what}: {exc}") from None
+
+
+def check_psf_sampling(psf: SequentialPSF, numerics: Numerics) -> None:
+    """Refuse the pixels of ``psf`` if an aberration-free PSF on them (its diffraction alone) needs more than
+    ``numerics.max_fft_size``: its pixel grid, or the finer grid an area sample is computed on (a
+    :class:`lenssim.validate.ResourceLimitError`; cheap: no ray is traced)."""
+    from lenssim.sequential_metrics import _grid_size
+    from lenssim.validate import ResourceLimitError
+
+    n = _grid_size(psf, psf.margin_px(), numerics)
+    if psf.fft_size(n) > numerics.max_fft_size:
+        raise ResourceLimitError(f"a PSF sampled over the pixels' area needs an FFT of {psf.fft_size(n)} samples "
+                                 f"({psf.oversample()} per pixel); the limit is max_fft_size = {numerics.max_fft_size}",
+                                 "max_fft_size")
 
 
 def _score(run: LensTradeoffRun, i: int) -> dict:

@@ -27,12 +27,12 @@ from lenssim.io.files import atomic_write, check_output_file
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import (_checksum, _chunk_keys, _compute_chunk, dataset_checksum, partial_folder, result_mismatch,
-                     resume_chunks, stamp_result, verify_result)
+from .chunks import (_checksum, _chunk_keys, _compute_chunk, dataset_checksum, finished_result, partial_folder,
+                     result_mismatch, resume_chunks, stamp_result, verify_result)
 from .config import (SweepConfig, grid_count, grid_values, load_config)
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
-           "design_dims", "dataset_checksum", "verify_sweep"]
+           "design_dims", "dataset_checksum", "verify_sweep", "sweep_mismatch"]
 
 
 def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
@@ -68,10 +68,17 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
 def verify_sweep(ds: xr.Dataset, path) -> None:
     """Refuse a sweep file whose numbers are not the ones the sweep wrote (edited by hand, damaged, or written by a
     version without a checksum: :func:`lenssim_studies.chunks.verify_result`), or that makes no sense for its run
-    record (its grid, field angles and SNRs not the config's, a criterion not finite): ``ValueError`` naming the
-    file."""
+    record (:func:`sweep_mismatch`): ``ValueError`` naming the file."""
     again = "run the sweep again"
     verify_result(ds, path, "sweep", again)
+    why = sweep_mismatch(ds)
+    if why:
+        raise ValueError(f"{str(path)!r} makes no sense for its run record: {why}; {again}")
+
+
+def sweep_mismatch(ds: xr.Dataset) -> str | None:
+    """Why a sweep makes no sense for the config it records, or None: its grid, field angles and SNRs are the config's,
+    its criteria over its grid and finite."""
     try:
         d = json.loads(ds.attrs["config"])
         coords = {k: grid_values(*v) for k, v in d["grid"].items()}
@@ -79,12 +86,11 @@ def verify_sweep(ds: xr.Dataset, path) -> None:
         if "field_angles_deg" in d.get("lens", {}):
             coords["alpha"] = np.asarray(d["lens"]["field_angles_deg"], dtype=np.float64)
     except (KeyError, TypeError, ValueError):
-        raise ValueError(f"{str(path)!r} carries no readable run record (config); {again}") from None
+        return "it carries no readable run record (config)"
     dims = design_dims(ds)  # the config's grid in the dataset's order (the config's JSON sorts its keys)
-    why = (None if sorted(dims) == sorted(d["grid"]) else f"its design parameters {list(dims)} are not the run's") \
-        or result_mismatch(ds, coords, finite=[k for k in lens_criteria() if k in ds], dims=dims)
-    if why:
-        raise ValueError(f"{str(path)!r} makes no sense for its run record: {why}; {again}")
+    if sorted(dims) != sorted(d["grid"]):
+        return f"its design parameters {list(dims)} are not the run's"
+    return result_mismatch(ds, coords, finite=[k for k in lens_criteria() if k in ds], dims=dims)
 
 
 def _write_chunk(path: Path, chunk: dict, cfg: SweepConfig, i: int) -> None:
@@ -157,18 +163,8 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     worker_threads = None if worker_threads is None else check_int("worker_threads", worker_threads, 1)
     cfg.check(memory_limit_bytes)
     check_output_file(out, "sweep output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
-    if out.exists():
-        try:
-            with xr.open_dataset(out) as old:
-                same = old.attrs.get("config_digest") == cfg.digest()
-        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
-            same = False
-        if same:
-            ds = xr.load_dataset(out)
-            verify_sweep(ds, out)  # a finished sweep is reused only if its numbers are the ones written
-            return ds
-        raise FileExistsError(f"{str(out)!r} exists and is not a finished sweep of this config; "
-                              "choose another output file or remove it")
+    if out.exists():  # a finished sweep of this config is reused only if its numbers are the ones written
+        return finished_result(out, cfg.digest(), "sweep", check=sweep_mismatch)
     part = out.with_name(out.name + ".partial")
     _remove_temporaries(out, part)
     with partial_folder(part, "config.json", cfg.digest(), {"config": cfg.to_dict()},
