@@ -121,16 +121,19 @@ def check_pixel_pitch_um(value, name: str = "pixel_pitch_um") -> float:
     """A pixel pitch (um) within :data:`PIXEL_PITCH_RANGE_UM`; ``ValueError`` naming ``name`` otherwise (the one rule
     of every ``--pixel-pitch``)."""
     lo, hi = PIXEL_PITCH_RANGE_UM
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
-                                                                           and lo <= value <= hi):
-        raise ValueError(f"{name} {value!r} is not allowed: a pixel pitch from {lo:g} to {hi:g} um")
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or not (math.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{name} {f'{value:g}' if number else repr(value)} is not allowed: a pixel pitch from "
+                         f"{lo:g} to {hi:g} um")
     return float(value)
 
 
 def check_max_fft_size(value, name: str = "max_fft_size") -> int:
     """A limit on the FFT size of a PSF: a whole number >= 16 whose one OTF (:data:`OTF_BYTES_PER_SAMPLE` per sample)
     fits the memory (:func:`check_memory`); a larger limit would let a design ask for more than the machine has."""
-    n = check_int(name, value, 16)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 16:
+        raise ValueError(f"{name} {value!r} is not allowed: an FFT size >= 16")
+    n = value
     limit = MEMORY_FRACTION * available_memory_bytes()
     if OTF_BYTES_PER_SAMPLE * float(n) ** 2 > limit:
         most = int(math.sqrt(limit / OTF_BYTES_PER_SAMPLE))

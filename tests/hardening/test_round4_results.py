@@ -540,6 +540,10 @@ def test_the_exact_route_checks_its_pixels_before_the_grid(tmp_path, capsys, no_
     _refused([*base, "--pixel-pitch", "500"], capsys, "pixels of 500 um (area samples)", "max_fft_size", "raise it")
     assert not out.exists()
     _checked([*base, "--pixel-pitch", "5"], out, capsys, True)
+    out = tmp_path / "m"  # the Monte Carlo of any lens: the same rule, before its nominal lens is evaluated
+    _refused([*TOLERANCE_LENS, "--pixel-pitch", "500", "--out", str(out)], capsys, "needs an FFT of", "max_fft_size")
+    assert not out.exists()
+    _checked([*TOLERANCE_LENS, "--pixel-pitch", "5", "--out", str(out)], out, capsys, True)
 
 
 def test_the_snr_rule_is_evaluate_s(capsys):
