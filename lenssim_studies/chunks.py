@@ -253,8 +253,8 @@ def result_mismatch(ds, coords: dict, finite=(), dims=None) -> str | None:
     for name, want in coords.items():
         want = np.asarray(want)
         if name not in ds.coords or ds[name].shape != want.shape or not np.array_equal(ds[name].values, want):
-            return f"its {name} coordinate is not the run's ({', '.join(f'{v:g}' for v in want.reshape(-1)[:6])}" \
-                   + (", ...)" if want.size > 6 else ")")
+            shown = ", ".join(f"{v:g}" if isinstance(v, (int, float)) else str(v) for v in want.reshape(-1)[:6].tolist())
+            return f"its {name} coordinate is not the run's ({shown}" + (", ...)" if want.size > 6 else ")")
     for name in finite:
         if name not in ds:
             return f"it holds no {name}"

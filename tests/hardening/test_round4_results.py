@@ -407,6 +407,38 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
         run_lens_tolerance_resumable(run, out, show_progress=False)
 
 
+def test_a_gradient_result_is_verified_before_it_is_reused(tmp_path, monkeypatch):
+    """The gradient route's gradient.nc: each descent replaced by an end point made up here (what is tested is the
+    file read back)."""
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.model.numerics import FAST_NUMERICS
+    from lenssim_studies.lens_gradient import LensGradientRun, run_lens_gradient
+
+    def descend(run, level, j):
+        return {"design": np.full(1, -0.5), "start_design": run.start_points()[j].numpy(), "value": np.float64(1 + j),
+                "cost": np.float64(0.1 * (j + 1)), "iterations": np.int64(3), "evaluations": np.int64(9),
+                "stopped": np.int64(0), "gradient": np.float64(1e-9)}
+
+    monkeypatch.setattr(lenssim_studies.lens_gradient, "_descend", descend)
+    run = LensGradientRun(read_lens(LENS_FILE), LENS_FILE, (("S1.conic", -1.0, 0.0),), "mse_r", (27.6,), 0.937, 1.0,
+                          FAST_NUMERICS, levels=2, starts=2)
+    out = tmp_path / "gradient.nc"
+    ds = run_lens_gradient(run, out, show_progress=False)
+    assert run_lens_gradient(run, out, show_progress=False).attrs["data_sha256"] == ds.attrs["data_sha256"]
+    _flip(out, "value", 1)
+    with pytest.raises(ValueError, match="gradient.nc' fails its checksum: it was modified after the gradient run"):
+        run_lens_gradient(run, out, show_progress=False)
+    _rewrite(ds, out, _set("stopped", (0, 1), 7), restamp=True)
+    with pytest.raises(ValueError, match="its stopped holds a reason that is not one of gradient, step, steps"):
+        run_lens_gradient(run, out, show_progress=False)
+    _rewrite(ds, out, _set("cost", (1, 0), np.nan), restamp=True)
+    with pytest.raises(ValueError, match="its cost of a descent that was made is not finite"):
+        run_lens_gradient(run, out, show_progress=False)
+    _rewrite(ds, out, lambda d: d.assign_coords(parameter=["S2.conic"]), restamp=True)
+    with pytest.raises(ValueError, match=r"its parameter coordinate is not the run's \(S1.conic\)"):
+        run_lens_gradient(run, out, show_progress=False)
+
+
 def test_a_full_frame_checkpoint_whose_stamp_makes_no_sense_is_computed_again(tmp_path, monkeypatch):
     """The checkpoint's sensor image is checked against its SHA-256 (as before); its stamp's electrons per unit now
     for sense: a damaged number is warned about and the sensor image computed again, never used."""
