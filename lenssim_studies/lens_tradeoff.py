@@ -43,7 +43,8 @@ from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
 from lenssim.sequential_third_order import evaluate_third_order
 from lenssim.validate import ModelValidityWarning, check_distinct, check_snr_db
 
-from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import (finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch, resume_chunks,
+                     write_stamped_chunk)
 from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "design_prescription",
@@ -385,10 +386,9 @@ def tradeoff_mismatch(ds: xr.Dataset) -> str | None:
         want = names + (("snr",) if k in ("mse_s", "mse_r") else ())
         if tuple(ds[k].dims) != want:
             return f"its {k} is not over the run's grid ({', '.join(want)})"
-    for name, want in {**vary, "snr": snr}.items():
-        if name not in ds.coords or not np.array_equal(ds[name].values, want):
-            return f"its {name} coordinate is not the run's ({', '.join(f'{v:g}' for v in want[:6])}" + \
-                (", ...)" if want.size > 6 else ")")
+    why = result_mismatch(ds, {**vary, "snr": snr})
+    if why:
+        return why
     valid = np.asarray(ds["valid"].values)
     reason = np.asarray(ds["reason"].values).astype(str)
     if valid.dtype != bool or not np.array_equal(valid, reason == ""):
