@@ -17,7 +17,8 @@ import torch
 
 __all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "ResumeWarning", "check_real", "check_int", "check_finite",
            "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
-           "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED"]
+           "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED", "check_snr_db", "check_pixel_pitch_um",
+           "PIXEL_PITCH_RANGE_UM", "check_max_fft_size", "OTF_BYTES_PER_SAMPLE", "check_distinct"]
 
 SNR_DB_RANGE = (-20.0, 100.0)
 """SNR (dB per pixel) accepted by the criteria: beyond 100 dB the noise variance (1e-10) is below the
@@ -31,6 +32,16 @@ FULL_WELL_RANGE_E = (1.0, 1e9)
 
 MEMORY_FRACTION = 0.8
 """Share of the available memory one run may plan to use."""
+
+PIXEL_PITCH_RANGE_UM = (0.1, 1000.0)
+"""Pixel pitches (um) a sensor may have: 0.1 um is a fifth of the smallest pixel made (0.56 um) and below the
+diffraction limit of any lens in visible light (a PSF there spans thousands of pixels); 1 mm is twenty times the
+largest sensor pixel and above the pitch that maps a photo of a hundred pixels onto a lens's field. Each lens
+narrows this further (its PSFs must fit the FFT limit: checked where the lens is known)."""
+
+OTF_BYTES_PER_SAMPLE = 24
+"""Bytes per sample of a PSF's OTF on an ``N x N`` FFT grid as the criteria hold it (six float64 half planes:
+:func:`lenssim.optics.psf_bank.choose_fft_size` estimates ``24 N^2`` bytes)."""
 
 MAX_SEED = 2**62
 """Largest random seed a run takes: torch's generators take seeds below 2**64, and runs add offsets to the seed
@@ -82,6 +93,64 @@ def check_real(name: str, value, lo: float | None = None, hi: float | None = Non
     if not ok:
         raise ValueError(f"{name}={value!r} is not allowed: {allowed}")
     return v
+
+
+def check_snr_db(values, name: str = "", *, warn: bool = True) -> tuple[float, ...]:
+    """SNRs (dB per pixel) as a tuple of floats, at least one, each finite and within :data:`SNR_DB_RANGE`; a
+    :class:`ModelValidityWarning` (``warn``) for any outside :data:`SNR_DB_VALIDATED`. The one rule of every SNR: the
+    criteria's noise model (:func:`lenssim.optics.image_model.noise_variance`) and every command's ``--snr`` (``name``,
+    e.g. ``"--snr"``, prefixes the message)."""
+    lead = f"{name}: " if name else ""
+    try:
+        snr = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"{lead}SNR {values!r} is not allowed: numbers in dB") from None
+    lo, hi = SNR_DB_RANGE
+    shown = ", ".join(f"{v:g}" for v in snr.tolist())
+    if snr.numel() == 0 or not torch.isfinite(snr).all() or bool((snr < lo).any()) or bool((snr > hi).any()):
+        raise ValueError(f"{lead}SNR [{shown}] dB is not allowed: finite values in [{lo:g}, {hi:g}] dB (beyond {hi:g} "
+                         "dB the noise is below the float32 OTFs' resolution)")
+    vlo, vhi = SNR_DB_VALIDATED
+    if warn and (bool((snr < vlo).any()) or bool((snr > vhi).any())):
+        warnings.warn(f"SNR [{shown}] dB is outside [{vlo:g}, {vhi:g}] dB, where the criteria's numerics were "
+                      "validated", ModelValidityWarning, stacklevel=3)
+    return tuple(snr.tolist())
+
+
+def check_pixel_pitch_um(value, name: str = "pixel_pitch_um") -> float:
+    """A pixel pitch (um) within :data:`PIXEL_PITCH_RANGE_UM`; ``ValueError`` naming ``name`` otherwise (the one rule
+    of every ``--pixel-pitch``)."""
+    lo, hi = PIXEL_PITCH_RANGE_UM
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not number or not (math.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{name} {f'{value:g}' if number else repr(value)} is not allowed: a pixel pitch from "
+                         f"{lo:g} to {hi:g} um")
+    return float(value)
+
+
+def check_max_fft_size(value, name: str = "max_fft_size") -> int:
+    """A limit on the FFT size of a PSF: a whole number >= 16 whose one OTF (:data:`OTF_BYTES_PER_SAMPLE` per sample)
+    fits the memory (:func:`check_memory`); a larger limit would let a design ask for more than the machine has."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 16:
+        raise ValueError(f"{name} {value!r} is not allowed: an FFT size >= 16")
+    n = value
+    limit = MEMORY_FRACTION * available_memory_bytes()
+    if OTF_BYTES_PER_SAMPLE * float(n) ** 2 > limit:
+        most = int(math.sqrt(limit / OTF_BYTES_PER_SAMPLE))
+        raise ValueError(f"{name} {n} is not allowed: one OTF of {n} x {n} samples would need "
+                         f"{OTF_BYTES_PER_SAMPLE * n ** 2 / 2**30:.3g} GiB, more than this machine's "
+                         f"{limit / 2**30:.3g} GiB; at most {most}")
+    return n
+
+
+def check_distinct(name: str, values, *, as_written: bool = False) -> None:
+    """``ValueError`` if ``values`` holds a number twice (``as_written``: twice as ``%g`` writes it, the form of the
+    tables and file names; -0 is 0); ``name`` names the flag."""
+    keys = [f"{float(v) + 0.0:g}" if as_written else float(v) + 0.0 for v in values]
+    dup = sorted({k for k in keys if keys.count(k) > 1}, key=keys.index)
+    if dup:
+        raise ValueError(f"{name} holds {', '.join(f'{float(k):g}' for k in dup)} more than once; give each value "
+                         "once")
 
 
 def check_int(name: str, value, lo: int | None = None, hi: int | None = None) -> int:

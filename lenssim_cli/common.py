@@ -22,6 +22,10 @@ DEFAULT_GRADE = "commercial"
 WORKERS_PER_CPU = 4
 """``--workers`` may ask for at most this many local processes per CPU core (more only thrash)."""
 
+MAX_WORKER_THREADS = 1024
+"""``--worker-threads`` at most: torch threads per task beyond the cores of any one machine (the largest have a few
+hundred) only thrash, and the count may be for a cluster's machines, not this one's."""
+
 
 def check_arguments(args) -> None:
     """Values of the common flags, checked before any work (each command has its own further checks): empty names,
@@ -29,7 +33,8 @@ def check_arguments(args) -> None:
     import math
     import os
 
-    from lenssim.validate import MAX_SEED
+    from lenssim.validate import (MAX_SEED, check_distinct, check_max_fft_size, check_pixel_pitch_um,
+                                  check_snr_db)
 
     for flag, name in (("--glass", "glass"), ("--spectrum", "spectrum"), ("--illuminant", "illuminant")):
         v = getattr(args, name, None)
@@ -44,8 +49,11 @@ def check_arguments(args) -> None:
     if isinstance(seed, int) and not 0 <= seed <= MAX_SEED:
         raise ValueError(f"--seed {seed} is not allowed: a whole number from 0 to {MAX_SEED} (2**62)")
     n = getattr(args, "max_fft_size", None)
-    if n is not None and n < 16:
-        raise ValueError(f"--max-fft-size {n} is not allowed: an FFT size >= 16")
+    if n is not None:
+        check_max_fft_size(n, "--max-fft-size")
+    pitch = getattr(args, "pixel_pitch", None)
+    if pitch is not None:
+        check_pixel_pitch_um(pitch, "--pixel-pitch")
     m = getattr(args, "memory_limit", None)
     if m is not None and not (math.isfinite(m) and m > 0):
         raise ValueError(f"--memory-limit {m:g} is not allowed: a positive number of GiB")
@@ -54,13 +62,17 @@ def check_arguments(args) -> None:
         v = getattr(args, name, None)
         if v is not None and v < 1:
             raise ValueError(f"{flag} {v} is not allowed: a number of {what} >= 1")
+    t = getattr(args, "worker_threads", None)
+    if t is not None and t > MAX_WORKER_THREADS:
+        raise ValueError(f"--worker-threads {t} is not allowed: at most {MAX_WORKER_THREADS} threads per task")
+    for flag, name in (("--snr", "snr"), ("--reference-snr", "reference_snr")):  # the criteria's rule (evaluate's)
+        values = getattr(args, name, None)
+        if values is not None:  # refused here; outside the validated range, warned where a run computes
+            check_snr_db(values, flag, warn=False)
     for flag, name in (("--isos", "isos"), ("--snr", "snr"), ("--angles", "angles")):
         values = getattr(args, name, None)
         if isinstance(values, (list, tuple)):
-            tags = [f"{v + 0.0:g}" for v in values]  # as written in tables and file names; -0 is 0
-            dup = sorted({t for t in tags if tags.count(t) > 1}, key=tags.index)
-            if dup:
-                raise ValueError(f"{flag} holds {', '.join(dup)} more than once; give each value once")
+            check_distinct(flag, values, as_written=True)  # as written in tables and file names
     w = getattr(args, "workers", None)
     most = WORKERS_PER_CPU * (os.cpu_count() or 1)
     if w is not None and w > most:

@@ -7,12 +7,17 @@ import math
 import sys
 import time
 
+from lenssim.validate import check_distinct, check_pixel_pitch_um
+
 from .common import add_device_argument, numerics_from_args
 
 __all__ = ["register", "cmd_tradeoff", "parse_vary"]
 
 DEFAULT_GRID_VALUES = 9
 """Values of a ``--vary NAME=LO:HI`` range without a step (LO and HI included)."""
+MAX_VARY_VALUES = 100_000
+"""Values of one ``--vary`` range at most (a grid holds at most ``MAX_GRID_DESIGNS`` designs in all: this bounds the
+list itself, before the grid is counted)."""
 TRADEOFF_LEVELS = 30
 """Cost levels of the front by default (the paper's 30)."""
 GRADIENT_LEVELS = 5
@@ -49,15 +54,33 @@ def parse_vary(text: str) -> tuple[str, tuple[float, ...]]:
             if not (math.isfinite(step) and step > 0):
                 raise ValueError(f"--vary {text!r} is not allowed: LO <= HI and a STEP > 0")
             count = (hi - lo) / step
+            if not count < MAX_VARY_VALUES:  # also a count that overflowed to inf
+                raise ValueError(f"--vary {text!r} is not allowed: more than {MAX_VARY_VALUES} values")
             n = round(count)
             if abs(count - n) > 1e-9 * max(1.0, count):
                 raise ValueError(f"--vary {text!r} is not allowed: HI - LO is not a whole number of STEPs")
-            if n + 1 > 100_000:
-                raise ValueError(f"--vary {text!r} is not allowed: {n + 1} values (at most 100000)")
+            if n + 1 > MAX_VARY_VALUES:
+                raise ValueError(f"--vary {text!r} is not allowed: {n + 1} values (at most {MAX_VARY_VALUES})")
             values = tuple(lo + step * k for k in range(n + 1))
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"--vary {text!r} is not allowed: finite numbers")
+    check_distinct(f"--vary {text!r}", values)  # a value twice: two designs on one coordinate
     return name, values
+
+
+def parse_surfaces(flag: str, items, count: int) -> tuple[int, ...]:
+    """Surface names ``S5`` (or ``5``) of ``flag`` as 1-based numbers, each once and from 1 to ``count``; a one-line
+    ``ValueError`` otherwise."""
+    out = []
+    for item in items:
+        text = str(item).strip()
+        digits = text[1:] if text[:1] in ("S", "s") else text
+        if not (digits.isascii() and digits.isdigit()) or not 1 <= int(digits) <= count:
+            raise ValueError(f"{flag} {text!r} is not allowed: surfaces S1 to S{count}")
+        if int(digits) in out:
+            raise ValueError(f"{flag} names S{int(digits)} more than once; give each surface once")
+        out.append(int(digits))
+    return tuple(out)
 
 
 def cmd_tradeoff(args) -> int:
@@ -68,8 +91,9 @@ def cmd_tradeoff(args) -> int:
     from lenssim.optics.sequential import SequentialLens
     from lenssim.torch_utils import select_device
     from lenssim_studies.html import image, markdown, table, write_page
+    from lenssim_studies.chunks import finished_result
     from lenssim_studies.lens_tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
-                                               write_design_files)
+                                               tradeoff_mismatch, write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
     vary = [parse_vary(v) for v in args.vary]
@@ -77,6 +101,8 @@ def cmd_tradeoff(args) -> int:
     for h in hold:
         if h not in HOLDS:
             raise ValueError(f"--hold {h!r} is not allowed: a comma-separated list of {', '.join(HOLDS)}")
+        if hold.count(h) > 1:
+            raise ValueError(f"--hold holds {h} more than once; give each once")
     levels = (GRADIENT_LEVELS if args.optimise else TRADEOFF_LEVELS) if args.levels is None else args.levels
     if not (1 if args.optimise else 2) <= levels <= (100 if args.optimise else 1000):
         raise ValueError(f"--levels {levels} is not allowed: " + ("1 to 100 cost levels with --optimise"
@@ -87,14 +113,10 @@ def cmd_tradeoff(args) -> int:
     snr = tuple(args.snr)
     p = read_lens(args.lens)
     SequentialLens(p).check_aperture()
-    aspherize = tuple(int(s.lstrip("Ss")) for s in args.aspherize or ())
-    for k in aspherize:
-        if not 1 <= k <= len(p.surfaces):
-            raise ValueError(f"--aspherize S{k} is not allowed: surfaces S1 to S{len(p.surfaces)}")
+    aspherize = parse_surfaces("--aspherize", args.aspherize or (), len(p.surfaces))
     par = SequentialLens(p).paraxial()
-    pitch = (p.primary_wavelength_um * par.working_f_number / 2 if args.pixel_pitch is None else float(args.pixel_pitch))
-    if not (math.isfinite(pitch) and pitch > 0):
-        raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")
+    pitch = check_pixel_pitch_um(p.primary_wavelength_um * par.working_f_number / 2 if args.pixel_pitch is None
+                                 else args.pixel_pitch, "--pixel-pitch")
     # the third-order route is the paper's image model: the PSF sampled at points of the pixel grid
     sampling = "point" if args.pixel_pitch is None or args.wavefront == "third_order" else "area"
     numerics = numerics_from_args(args, DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS)
@@ -117,7 +139,9 @@ def cmd_tradeoff(args) -> int:
     run = LensTradeoffRun(p, str(args.lens), tuple(vary), snr, PAPER_RHO0, pitch, sampling,
                           numerics, hold=hold, image=args.image, aspherize=aspherize, coarse=not args.accurate,
                           levels=levels, wavefront=args.wavefront)
+    run.check_sampling()  # pixels on which no design could be scored: refused before the grid
     out = check_output_dir(args.out)
+    finished_result(out / "tradeoff.nc", run.digest(), "trade-off", tradeoff_mismatch)  # a damaged one: refused now
     select_device(args.device)
     t0 = time.perf_counter()
     with output_lock(out):  # one run at a time writes this folder; a second run resumes the sweep

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -149,9 +150,16 @@ def cmd_optimum(args) -> int:
     try:
         ds = xr.load_dataset(path, engine="scipy")
     except Exception:  # noqa: BLE001 - whatever the reader says, the file is not a sweep
+        from lenssim_studies.chunks import damaged_netcdf, is_netcdf
+
+        if is_netcdf(path):
+            raise ValueError(damaged_netcdf(path, "run `lenssim sweep` or `lenssim tradeoff` again")) from None
         raise ValueError(f"{str(path)!r} is not a sweep file or a trade-off (NetCDF written by `lenssim sweep` or "
                          "`lenssim tradeoff`)") from None
     if is_lens_tradeoff(ds):
+        from lenssim_studies.lens_optimum import verify_lens_tradeoff
+
+        verify_lens_tradeoff(ds, path)  # its checksum and its sense, before any number of it is read
         return _tradeoff_optimum(args, ds, path, folder if folder is not None else path.parent, max_cost)
     if "config_digest" not in ds.attrs:
         raise ValueError(f"{str(path)!r} is a NetCDF file but not a lenssim sweep (no config digest)")
@@ -292,8 +300,11 @@ def cmd_study(args) -> int:
 
         args.lenses = STUDY_LENSES if args.lenses is None else args.lenses
         args.seed = 0 if args.seed is None else args.seed
-        if args.lenses < 2:
-            raise ValueError(f"--lenses {args.lenses} is not allowed: at least 2 lenses per design")
+        from .tolerance import MAX_SENSITIVITY_LENSES
+
+        if not 2 <= args.lenses <= MAX_SENSITIVITY_LENSES:  # the singlet's Monte Carlo lenses, as tolerance's
+            raise ValueError(f"--lenses {args.lenses} is not allowed: from 2 to {MAX_SENSITIVITY_LENSES} lenses per "
+                             "design")
         if args.seed < 0:
             raise ValueError(f"--seed {args.seed} is not allowed: a whole number >= 0")
         check_output_dir(args.out)
@@ -325,6 +336,12 @@ def cmd_study(args) -> int:
         if not len(args.grid_step) == 2 or not all(v > 0 for v in args.grid_step):
             raise ValueError(f"--grid-step {args.grid_step!r} is not allowed: two positive steps (s, Q_back)")
         grid = {"s": (*STUDY_GRID["s"][:2], args.grid_step[0]), "Q_back": (*STUDY_GRID["Q_back"][:2], args.grid_step[1])}
+        from lenssim_studies.config import grid_count
+
+        for name, (lo, hi, step) in grid.items():  # the trade-off interpolates over each: at least 2 values
+            if not all(math.isfinite(v) for v in (lo, hi, step)) or grid_count(lo, hi, step) < 2:
+                raise ValueError(f"--grid-step {args.grid_step[0]:g} {args.grid_step[1]:g} is not allowed: steps "
+                                 f"that give {name} over [{lo:g}, {hi:g}] at least 2 values")
     defaults = WhiteLightStudy.__dataclass_fields__
     study = WhiteLightStudy(glasses=tuple(args.glass or STUDY_GLASSES),
                             sensitivities=args.spectrum or defaults["sensitivities"].default,

@@ -118,6 +118,7 @@ def cmd_tolerance_lens(args) -> int:
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
     from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES, lens_tolerance_report, summarise_lens_tolerance
     from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+    from lenssim_studies.lens_tradeoff import check_psf_sampling
     from lenssim.torch_utils import select_device
     from lenssim_studies.paper import PAPER_RHO0
 
@@ -148,6 +149,7 @@ def cmd_tolerance_lens(args) -> int:
     sampling = "point" if args.pixel_pitch is None else "area"  # as evaluate --lens: Nyquist pixels, point samples
     psf = lens_provider(args, p, seq, pitch_um=pitch, width_px=1, height_px=1, max_field_deg=amax, sampling=sampling)
     numerics = DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS
+    check_psf_sampling(psf, numerics)  # pixels no copy could be scored on: refused before the nominal lens is
     run = LensToleranceRun(psf, tol, n, args.seed, tuple(snr), PAPER_RHO0, numerics,
                            angles_deg=tuple(args.angles) if args.angles else None, coarse=not args.accurate)
     t0 = time.perf_counter()

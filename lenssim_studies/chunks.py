@@ -19,7 +19,8 @@ from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 
 __all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
-           "read_stamped_chunk", "finished_result"]
+           "read_stamped_chunk", "finished_result", "dataset_checksum", "stamp_result", "verify_result",
+           "result_mismatch", "is_netcdf", "damaged_netcdf"]
 
 
 @contextmanager
@@ -176,10 +177,102 @@ def read_stamped_chunk(path: Path, keys, digest: str, index: int, *, run: str, r
     return chunk
 
 
-def finished_result(out: Path, digest: str, run: str):
+def _canonical(a: np.ndarray) -> tuple[str, bytes]:
+    """``(type, bytes)`` of an array as a NetCDF-3 file gives it back: text as UTF-8 (NUL between entries), integers and
+    booleans as the file stores them (NetCDF-3 has no 64-bit, unsigned or boolean integers: xarray's
+    ``coerce_nc3_dtype``), numbers in native byte order."""
+    from xarray.backends.netcdf3 import coerce_nc3_dtype
+
+    if a.dtype.kind in "OUS":
+        text = "\0".join(v.decode() if isinstance(v, bytes) else str(v) for v in a.reshape(-1).tolist())
+        return "str", text.encode()
+    if a.dtype.kind in "biu":
+        a = coerce_nc3_dtype(a)
+    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("="))
+    return a.dtype.str, a.tobytes()
+
+
+NETCDF_MAGIC = (b"CDF\x01", b"CDF\x02", b"CDF\x05", b"\x89HDF")
+"""The first bytes of a NetCDF file (classic, 64-bit offset, 64-bit data; NetCDF-4 is HDF5)."""
+
+
+def is_netcdf(path) -> bool:
+    """Whether ``path`` begins as a NetCDF file does (:data:`NETCDF_MAGIC`)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) in NETCDF_MAGIC
+    except OSError:
+        return False
+
+
+def damaged_netcdf(path, again: str) -> str:
+    """The one line that refuses a NetCDF result whose data cannot be read back whole."""
+    return (f"{str(path)!r} fails its checksum: a NetCDF file whose data cannot be read back (truncated or damaged); "
+            f"{again}")
+
+
+def dataset_checksum(ds) -> str:
+    """SHA-256 of every variable and coordinate of a result (name, type, shape and bytes, in name order; each as the
+    NetCDF-3 file holds it, so a result and its file read back give the same)."""
+    h = hashlib.sha256()
+    for name in sorted(map(str, ds.variables)):
+        kind, data = _canonical(np.asarray(ds[name].values))
+        h.update(f"{name}|{kind}|{ds[name].shape}|".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+def stamp_result(ds):
+    """``ds`` with its checksum (``data_sha256``, what :func:`verify_result` checks) among its attributes."""
+    ds.attrs["data_sha256"] = dataset_checksum(ds)
+    return ds
+
+
+def verify_result(ds, path, run: str, again: str) -> None:
+    """Refuse a result read back whose numbers are not the ones its run wrote: no checksum (written by a version
+    without one), data that no longer match it (damaged, edited by hand), or a run record (``config``) that no longer
+    matches its digest (``config_digest``). A one-line ``ValueError`` naming the file (``path``), the ``run`` that
+    writes it, and ``again`` (what to do)."""
+    want = ds.attrs.get("data_sha256")
+    if want is None:
+        raise ValueError(f"{str(path)!r} carries no data checksum (data_sha256): not a {run} file of this lenssim "
+                         f"version; {again}")
+    if dataset_checksum(ds) != want:
+        raise ValueError(f"{str(path)!r} fails its checksum: it was modified after the {run} wrote it (its data no "
+                         f"longer match their SHA-256); {again}")
+    config, digest = ds.attrs.get("config"), ds.attrs.get("config_digest")
+    if config is not None and hashlib.sha256(str(config).encode()).hexdigest()[:16] != digest:
+        raise ValueError(f"{str(path)!r} fails its checksum: its run record (config) was modified after the {run} "
+                         f"wrote it (it no longer matches its config_digest); {again}")
+
+
+def result_mismatch(ds, coords: dict, finite=(), dims=None) -> str | None:
+    """Why a result does not make sense for its run record, or None: each coordinate of ``coords`` ``{name: values}``
+    must be exactly the run's (its grid, its SNRs...), each variable of ``finite`` finite everywhere, and (``dims``) the
+    variables' dimensions those of the run."""
+    for name, want in coords.items():
+        want = np.asarray(want)
+        if name not in ds.coords or ds[name].shape != want.shape or not np.array_equal(ds[name].values, want):
+            shown = ", ".join(f"{v:g}" if isinstance(v, (int, float)) else str(v) for v in want.reshape(-1)[:6].tolist())
+            return f"its {name} coordinate is not the run's ({shown}" + (", ...)" if want.size > 6 else ")")
+    for name in finite:
+        if name not in ds:
+            return f"it holds no {name}"
+        v = np.asarray(ds[name].values)
+        if v.dtype.kind == "f" and not np.isfinite(v).all():
+            return f"its {name} holds NaN or infinite values"
+    if dims is not None:
+        for name in finite:
+            if tuple(ds[name].dims)[:len(dims)] != tuple(dims):
+                return f"its {name} is not over the run's {', '.join(dims)}"
+    return None
+
+
+def finished_result(out: Path, digest: str, run: str, check=None):
     """Before a resumable run writes ``out`` (NetCDF): the dataset already there if it is this run's finished result
-    (its ``config_digest``), None if there is none; any other file is refused (``FileExistsError``, ``run`` naming the
-    run), never overwritten."""
+    (its ``config_digest``), verified (:func:`verify_result`: its checksum; ``check(ds)``, if given: why it makes no
+    sense for this run, or None), None if there is none; any other file is refused (``FileExistsError``, ``run``
+    naming the run), never overwritten, and a damaged result too (``ValueError``)."""
     import xarray as xr
 
     if not out.exists():
@@ -188,27 +281,41 @@ def finished_result(out: Path, digest: str, run: str):
         with xr.open_dataset(out, engine="scipy") as old:
             same = old.attrs.get("config_digest") == digest
     except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
+        if is_netcdf(out):
+            raise ValueError(damaged_netcdf(out, f"remove it and run the {run} again")) from None
         same = False
-    if same:
-        return xr.load_dataset(out, engine="scipy")
-    raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this {run}; choose another output "
-                          "or remove it")
+    if not same:
+        raise FileExistsError(f"{str(out)!r} exists and is not the finished result of this {run}; choose another "
+                              "output or remove it")
+    again = f"remove it and run the {run} again"
+    try:
+        ds = xr.load_dataset(out, engine="scipy")
+    except Exception:  # noqa: BLE001 - a header that reads but data that do not (truncated)
+        raise ValueError(damaged_netcdf(out, again)) from None
+    verify_result(ds, out, run, again)
+    why = check(ds) if check is not None else None
+    if why:
+        raise ValueError(f"{str(out)!r} makes no sense for its run record: {why}; {again}")
+    return ds
 
 
-def open_resumable(out: Path, digest: str, output: str, run: str):
+def open_resumable(out: Path, digest: str, output: str, run: str, check=None):
     """Before a resumable run: ``out`` checked as an output file (``output`` names it in messages), and its finished
-    result if it is this run's (:func:`finished_result`; ``run`` names the run), else None."""
+    result if it is this run's (:func:`finished_result`, verified; ``run`` names the run, ``check`` as there), else
+    None."""
     from lenssim.io.files import check_output_file
 
     check_output_file(out, output)
-    return finished_result(out, digest, run)
+    return finished_result(out, digest, run, check)
 
 
 def finish_resumable(out: Path, ds, part: Path) -> None:
-    """A resumable run's end: its dataset written atomically to ``out`` (NetCDF), then its chunk folder removed."""
+    """A resumable run's end: its dataset stamped with its checksum (:func:`stamp_result`) and written atomically to
+    ``out`` (NetCDF), then its chunk folder removed."""
     import shutil
 
     from lenssim.io.files import atomic_write
 
+    stamp_result(ds)  # verified when the result is read back (finished_result, lenssim optimum)
     atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
     shutil.rmtree(part)

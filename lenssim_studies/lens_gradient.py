@@ -29,7 +29,8 @@ from lenssim.model.lens_parameters import LensParameter, parameter_values, parse
 from lenssim.model.numerics import Numerics
 from lenssim.model.prescription import Prescription
 
-from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import (finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch, resume_chunks,
+                     write_stamped_chunk)
 
 __all__ = ["LensGradientRun", "run_lens_gradient", "gradient_json", "STOP_REASONS", "MAX_STARTS", "MAX_STEPS",
            "TYPICAL_STEPS"]
@@ -178,13 +179,31 @@ def _descend(run: LensGradientRun, level: float | None, j: int) -> dict:
             "stopped": np.int64(STOP_REASONS.index(r.stopped)), "gradient": np.float64(r.gradient)}
 
 
+def _mismatch(run: LensGradientRun, ds: xr.Dataset) -> str | None:
+    """Why the finished result ``ds`` makes no sense for ``run``, or None: its starts and parameters are the run's,
+    every descent stopped for a known reason, and one that was made has a finite design, value and cost."""
+    why = result_mismatch(ds, {"start": np.arange(run.starts), "parameter": np.asarray(run.names)})
+    if why:
+        return why
+    if any(k not in ds for k in _KEYS):
+        return f"it holds no {', '.join(k for k in _KEYS if k not in ds)}"
+    stopped = np.asarray(ds["stopped"].values)
+    if not np.isin(stopped, np.arange(len(STOP_REASONS))).all():
+        return "its stopped holds a reason that is not one of " + ", ".join(STOP_REASONS)
+    made = stopped != STOP_REASONS.index("invalid")
+    for k in ("design", "value", "cost"):
+        if not np.isfinite(np.asarray(ds[k].values, dtype=np.float64)[made]).all():
+            return f"its {k} of a descent that was made is not finite"
+    return None
+
+
 def run_lens_gradient(run: LensGradientRun, out: str | os.PathLike, *, show_progress: bool = True,
                       max_chunks: int | None = None) -> xr.Dataset | None:
     """Run (or resume) every descent and write ``out`` (NetCDF: per ``level`` (NaN: unconstrained) and ``start``, the
     design reached, its value, cost, iterations, evaluations, why it stopped); ``None`` if ``max_chunks`` stopped it
     early."""
     out = Path(out)
-    done = open_resumable(out, run.digest(), "gradient output", "gradient run")
+    done = open_resumable(out, run.digest(), "gradient output", "gradient run", check=lambda ds: _mismatch(run, ds))
     if done is not None:
         return done
     part = out.with_name(out.name + ".partial")

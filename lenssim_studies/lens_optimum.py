@@ -32,7 +32,8 @@ from .lens_tradeoff import TRADEOFF_CRITERIA, LensTradeoffRun, design_prescripti
 
 __all__ = ["TRADEOFF_TITLE", "TRADEOFF_FILE", "OPTIMUM_CRITERIA", "is_lens_tradeoff", "check_lens_tradeoff",
            "resolve_criterion", "find_lens_optimum", "design_file_name", "tradeoff_run_from_dict", "rebuild_run",
-           "write_optimum_lens", "find_sweep_optimum", "check_max_cost", "COST_TOLERANCE"]
+           "write_optimum_lens", "find_sweep_optimum", "check_max_cost", "COST_TOLERANCE", "verify_lens_tradeoff",
+           "check_design_file"]
 
 TRADEOFF_TITLE = "lenssim trade-off of any lens"
 """The ``title`` attribute of a trade-off file (:func:`lenssim_studies.lens_tradeoff.run_lens_tradeoff`)."""
@@ -62,6 +63,58 @@ def check_lens_tradeoff(ds: xr.Dataset, where: str = "the file") -> None:
         extra = set(ds[k].dims) - set(dims) - {"snr"}
         if set(dims) - set(ds[k].dims) or extra:
             raise ValueError(f"{where} is titled a lenssim trade-off but its {k} is not over the grid {list(dims)}")
+
+
+def verify_lens_tradeoff(ds: xr.Dataset, path) -> None:
+    """Refuse a trade-off file read back whose numbers are not the ones its run wrote (its checksum,
+    :func:`lenssim_studies.chunks.verify_result`) or that make no sense for its run record
+    (:func:`lenssim_studies.lens_tradeoff.tradeoff_mismatch`): one-line ``ValueError`` naming the file."""
+    from .chunks import verify_result
+    from .lens_tradeoff import tradeoff_mismatch
+
+    again = "run `lenssim tradeoff` again"
+    verify_result(ds, path, "trade-off", again)
+    why = tradeoff_mismatch(ds)
+    if why:
+        raise ValueError(f"{str(path)!r} makes no sense for its run record: {why}; {again}")
+
+
+def check_design_file(ds: xr.Dataset, design: dict, path: Path) -> bool:
+    """Whether the lens file ``path`` (a trade-off's ``designs/NAME.toml``) holds the design ``design`` of the trade-off
+    ``ds`` (its solves applied, as :func:`lenssim_studies.lens_tradeoff.write_design_files` wrote it): False if the run
+    cannot be rebuilt here (another version of lenssim: the file cannot be vouched for); a one-line ``ValueError``
+    if the file holds anything else (changed after the trade-off wrote it)."""
+    from lenssim.io.prescription_file import read_lens
+
+    try:
+        want = design_prescription(rebuild_run(ds), design).to_dict()
+    except ValueError:
+        return False
+    bad = f"{str(path)!r} does not hold the design it is named for (changed after the trade-off wrote it)"
+    try:
+        got = read_lens(str(path)).to_dict()
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{bad}: {' '.join(str(exc).split())[:200]}; remove it or run `lenssim tradeoff` again") \
+            from None
+    if not _same(got, want):
+        raise ValueError(f"{bad}; remove it or run `lenssim tradeoff` again")
+    return True
+
+
+DESIGN_FILE_RTOL = 1e-12
+"""Relative difference of two numbers of a design file that still hold the same design: a curvature rebuilt from its
+recorded radius may come back 1 ulp away (:func:`tradeoff_run_from_dict`), and the solves follow it."""
+
+
+def _same(a, b) -> bool:
+    """``a`` and ``b`` (a prescription's ``to_dict``) equal, numbers to :data:`DESIGN_FILE_RTOL`."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return a == b or math.isclose(a, b, rel_tol=DESIGN_FILE_RTOL, abs_tol=0.0)
+    return a == b
 
 
 def check_max_cost(max_cost) -> float | None:
@@ -189,7 +242,7 @@ def find_lens_optimum(ds: xr.Dataset, criterion: str, snr_db: float | None = Non
     lens_file = None
     if folder is not None and i == unconstrained:
         f = Path(folder) / "designs" / design_file_name(name)
-        if f.is_file():
+        if f.is_file() and check_design_file(ds, design, f):
             lens_file = str(f)
     out["lens_file"] = lens_file
     return out

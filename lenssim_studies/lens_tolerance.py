@@ -26,7 +26,8 @@ from lenssim.optics.sequential_psf import SequentialPSF
 from lenssim.sequential_tolerance import (CRITERIA, copy_criteria, lens_tolerance_dataset, nominal_criteria,
                                           tolerance_angles)
 
-from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import (finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch, resume_chunks,
+                     write_stamped_chunk)
 
 __all__ = ["LensToleranceRun", "run_lens_tolerance_resumable", "CHUNK_COPIES"]
 
@@ -90,7 +91,9 @@ def run_lens_tolerance_resumable(run: LensToleranceRun, out: str | os.PathLike, 
     existing ``out`` is returned if it is this run's finished result, refused otherwise. ``attrs``: more attributes
     of the dataset (descriptive: not part of the digest)."""
     out = Path(out)
-    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run")
+    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run",
+                          check=lambda ds: result_mismatch(ds, {"lens": np.arange(run.n_copies), "snr": run.snr_db},
+                                                           finite=_ROW_KEYS, dims=("lens",)))
     if done is not None:
         return done
     angles = run.angles

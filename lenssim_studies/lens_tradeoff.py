@@ -41,13 +41,14 @@ from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
 from lenssim.sequential_third_order import evaluate_third_order
-from lenssim.validate import ModelValidityWarning
+from lenssim.validate import ModelValidityWarning, check_distinct, check_snr_db
 
-from .chunks import finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks, write_stamped_chunk
+from .chunks import (finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch, resume_chunks,
+                     write_stamped_chunk)
 from .paper import PAPER_CAMERA
 
 __all__ = ["LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "design_prescription",
-           "write_design_files", "TRADEOFF_CRITERIA",
+           "write_design_files", "TRADEOFF_CRITERIA", "tradeoff_mismatch", "check_psf_sampling",
            "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS", "CHUNK_DESIGNS", "TRADEOFF_ANGLES", "WAVEFRONTS"]
 
 TRADEOFF_CRITERIA = ("rms_w", "mse_s", "mse_r", "strehl", "mtf50")
@@ -170,6 +171,8 @@ class LensTradeoffRun:
             raise ValueError(f"image plane {self.image!r} is not allowed: one of {', '.join(IMAGE_PLANES)}")
         if self.levels < 2:
             raise ValueError(f"levels={self.levels} is not allowed: at least 2 cost levels")
+        check_snr_db(self.snr_db, "snr_db", warn=False)  # the criteria's rule, before the grid (it warns there)
+        check_distinct("snr_db", self.snr_db, as_written=True)
         if self.wavefront not in WAVEFRONTS:
             raise ValueError(f"wavefront {self.wavefront!r} is not allowed: one of {', '.join(WAVEFRONTS)}")
         if self.wavefront == "third_order":
@@ -229,6 +232,47 @@ class LensTradeoffRun:
             return tuple(float(a) for a in self.prescription.fields)
         return evaluation_angles(self.max_field_deg, self.angles)
 
+    def check_sampling(self) -> None:
+        """Before any design is scored: pixels on which no design can be, refused (one line). The pixel pitch against
+        the lens's diffraction alone (an aberration-free PSF of the file's lens and working F-number): the third-order
+        route's point samples need a pitch below ``lambda N_w``; the PSF grid, and an area sample's finer grid, must
+        fit ``numerics.max_fft_size``. A design's own aberrations may need more: it is then kept invalid, with the
+        reason."""
+        from lenssim.optics.aberrations import TERMS
+        from lenssim.optics.psf_bank import fft_size
+        from lenssim.sequential_third_order import third_order_camera
+        from lenssim.validate import ResourceLimitError
+
+        seq = SequentialLens(self.prescription)
+        what = f"pixels of {self.pitch_um:g} um ({self.sampling} samples) on {self.lens}"
+        try:
+            if self.wavefront == "third_order":
+                camera = third_order_camera(seq, self.pitch_um, self.evaluation_angles)
+                fft_size(camera, torch.zeros(len(self.evaluation_angles), len(camera.spectrum), len(TERMS),
+                                             dtype=torch.float64), self.numerics, terms=TERMS)
+                return
+            check_psf_sampling(sequential_provider(self.prescription, seq, pitch_um=self.pitch_um,
+                                                   sampling=self.sampling, max_field_deg=self.max_field_deg,
+                                                   numerics=self.numerics, coarse=self.coarse), self.numerics)
+        except ResourceLimitError as exc:
+            raise ResourceLimitError(f"{what}: even an aberration-free design: {exc}", exc.setting) from None
+        except ValueError as exc:
+            raise ValueError(f"{what}: {exc}") from None
+
+
+def check_psf_sampling(psf: SequentialPSF, numerics: Numerics) -> None:
+    """Refuse the pixels of ``psf`` if an aberration-free PSF on them (its diffraction alone) needs more than
+    ``numerics.max_fft_size``: its pixel grid, or the finer grid an area sample is computed on (a
+    :class:`lenssim.validate.ResourceLimitError`; cheap: no ray is traced)."""
+    from lenssim.sequential_metrics import _grid_size
+    from lenssim.validate import ResourceLimitError
+
+    n = _grid_size(psf, psf.margin_px(), numerics)
+    if psf.fft_size(n) > numerics.max_fft_size:
+        raise ResourceLimitError(f"a PSF sampled over the pixels' area needs an FFT of {psf.fft_size(n)} samples "
+                                 f"({psf.oversample()} per pixel); the limit is max_fft_size = {numerics.max_fft_size}",
+                                 "max_fft_size")
+
 
 def _score(run: LensTradeoffRun, i: int) -> dict:
     """Design ``i``: its criteria, cost and validity (``reason``: '' if valid)."""
@@ -254,10 +298,11 @@ def _score(run: LensTradeoffRun, i: int) -> dict:
     except ValueError as exc:  # PrescriptionError, SolveError, RayTraceError, ...: the design is invalid
         return nan | {"reason": str(exc).splitlines()[0][:300], "mtf50_capped": False}
     capped = False
-    for w in caught:  # the MTF50 lower bound is recorded per design (mtf50_capped); anything else is passed on
+    for w in caught:  # the MTF50 lower bound is recorded per design (mtf50_capped); the SNRs are the run's, said
+        # once before the grid (run_lens_tradeoff); anything else is passed on
         if issubclass(w.category, ModelValidityWarning) and str(w.message).startswith("MTF50"):
             capped = True
-        else:
+        elif not (issubclass(w.category, ModelValidityWarning) and str(w.message).startswith("SNR [")):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     out = {k: torch.as_tensor(r[k], dtype=torch.float64).tolist() for k in TRADEOFF_CRITERIA}
     out["cost"] = float(r["cost"])  # prescription_costs over each aspheric surface's clear aperture
@@ -325,9 +370,11 @@ def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_prog
                       max_chunks: int | None = None) -> xr.Dataset | None:
     """Run (or resume) the grid sweep and write ``out`` (NetCDF); ``None`` if ``max_chunks`` stopped it early."""
     out = Path(out)
-    done = open_resumable(out, run.digest(), "trade-off output", "trade-off")
+    done = open_resumable(out, run.digest(), "trade-off output", "trade-off", check=tradeoff_mismatch)
     if done is not None:
         return done
+    run.check_sampling()
+    check_snr_db(run.snr_db)  # outside where the criteria were validated: said once, here
     part = out.with_name(out.name + ".partial")
     with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
                         f"{str(part)!r} holds chunks of a different trade-off; remove it or choose another output"):
@@ -343,6 +390,45 @@ def run_lens_tradeoff(run: LensTradeoffRun, out: str | os.PathLike, *, show_prog
         ds = _dataset(run, chunks)
         finish_resumable(out, ds, part)
         return ds
+
+
+def tradeoff_mismatch(ds: xr.Dataset) -> str | None:
+    """Why the trade-off ``ds`` makes no sense for the run its ``config`` records, or None: its grid (each parameter's
+    coordinate and the variables' dimensions) and SNRs are the run's, ``valid`` says what ``reason`` says, every
+    criterion, the cost and the focal length of a valid design are finite (the criteria and the cost >= 0), an invalid
+    design's are NaN, and ``mtf50_capped`` is 0 or 1 (0 where invalid)."""
+    try:
+        d = json.loads(ds.attrs["config"])
+        vary = {str(n): np.asarray(v, dtype=np.float64) for n, v in d["vary"]}
+        snr = np.asarray(d["snr_db"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        return "it carries no readable run record (config)"
+    names = tuple(vary)
+    missing = [k for k in _KEYS + ("valid", "reason") if k not in ds]
+    if missing:
+        return f"it holds no {', '.join(missing)}"
+    for k in _KEYS + ("valid", "reason"):
+        want = names + (("snr",) if k in ("mse_s", "mse_r") else ())
+        if tuple(ds[k].dims) != want:
+            return f"its {k} is not over the run's grid ({', '.join(want)})"
+    why = result_mismatch(ds, {**vary, "snr": snr})
+    if why:
+        return why
+    valid = np.asarray(ds["valid"].values)
+    reason = np.asarray(ds["reason"].values).astype(str)
+    if valid.dtype != bool or not np.array_equal(valid, reason == ""):
+        return "its valid flags are not what its reasons say (valid where no reason is given)"
+    for k in TRADEOFF_CRITERIA + ("cost", "efl_mm"):
+        v = np.asarray(ds[k].values, dtype=np.float64)
+        made, unmade = v[valid], v[~valid]
+        if not np.isfinite(made).all() or (k != "efl_mm" and (made < 0).any()):
+            return f"its {k} of a valid design is not a finite number" + ("" if k == "efl_mm" else " >= 0")
+        if not np.isnan(unmade).all():
+            return f"its {k} of an invalid design is a number (an invalid design is never scored)"
+    capped = np.asarray(ds["mtf50_capped"].values)
+    if not np.isin(capped, (0, 1)).all() or capped[~valid].any():
+        return "its mtf50_capped is not 0 or 1 (0 for an invalid design)"
+    return None
 
 
 def _criteria_columns(ds: xr.Dataset) -> dict[str, tuple[np.ndarray, str]]:

@@ -12,7 +12,6 @@ atomically, so it is identical to an uninterrupted run's.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -28,11 +27,12 @@ from lenssim.io.files import atomic_write, check_output_file
 from lenssim.torch_utils import select_device
 from lenssim.validate import ResumeWarning, check_int
 
-from .chunks import _checksum, _chunk_keys, _compute_chunk, partial_folder, resume_chunks
+from .chunks import (_checksum, _chunk_keys, _compute_chunk, dataset_checksum, finished_result, partial_folder,
+                     result_mismatch, resume_chunks, stamp_result, verify_result)
 from .config import (SweepConfig, grid_count, grid_values, load_config)
 
 __all__ = ["SweepConfig", "load_config", "grid_values", "grid_count", "run_sweep", "select_device", "ResumeWarning",
-           "design_dims"]
+           "design_dims", "dataset_checksum", "verify_sweep", "sweep_mismatch"]
 
 
 def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
@@ -62,30 +62,35 @@ def _dataset(cfg: SweepConfig, chunks: list[dict]) -> xr.Dataset:
     ds["snr"].attrs = {"long_name": "signal-to-noise ratio per pixel", "units": "dB"}
     ds.attrs = {"title": "lenssim sweep", "lenssim_version": __version__, "design_parameters": " ".join(dims),
                 "config": json.dumps(cfg.to_dict(), sort_keys=True), "config_digest": cfg.digest()}
-    ds.attrs["data_sha256"] = dataset_checksum(ds)
-    return ds
-
-
-def dataset_checksum(ds: xr.Dataset) -> str:
-    """SHA-256 of every variable and coordinate of a sweep (name, dtype, shape and bytes, in name order)."""
-    h = hashlib.sha256()
-    for name in sorted(map(str, ds.variables)):
-        a = np.ascontiguousarray(ds[name].values)
-        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+    return stamp_result(ds)
 
 
 def verify_sweep(ds: xr.Dataset, path) -> None:
     """Refuse a sweep file whose numbers are not the ones the sweep wrote (edited by hand, damaged, or written by a
-    version without a checksum): ``ValueError`` naming the file."""
-    want = ds.attrs.get("data_sha256")
-    if want is None:
-        raise ValueError(f"{str(path)!r} carries no data checksum (data_sha256): not a sweep file of this lenssim "
-                         "version; run the sweep again")
-    if dataset_checksum(ds) != want:
-        raise ValueError(f"{str(path)!r} was modified after the sweep wrote it (its data no longer match their "
-                         "SHA-256); run the sweep again")
+    version without a checksum: :func:`lenssim_studies.chunks.verify_result`), or that makes no sense for its run
+    record (:func:`sweep_mismatch`): ``ValueError`` naming the file."""
+    again = "run the sweep again"
+    verify_result(ds, path, "sweep", again)
+    why = sweep_mismatch(ds)
+    if why:
+        raise ValueError(f"{str(path)!r} makes no sense for its run record: {why}; {again}")
+
+
+def sweep_mismatch(ds: xr.Dataset) -> str | None:
+    """Why a sweep makes no sense for the config it records, or None: its grid, field angles and SNRs are the config's,
+    its criteria over its grid and finite."""
+    try:
+        d = json.loads(ds.attrs["config"])
+        coords = {k: grid_values(*v) for k, v in d["grid"].items()}
+        coords["snr"] = np.asarray(d["snr_db"], dtype=np.float64)
+        if "field_angles_deg" in d.get("lens", {}):
+            coords["alpha"] = np.asarray(d["lens"]["field_angles_deg"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        return "it carries no readable run record (config)"
+    dims = design_dims(ds)  # the config's grid in the dataset's order (the config's JSON sorts its keys)
+    if sorted(dims) != sorted(d["grid"]):
+        return f"its design parameters {list(dims)} are not the run's"
+    return result_mismatch(ds, coords, finite=[k for k in lens_criteria() if k in ds], dims=dims)
 
 
 def _write_chunk(path: Path, chunk: dict, cfg: SweepConfig, i: int) -> None:
@@ -158,18 +163,8 @@ def run_sweep(cfg: SweepConfig, out: str | os.PathLike, *, device: str = "auto",
     worker_threads = None if worker_threads is None else check_int("worker_threads", worker_threads, 1)
     cfg.check(memory_limit_bytes)
     check_output_file(out, "sweep output")  # a folder, pipe or device, a link loop, an unwritable folder: one line
-    if out.exists():
-        try:
-            with xr.open_dataset(out) as old:
-                same = old.attrs.get("config_digest") == cfg.digest()
-        except Exception:  # noqa: BLE001 - any unreadable file is not ours to overwrite
-            same = False
-        if same:
-            ds = xr.load_dataset(out)
-            verify_sweep(ds, out)  # a finished sweep is reused only if its numbers are the ones written
-            return ds
-        raise FileExistsError(f"{str(out)!r} exists and is not a finished sweep of this config; "
-                              "choose another output file or remove it")
+    if out.exists():  # a finished sweep of this config is reused only if its numbers are the ones written
+        return finished_result(out, cfg.digest(), "sweep", check=sweep_mismatch)
     part = out.with_name(out.name + ".partial")
     _remove_temporaries(out, part)
     with partial_folder(part, "config.json", cfg.digest(), {"config": cfg.to_dict()},

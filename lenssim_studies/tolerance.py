@@ -33,8 +33,8 @@ from lenssim.model.tolerances import Tolerances
 from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
 from lenssim.validate import check_int
 
-from .chunks import (_checksum, finish_resumable, open_resumable, partial_folder, read_stamped_chunk, resume_chunks,
-                     write_stamped_chunk)
+from .chunks import (_checksum, finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch,
+                     resume_chunks, write_stamped_chunk)
 
 __all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
@@ -192,7 +192,9 @@ def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "a
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
 
-    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run")
+    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run",
+                          check=lambda ds: result_mismatch(ds, {"lens": np.arange(run.n_lenses), "snr": run.snr_db},
+                                                           finite=AS_BUILT_CRITERIA(), dims=("lens",)))
     if done is not None:
         return done
     run.check_fft_sizes()

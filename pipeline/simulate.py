@@ -485,10 +485,17 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                 stamp = json.loads(stamp_path.read_text())
             except (ValueError, OSError):
                 stamp = {}
+            stamp = stamp if isinstance(stamp, dict) else {}
+            e_stamp = stamp.get("electrons_per_unit")
             if stamp.get("key") == key:
                 if stamp.get("sensor_sha256") != _file_sha256(sensor_path):
                     warnings.warn(f"checkpoint {str(sensor_path)!r} does not match its stamp (changed or corrupted); "
                                   "computing the sensor image again", ResumeWarning, stacklevel=2)
+                elif isinstance(e_stamp, bool) or not isinstance(e_stamp, (int, float)) or not (
+                        math.isfinite(e_stamp) and e_stamp > 0):
+                    warnings.warn(f"checkpoint stamp {str(stamp_path)!r} makes no sense (electrons_per_unit "
+                                  f"{e_stamp!r}, not a positive number); computing the sensor image again",
+                                  ResumeWarning, stacklevel=2)
                 else:
                     try:
                         noisy, _ = read_image(sensor_path, what="checkpoint")

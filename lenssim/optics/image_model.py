@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import torch
 
-from ..validate import SNR_DB_RANGE, SNR_DB_VALIDATED, warn_model
+from ..validate import check_snr_db
 
 __all__ = ["PSD_MODELS", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
 
@@ -112,16 +112,6 @@ def noise_variance(snr_db) -> torch.Tensor:
     Outside :data:`SNR_DB_VALIDATED` (where the numerics' convergence was checked) a
     :class:`ModelValidityWarning` says so.
     """
-    try:
-        snr = torch.as_tensor(snr_db, dtype=torch.float64)
-    except (TypeError, ValueError, RuntimeError):
-        raise ValueError(f"snr_db={snr_db!r} is not allowed: numbers in dB") from None
-    lo, hi = SNR_DB_RANGE
-    shown = ", ".join(f"{v:g}" for v in snr.reshape(-1).tolist())
-    if snr.numel() == 0 or not torch.isfinite(snr).all() or bool((snr < lo).any()) or bool((snr > hi).any()):
-        raise ValueError(f"SNR [{shown}] dB is not allowed: finite values in [{lo:g}, {hi:g}] dB (beyond {hi:g} dB "
-                         "the noise is below the float32 OTFs' resolution)")
-    vlo, vhi = SNR_DB_VALIDATED
-    if bool((snr < vlo).any()) or bool((snr > vhi).any()):
-        warn_model(f"SNR [{shown}] dB is outside [{vlo:g}, {vhi:g}] dB, where the criteria's numerics were validated")
+    check_snr_db(snr_db)
+    snr = torch.as_tensor(snr_db, dtype=torch.float64)
     return 10 ** (-snr / 10)

@@ -40,7 +40,7 @@ from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from ..torch_utils import as_tensor
-from ..validate import NumericalError, ResourceLimitError, check_finite, check_int
+from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
     "nice_fft_size",
@@ -168,7 +168,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     worst = int(torch.argmax(need.reshape(-1)))
     if float(need.reshape(-1)[worst]) > numerics.max_fft_size:
         n_req = nice_fft_size(int(math.ceil(float(need.reshape(-1)[worst]))))
-        gib = 6 * (n_req * numerics.oversample) ** 2 / 2 * 8 / 2**30
+        gib = OTF_BYTES_PER_SAMPLE * (n_req * numerics.oversample) ** 2 / 2**30
         err = ResourceLimitError(f"a PSF needs an FFT of {n_req} samples (about {gib:.3g} GiB for its OTF); the "
                                  f"limit is max_fft_size = {numerics.max_fft_size}", "max_fft_size")
         err.index = worst

@@ -17,6 +17,7 @@ from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
 from lenssim.optics.sequential import SequentialLens
 from lenssim_cli.main import main
+from lenssim_studies.chunks import stamp_result
 from lenssim_studies.lens_optimum import find_lens_optimum, rebuild_run, tradeoff_run_from_dict
 from lenssim_studies.lens_tradeoff import LensTradeoffRun, front, run_lens_tradeoff, tradeoff_json, write_design_files
 
@@ -262,11 +263,16 @@ def test_bad_inputs_are_one_line(made, tmp_path, capsys):
     edited.attrs = dict(ds.attrs, config=json.dumps(json.loads(ds.attrs["config"]) | {"rho0": 0.5}))
     edited.to_netcdf(tmp_path / "edited.nc", engine="scipy")
     _refused(["optimum", str(tmp_path / "edited.nc"), "--criterion", "mse_r", "--write-lens",
-              str(tmp_path / "e.toml")], "different version or config", capsys)
+              str(tmp_path / "e.toml")], "its run record (config) was modified", capsys)
     assert not (tmp_path / "e.toml").exists()
-    none = ds.copy(deep=True)
+    none = ds.copy(deep=True)  # a trade-off whose every design is invalid, as a run would write it
     none["valid"].values[...] = False
-    none.to_netcdf(tmp_path / "none.nc", engine="scipy")
+    none["reason"].values[...] = "the surfaces cross"
+    none["reason"].encoding = {}  # the read file's string width does not hold the reason
+    for k in ("rms_w", "mse_s", "mse_r", "strehl", "mtf50", "cost", "efl_mm"):
+        none[k].values[...] = np.nan
+    none["mtf50_capped"].values[...] = 0
+    stamp_result(none).to_netcdf(tmp_path / "none.nc", engine="scipy")
     _refused(["optimum", str(tmp_path / "none.nc"), "--criterion", "mse_r"], "no valid design", capsys)
 
 
