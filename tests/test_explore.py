@@ -224,3 +224,69 @@ def test_another_photo_of_the_same_size_is_blurred_afresh():
     again = ex.photo_panel(DesignControls(), pc)["scores"]
     assert again != first
     assert again == Explorer(photo=b, photo_source="b").photo_panel(DesignControls(), pc)["scores"]
+
+
+def test_each_page_s_photo_has_its_own_results_and_a_cancelled_panel_keeps_nothing():
+    """Two photos of the same size shown side by side (two pages): each panel is its photo's, equal to a fresh
+    explorer's, whichever was computed first; the explorer's own photo is left as it was. A panel cancelled before it
+    starts raises Cancelled and caches nothing."""
+    import threading
+
+    from lenssim_studies.explore import Cancelled
+
+    g = torch.Generator().manual_seed(7)
+    a, b = (torch.rand(1, 3, 300, 300, generator=g) for _ in range(2))
+    pc = PhotoControls(seed=2)
+    ex = Explorer(photo=a, photo_source="a")
+    other = ex.new_photo(b, "b")
+    from_b = ex.photo_panel(DesignControls(), pc, photo=other)["scores"]
+    from_a = ex.photo_panel(DesignControls(), pc)["scores"]
+    assert from_a != from_b
+    assert from_b == Explorer(photo=b, photo_source="b").photo_panel(DesignControls(), pc)["scores"]
+    assert ex.shown_photo.source == "a" and ex.photo_panel(DesignControls(), pc)["scores"] == from_a
+    stop = threading.Event()
+    stop.set()
+    for run in (lambda: ex.photo_panel(DesignControls(), PhotoControls(seed=3), cancel=stop),
+                lambda: ex.restoration_lab(DesignControls(), pc, "wiener", "wiener", "none", 0, cancel=stop)):
+        with pytest.raises(Cancelled):
+            run()
+    assert len(ex._cache("photo")) == 2 and len(ex._cache("lab")) == 0
+
+
+@pytest.mark.parametrize("sigma", [1.3, 4.0, 9.5])
+def test_the_psf_window_holds_the_energy_the_gaussian_closed_form_gives(sigma):
+    """A sampled Gaussian's square of half-width d holds erf((d + 1/2) / (sigma sqrt 2))^2 of its energy (each axis
+    separately; the samples sum as the pixels' integrals do for sigma > 1): the smallest d holding 99% is found."""
+    from lenssim_studies.explore import PSF_WINDOW_ENERGY, ensquared_half_width
+
+    n = 160
+    x = torch.arange(n, dtype=torch.float64) - n // 2
+    g = torch.exp(-x**2 / (2 * sigma**2))
+    psf = g[:, None] * g[None, :]
+    held = [math.erf((d + 0.5) / (sigma * math.sqrt(2))) ** 2 for d in range(n // 2)]
+    want = next(d for d, e in enumerate(held) if e >= PSF_WINDOW_ENERGY)
+    assert held[want] - PSF_WINDOW_ENERGY > 1e-4 and PSF_WINDOW_ENERGY - held[want - 1] > 1e-4  # not a tie
+    assert ensquared_half_width(psf / psf.sum(), PSF_WINDOW_ENERGY) == want
+    # off the centre by 5 samples: the square about the centre must reach 5 further
+    shifted = torch.roll(psf, 5, dims=1)
+    assert ensquared_half_width(shifted, PSF_WINDOW_ENERGY) == next(
+        d for d in range(n // 2) if math.erf((d + 0.5) / (sigma * math.sqrt(2)))
+        * 0.5 * (math.erf((d + 5.5) / (sigma * math.sqrt(2))) + math.erf((d - 4.5) / (sigma * math.sqrt(2))))
+        >= PSF_WINDOW_ENERGY)
+
+
+def test_the_psf_panels_share_a_window_fitted_to_the_widest_psf():
+    from lenssim_studies.explore import (PSF_WINDOW_ENERGY, PSF_WINDOW_MARGIN, PSF_WINDOW_MIN_PX, ensquared_half_width,
+                                         psf_mtf_figure, psf_window_px)
+
+    n = 128
+    x = torch.arange(n, dtype=torch.float64) - n // 2
+    gauss = lambda s: torch.exp(-(x[:, None]**2 + x[None, :]**2) / (2 * s**2))  # noqa: E731
+    sharp, wide = torch.zeros(n, n, dtype=torch.float64), gauss(12.0)
+    sharp[n // 2, n // 2] = 1.0
+    assert psf_window_px([sharp]) == PSF_WINDOW_MIN_PX
+    h = ensquared_half_width(wide, PSF_WINDOW_ENERGY)
+    assert psf_window_px([sharp, wide]) == psf_window_px([wide]) == math.ceil(PSF_WINDOW_MARGIN * h) > 40
+    assert psf_window_px([gauss(60.0)]) == (n - 1) // 2  # wider than the arrays: all of them
+    png = psf_mtf_figure([sharp, wide], (0.0, 30.0), 1.5, "two PSFs")
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
