@@ -195,6 +195,9 @@ def test_the_page_s_handlers_without_a_browser(explorer):
     explorer.map_data = None
     explorer.map_progress = (0, 0)
     app = build_app(explorer)
+    fig = app.panes["map"]  # the map not computed yet: its axes are the parameters' ranges all the same
+    assert (fig.x_range.start, fig.x_range.end, fig.y_range.start, fig.y_range.end) == (-10.0, 1.2, -2.0, 1.0)
+    assert app.panes["design_labels"].background_fill_color == "white"  # readable on every colour of the map
     assert "MSE_R at 27.6 dB" in app.panes["criteria"].object
     assert "crop (128, 384, 128, 384)" in app.panes["field"].object
     app.actions["tap"](SimpleNamespace(x=40.0, y=30.0))
@@ -203,7 +206,10 @@ def test_the_page_s_handlers_without_a_browser(explorer):
     before = app.panes["criteria"].object
     app.actions["map_tap"](SimpleNamespace(x=-6.04, y=-1.26))
     assert (app.widgets["Q_back"].value, app.widgets["s"].value) == (-6.0, -1.25)
-    assert app.panes["criteria"].object != before
+    assert app.panes["selected"].data == {"x": [-6.0], "y": [-1.25]}  # the marker moved to the design clicked
+    assert app.panes["criteria"].object != before and "s = -1.25, Q_back = -6," in app.panes["criteria"].object
+    assert "s = -1.25, Q_back = -6," in app.panes["field"].object  # the photo panel is the new design's
+    assert not app.jobs.running and app.panes["busy"].object == ""
     assert app.specs["a"]() == "wiener" and app.specs["b"]() == "richardson_lucy"
     app.widgets["upload"].filename = "mine.png"
     app.widgets["upload"].value = b"not an image"
@@ -290,3 +296,56 @@ def test_the_psf_panels_share_a_window_fitted_to_the_widest_psf():
     assert psf_window_px([gauss(60.0)]) == (n - 1) // 2  # wider than the arrays: all of them
     png = psf_mtf_figure([sharp, wide], (0.0, 30.0), 1.5, "two PSFs")
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_page_jobs_run_off_the_loop_newest_first_cancel_drops_results():
+    """PageJobs with a stand-in event loop (a queue the test runs): a superseded job's result is dropped and it stops
+    at its next step, Cancel drops a running job (its work sees the cancel), errors arrive as one line, and without a
+    loop (tests) a job runs at once."""
+    import queue
+    import threading
+
+    from lenssim_cli.explore import PageJobs
+    from lenssim_studies.explore import Cancelled
+
+    loop = queue.Queue()
+    changes = []
+    jobs = PageJobs(loop.put, on_change=lambda: changes.append(sorted(jobs.running)))
+    shown, failed, gate = [], [], threading.Event()
+
+    def job(value):
+        def work(cancel):
+            gate.wait(30)  # bounded: the test opens the gate
+            if cancel.is_set():
+                raise Cancelled()
+            return value
+        return work
+
+    jobs.submit("photo", job(1), shown.append, failed.append)
+    jobs.submit("photo", job(2), shown.append, failed.append)  # the first is superseded
+    assert list(jobs.running) == ["photo"]
+    gate.set()
+    for _ in range(2):
+        loop.get(timeout=30)()
+    assert shown == [2] and not failed and not jobs.running and changes[-1] == []
+
+    saw_cancel = []
+
+    def long_lab(cancel):
+        saw_cancel.append(cancel.wait(30))
+        raise Cancelled()
+    jobs.submit("lab", long_lab, shown.append, failed.append)
+    jobs.cancel()
+    assert jobs.cancelled == ("lab",) and not jobs.running
+    loop.get(timeout=30)()
+    assert saw_cancel == [True] and shown == [2] and not failed
+
+    def bad(cancel):
+        raise ValueError("grade 'x' is not allowed\nsecond line")
+    jobs.submit("lab", bad, shown.append, failed.append)
+    loop.get(timeout=30)()
+    assert failed == ["grade 'x' is not allowed"]
+
+    inline = PageJobs()
+    inline.submit("design", lambda cancel: 5, shown.append, failed.append)
+    assert shown == [2, 5] and not inline.running
