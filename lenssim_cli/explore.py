@@ -72,23 +72,30 @@ def register(sub) -> None:
                    help="address to listen on (default 127.0.0.1: this machine only; another one is warned about)")
     p.add_argument("--max-upload-mb", type=float, default=DEFAULT_MAX_UPLOAD_MB,
                    help=f"largest photo a page may upload (MB; default {DEFAULT_MAX_UPLOAD_MB:g})")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="another address the page may be opened at: http://NAME:PORT (a page of that origin may "
+                        "connect, and the server answers to NAME:PORT), or NAME[:PORT] (NAME at the explorer's port); "
+                        "repeat for more. Default: only the address the server was started for (docs/explore.md)")
     p.set_defaults(func=cmd_explore)
 
 
 SLIDER_STEPS_HELP = 100
 
 
-def check_explore_arguments(args) -> None:
+def check_explore_arguments(args) -> list:
+    """Every argument of ``lenssim explore`` that needs no file checked (one-line ``ValueError``); returns
+    ``--allow-origin``'s ``(name, port)`` pairs."""
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port {args.port} is not allowed: 0 (any free port) to 65535")
     if not (math.isfinite(args.max_upload_mb) and 0 < args.max_upload_mb <= 4096):
         raise ValueError(f"--max-upload-mb {args.max_upload_mb:g} is not allowed: more than 0 and at most 4096")
     if not args.host or any(c.isspace() for c in args.host):
         raise ValueError(f"--host {args.host!r} is not allowed: an address or a host name")
+    return [parse_allowed_origin(o) for o in args.allow_origin]
 
 
 def cmd_explore(args) -> int:
-    check_explore_arguments(args)
+    allow_origins = check_explore_arguments(args)
     lens_args = [f for f, v in (("--vary", args.vary), ("--hold", args.hold), ("--aspherize", args.aspherize),
                                 ("--pixel-pitch", args.pixel_pitch),
                                 ("--image", None if args.image == "file" else args.image)) if v is not None]
@@ -125,11 +132,11 @@ def cmd_explore(args) -> int:
         import threading
 
         threading.Thread(target=explorer.compute_map, daemon=True, name="lenssim-explore-map").start()
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
+    if args.host not in LOOPBACK_HOSTS:
         print(f"warning: --host {args.host}: the explorer is reachable from other machines; it has no login",
               file=sys.stderr)
     serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start,
-          photos=photos)
+          photos=photos, allow_origins=allow_origins)
     return 0
 
 
@@ -839,24 +846,146 @@ def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
             raise ValueError(str(exc).splitlines()[0].replace(repr(path), repr(shown)).replace(path, shown)) from None
 
 
+# ---- who may connect ----------------------------------------------------------------------------------------------
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
+"""This machine's own names: a server bound to one of them answers to all three (at its port)."""
+WILDCARD_HOSTS = ("0.0.0.0", "::")
+"""Addresses that bind every interface: the server answers to this machine's own names and its host name."""
+MAX_REFUSALS_REPORTED = 32
+"""Distinct refused Host or Origin values reported on stderr (each once), so that a hostile page cannot flood it."""
+
+
+def _unbracket(name: str) -> str:
+    return name[1:-1] if name.startswith("[") and name.endswith("]") else name
+
+
+def _valid_name(name: str) -> bool:
+    """A host name (letters, digits, hyphens between dots) or an IP address."""
+    import ipaddress
+    import re
+
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        return re.fullmatch(r"[a-z0-9]([a-z0-9-]*[a-z0-9])?(\.[a-z0-9]([a-z0-9-]*[a-z0-9])?)*\.?", name) is not None
+
+
+def parse_allowed_origin(text: str) -> tuple[str, int | None]:
+    """``--allow-origin``'s ``http[s]://NAME[:PORT]`` or ``NAME[:PORT]`` -> ``(name, port)`` (the name in lower case;
+    port None: the explorer's own). An origin with a scheme and no port has its scheme's port (80, 443), as a browser
+    sends it; a bare NAME is that name at the explorer's port. One-line ``ValueError`` for anything else (a path, a
+    wildcard, a bad port)."""
+    from urllib.parse import urlsplit
+
+    bad = (f"--allow-origin {text!r} is not allowed: an origin, http://NAME:PORT or https://NAME[:PORT], or NAME[:PORT] "
+           "(NAME at the explorer's port); no path, no wildcard")
+    u = urlsplit(text if "://" in text else "//" + text)
+    try:
+        port = u.port
+    except ValueError:
+        raise ValueError(bad) from None
+    name = (u.hostname or "").lower()
+    if (u.scheme not in ("", "http", "https") or u.path not in ("", "/") or u.query or u.fragment or u.username
+            or u.password is not None or not _valid_name(name) or port == 0):
+        raise ValueError(bad)
+    if port is None and u.scheme:
+        port = 443 if u.scheme == "https" else 80
+    return name, port
+
+
+def allowed_addresses(host: str, port: int, origins=()) -> frozenset:
+    """The ``(name, port)`` pairs a server bound to ``host``:``port`` answers to (its Host header) and accepts pages
+    from (the Origin of a request, a WebSocket's above all): the name it was started for (all of
+    :data:`LOOPBACK_HOSTS` for one of them; those and this machine's host name for a wildcard address) at its port,
+    and ``origins`` (:func:`parse_allowed_origin`'s pairs; a port None is the server's)."""
+    import socket
+
+    name = _unbracket(host.lower())
+    names = {name}
+    if name in LOOPBACK_HOSTS:
+        names |= set(LOOPBACK_HOSTS)
+    if name in WILDCARD_HOSTS:
+        names = set(LOOPBACK_HOSTS) | {socket.gethostname().lower()}
+    return frozenset({(n, port) for n in names} | {(n, port if p is None else p) for n, p in origins})
+
+
+def _address_of(text: str | None, default_port: int):
+    """``(name, port)`` of a Host header's ``NAME[:PORT]`` (None when it is not one)."""
+    from urllib.parse import urlsplit
+
+    if not text or any(c in text for c in "/@?#\\ \t"):
+        return None
+    try:
+        u = urlsplit("//" + text)
+        port = u.port
+    except ValueError:
+        return None
+    return (u.hostname or "").lower(), default_port if port is None else port
+
+
+def refusal(host_header: str | None, origin_header: str | None, allowed) -> str | None:
+    """Why a request with these headers is refused (None: it is accepted): its Host is not one of ``allowed``
+    (:func:`allowed_addresses`: DNS rebinding), or it comes from a page (its Origin) of another address."""
+    from urllib.parse import urlsplit
+
+    if _address_of(host_header, 80) not in allowed:
+        return f"Host {host_header!r}"
+    if origin_header is not None:  # a browser's request from a page (every WebSocket handshake)
+        u = urlsplit(origin_header)
+        default = {"http": 80, "https": 443}.get(u.scheme)
+        if default is None or u.path or _address_of(u.netloc, default) not in allowed:
+            return f"Origin {origin_header!r}"
+    return None
+
+
+def lock_down(server, allowed, report=None) -> None:
+    """Make ``server`` (Bokeh's, from ``pn.serve(..., start=False)``) answer 403 to every request that
+    :func:`refusal` refuses, before any handler sees it (the page, its scripts, the WebSocket), and make Bokeh's own
+    WebSocket origin list ``allowed``. ``report(line)``: told of each refused value once (at most
+    :data:`MAX_REFUSALS_REPORTED`)."""
+    from tornado.web import ErrorHandler
+
+    app = server._tornado  # Bokeh's Tornado application (Bokeh 3: the server has no public name for it)
+    origins = app.websocket_origins  # the live set Bokeh's WebSocket handler checks
+    origins.clear()
+    origins.update(f"[{n}]:{p}" if ":" in n else f"{n}:{p}" for n, p in allowed)
+    find_handler = app.find_handler
+    reported = set()
+
+    def checked_find_handler(request, **kwargs):
+        why = refusal(request.headers.get("Host"), request.headers.get("Origin"), allowed)
+        if why is None:
+            return find_handler(request, **kwargs)
+        if report is not None and why not in reported and len(reported) < MAX_REFUSALS_REPORTED:
+            reported.add(why)
+            report(f"lenssim explore: refused a request from {why} (403): not an address this explorer was started "
+                   "for; allow another with --allow-origin")
+        return app.get_handler_delegate(request, ErrorHandler, {"status_code": 403})
+    app.find_handler = checked_find_handler
+
+
 def _print_now(line: str) -> None:
     print(line, flush=True)  # at once: a script reading the address (--port 0) waits for it
 
 
 def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=_print_now, start=None,
-          photos=()):
-    """Serve the app until interrupted; prints its address."""
+          photos=(), allow_origins=()):
+    """Serve the app until interrupted; prints its address. Only requests for the address it was started for (and
+    ``allow_origins``, :func:`parse_allowed_origin`'s pairs) are answered (:func:`lock_down`), on every port."""
     import panel as pn
 
     server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start, photos=photos),
                       address=host,
                       port=port,
-                      show=False, start=False, websocket_origin=[f"{host}:{port}", f"localhost:{port}"]
-                      if port and host in ("127.0.0.1", "localhost", "::1") else "*",
+                      show=False, start=False,
                       websocket_max_message_size=int(max_upload_mb * 1e6) + 2**20,
                       title="lenssim explore")
+    lock_down(server, allowed_addresses(host, server.port, allow_origins),  # the port bound (also for --port 0)
+              report=lambda line: print(line, file=sys.stderr, flush=True))
     server.start()
-    show_address(f"lenssim explore: http://{host}:{server.port}/ (Ctrl-C to stop)")
+    shown = "127.0.0.1" if host in WILDCARD_HOSTS else f"[{host}]" if ":" in host else host
+    show_address(f"lenssim explore: http://{shown}:{server.port}/ (Ctrl-C to stop)")
     try:
         server.io_loop.start()
     except KeyboardInterrupt:

@@ -154,6 +154,8 @@ def test_uploads_are_checked_like_photo_files(tmp_path, monkeypatch):
     (["explore", "--max-upload-mb", "0"], "--max-upload-mb 0 is not allowed"),
     (["explore", "--sweep", "missing.nc"], "missing.nc"),
     (["explore", "--design", "nope"], "--design 'nope' is not known; choose from"),
+    (["explore", "--allow-origin", "*"], "--allow-origin '*' is not allowed: an origin"),
+    (["explore", "--allow-origin", "http://friend.example:8080/page"], "no path, no wildcard"),
 ])
 def test_bad_explore_arguments_are_refused(argv, message, capsys):
     from lenssim_cli.main import main
@@ -349,3 +351,36 @@ def test_page_jobs_run_off_the_loop_newest_first_cancel_drops_results():
     inline = PageJobs()
     inline.submit("design", lambda cancel: 5, shown.append, failed.append)
     assert shown == [2, 5] and not inline.running
+
+
+def test_who_may_connect():
+    """The addresses a server answers to and accepts pages from: the one it was started for, at its port (loopback:
+    all three names), and those --allow-origin adds; a foreign Host (DNS rebinding) or Origin is refused."""
+    import socket
+
+    from lenssim_cli.explore import allowed_addresses, parse_allowed_origin, refusal
+
+    assert parse_allowed_origin("http://Friend.example:8080") == ("friend.example", 8080)
+    assert parse_allowed_origin("https://friend.example") == ("friend.example", 443)
+    assert parse_allowed_origin("http://friend.example/") == ("friend.example", 80)
+    assert parse_allowed_origin("friend.example") == ("friend.example", None)
+    assert parse_allowed_origin("[::1]:7000") == ("::1", 7000)
+    for bad in ("*", "http://*.example", "ftp://friend.example", "http://friend.example/page", "friend:0",
+                "friend:99999", "http://user@friend.example", "http://", "friend example"):
+        with pytest.raises(ValueError, match="--allow-origin .* is not allowed: an origin"):
+            parse_allowed_origin(bad)
+    local = allowed_addresses("127.0.0.1", 5123)
+    assert local == {("127.0.0.1", 5123), ("localhost", 5123), ("::1", 5123)}
+    assert allowed_addresses("::1", 5123) == local
+    assert allowed_addresses("192.168.1.5", 80, [("lab.example", None)]) == {("192.168.1.5", 80), ("lab.example", 80)}
+    assert (socket.gethostname().lower(), 5123) in allowed_addresses("0.0.0.0", 5123)
+    allowed = allowed_addresses("127.0.0.1", 5123, [parse_allowed_origin("http://friend.example:8080")])
+    for host, origin in (("127.0.0.1:5123", None), ("localhost:5123", "http://localhost:5123"),
+                         ("[::1]:5123", "http://[::1]:5123"), ("127.0.0.1:5123", "http://friend.example:8080")):
+        assert refusal(host, origin, allowed) is None, (host, origin)
+    for host, origin in (("evil.example:5123", None), ("evil.example", None), ("127.0.0.1:5124", None),
+                         ("127.0.0.1", None), (None, None), ("127.0.0.1:5123/x", None),
+                         ("127.0.0.1:5123", "http://evil.example"), ("127.0.0.1:5123", "http://localhost:5124"),
+                         ("127.0.0.1:5123", "null"), ("127.0.0.1:5123", "file://"),
+                         ("127.0.0.1:5123", "http://friend.example:8081")):
+        assert refusal(host, origin, allowed) is not None, (host, origin)

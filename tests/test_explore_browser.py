@@ -1,14 +1,19 @@
-"""``lenssim explore`` served for real: the page in a real headless browser (Debian's Chromium driven by Playwright
-with the system binary; skipped, saying why, where either is missing): it loads with no console error and no request off this machine, moving the Q_back slider changes the criteria and the
+"""``lenssim explore`` served for real. Who may connect, over HTTP: on every port and host setting (a fixed port,
+``--port 0``, ``--host`` with ``--allow-origin``) a WebSocket handshake from a foreign page (its Origin) and a request
+for a foreign host name (DNS rebinding) are refused with 403, the allowed ones accepted. The page in a real headless
+browser (Debian's Chromium driven by Playwright with the system binary; skipped, saying why, where either is missing):
+it loads with no console error and no request off this machine, moving the Q_back slider changes the criteria and the
 PSF figure, a click on the cost map selects a design and moves its marker, a click on the photo moves the crop, a bad
 upload shows its one-line error and the app keeps serving, a second page loads while the first runs a long
 computation, which shows that it is busy and is cancelled."""
 
 from __future__ import annotations
 
+import http.client
 import queue
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -139,6 +144,75 @@ def lens_server(tmp_path_factory):
     with _explore("skimage:astronaut", "--lens", "paper_singlet", "--vary", "E1.bending=-1:0:0.025",
                   "--vary", "S2.conic=-10:0:0.1", "--port", "0") as (url, _, _):
         yield url, tmp_path_factory.mktemp("explore_lens")
+
+
+def _handshake(port: int, origin: str, host: str | None = None) -> int:
+    """The status of the WebSocket handshake a page opens (``/ws``), sent from ``origin`` for ``host`` (by default
+    the server's own address): 101 (switching protocols) or 403."""
+    host = host or f"127.0.0.1:{port}"
+    request = (f"GET /ws HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+               "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+               f"Origin: {origin}\r\n\r\n")
+    with socket.create_connection(("127.0.0.1", port), timeout=60) as s:
+        s.sendall(request.encode())
+        head = b""
+        while b"\r\n" not in head:
+            chunk = s.recv(1024)
+            if not chunk:
+                break
+            head += chunk
+    return int(head.split()[1])
+
+
+def _get(port: int, host: str, path: str = "/lenssim-no-such-page") -> int:
+    """The status of ``GET path`` with the Host header ``host``: 403 when the server refuses the host, else what the
+    path gives (404 for a page that does not exist: the request was let in)."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
+    try:
+        conn.putrequest("GET", path, skip_host=True)
+        conn.putheader("Host", host)
+        conn.endheaders()
+        r = conn.getresponse()
+        r.read()
+        return r.status
+    finally:
+        conn.close()
+
+
+def test_only_the_address_it_was_started_for_may_connect(sweep):
+    """A fixed port, --port 0 and --host with --allow-origin: a page of another origin cannot open the WebSocket (403)
+    and a request for another host name is refused (403) on each; the server's own names and the allowed origins
+    are let in (101; the page 200)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        fixed = s.getsockname()[1]
+    common = ["--sweep", str(sweep)]
+    settings = (["--port", str(fixed)], ["--port", "0"],
+                ["--host", "127.0.0.1", "--port", "0", "--allow-origin", "http://friend.example:8080",
+                 "--allow-origin", "lab.example"])
+    with _explore_many(*[common + a for a in settings]) as servers:
+        assert servers[0][1] == fixed
+        for (url, port, output), args in zip(servers, settings):
+            for origin in ("http://evil.example", f"http://evil.example:{port}", "https://evil.example",
+                           f"http://127.0.0.1:{port + 1}", "null"):
+                assert _handshake(port, origin) == 403, (args, origin)
+            for origin in (f"http://127.0.0.1:{port}", f"http://localhost:{port}"):
+                assert _handshake(port, origin) == 101, (args, origin)
+            # DNS rebinding: a page of evil.example whose name now points here
+            assert _handshake(port, f"http://evil.example:{port}", host=f"evil.example:{port}") == 403
+            for host in (f"evil.example:{port}", "evil.example", f"127.0.0.1.evil.example:{port}"):
+                assert _get(port, host) == 403, (args, host)
+                assert _get(port, host, "/") == 403, (args, host)
+            for host in (f"127.0.0.1:{port}", f"localhost:{port}"):
+                assert _get(port, host) == 404, (args, host)  # let in (the page does not exist)
+        _, port, output = servers[2]
+        assert _handshake(port, "http://friend.example:8080") == 101
+        assert _handshake(port, "http://friend.example:8081") == 403
+        assert _get(port, f"lab.example:{port}") == 404 and _get(port, "lab.example:8080") == 403
+        assert _get(servers[1][1], f"127.0.0.1:{servers[1][1]}", "/") == 200  # the page itself
+        time.sleep(0.5)  # the report line is printed as the request is refused; let the reader take it
+        said = "".join(servers[1][2])
+        assert f"refused a request from Host 'evil.example:{servers[1][1]}' (403)" in said, said[-2000:]
 
 
 def _text(page, selector: str) -> str:
