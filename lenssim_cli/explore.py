@@ -1,7 +1,7 @@
 """``lenssim explore``: a local web application over the explorer's computations (issue 32; docs/explore.md).
 
     lenssim explore [PHOTO] [--photo FILE ...] [--design NAME] [--sweep FILE.nc] [--port 5006] [--host 127.0.0.1]
-                    [--max-upload-mb 200]
+                    [--allow-origin ORIGIN ...] [--max-upload-mb 200]
     lenssim explore [PHOTO] --lens LENS --vary NAME=LO:HI[:STEP] [--vary ...] [--hold efl,fnum] [--image file]
                     [--aspherize S7] [--pixel-pitch UM] ...
 
@@ -10,7 +10,10 @@ the criteria, PSFs and MTFs, the cost map; a click on the map selects a design),
 moves the crop; sensor preset, CFA, demosaicing, ISO, seed), the restoration lab (two methods side by side, a
 manufactured lens restored with the nominal PSFs and with its own) and the export (the command line that reproduces
 the photo panel, a PNG of it). Every script and style comes from the installed packages (Bokeh's server serves them);
-nothing is fetched from elsewhere. The server binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning).
+nothing is fetched from elsewhere. The server binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning),
+and answers only requests for the address it was started for, from pages of that address (its Host and Origin,
+:func:`lock_down`; ``--allow-origin`` adds others): 403 otherwise, on every port. Every computation runs off the
+server's event loop (:class:`PageJobs`), the page saying what runs, with a Cancel button.
 An upload is checked as the command line checks a photo (format, size from the header, every pixel finite), under a
 name of the server's own in a private temporary folder removed after reading; no other path is read or written.
 A failed computation shows its one-line error on the page; the app keeps serving.
@@ -329,6 +332,11 @@ class PageJobs:
             self.cancelled = tuple(stopped)
             self.on_change()
 
+    def close(self) -> None:
+        """The page is gone: stop its jobs and tell it nothing more."""
+        self.on_change = lambda: None
+        self.cancel()
+
 
 JOB_LABELS = {"open": "opening the photo", "design": "the criteria and PSFs", "photo": "the photo panel",
               "lab": "the restoration lab"}
@@ -434,7 +442,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     jobs = PageJobs(doc.add_next_tick_callback if served else None, on_jobs)
     cancel.on_click(lambda e: jobs.cancel())
     if served:
-        pn.state.on_session_destroyed(lambda ctx: jobs.cancel())
+        pn.state.on_session_destroyed(lambda ctx: jobs.close())
 
     def submit(kind, work, done, failed=show_error):
         """``work(cancel)`` off the loop, then ``done(result)`` (the error line hidden), or ``failed(message)``."""

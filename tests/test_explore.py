@@ -348,6 +348,12 @@ def test_page_jobs_run_off_the_loop_newest_first_cancel_drops_results():
     loop.get(timeout=30)()
     assert failed == ["grade 'x' is not allowed"]
 
+    jobs.submit("lab", long_lab, shown.append, failed.append)
+    told = len(changes)
+    jobs.close()  # the page was closed: its job stops, the page is told nothing more
+    loop.get(timeout=30)()
+    assert saw_cancel == [True, True] and len(changes) == told and not jobs.running and shown == [2]
+
     inline = PageJobs()
     inline.submit("design", lambda cancel: 5, shown.append, failed.append)
     assert shown == [2, 5] and not inline.running
