@@ -205,11 +205,12 @@ def test_the_page_s_handlers_without_a_browser(explorer):
     app.actions["tap"](SimpleNamespace(x=40.0, y=30.0))
     assert app.panes["images"]["restored"].object is not None
     assert "--at " in app.panes["command"].object
-    before = app.panes["criteria"].object
+    before, before_optics = app.panes["criteria"].object, app.panes["optics"].object
     app.actions["map_tap"](SimpleNamespace(x=-6.04, y=-1.26))
     assert (app.widgets["Q_back"].value, app.widgets["s"].value) == (-6.0, -1.25)
     assert app.panes["selected"].data == {"x": [-6.0], "y": [-1.25]}  # the marker moved to the design clicked
     assert app.panes["criteria"].object != before and "s = -1.25, Q_back = -6," in app.panes["criteria"].object
+    assert app.panes["optics"].object == explorer.optics_figure(DesignControls(-1.25, -6.0)) != before_optics
     assert "s = -1.25, Q_back = -6," in app.panes["field"].object  # the photo panel is the new design's
     assert not app.jobs.running and app.panes["busy"].object == ""
     assert app.specs["a"]() == "wiener" and app.specs["b"]() == "richardson_lucy"

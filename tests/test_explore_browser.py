@@ -270,12 +270,13 @@ def test_the_explorer_page_in_a_real_browser(server):
         _wait_change(optics, before_o)
         assert "-2.80" in _text(page, "text=Q_back (back conic)")
         # a click on the cost map selects a design: the sliders move, the marker moves there, the criteria change
-        before_c, before_m = criteria(), page.evaluate(MARKER)
+        before_c, before_m, before_o = criteria(), page.evaluate(MARKER), optics()
         box = page.locator("canvas:visible").first.bounding_box()
         page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.3)
         _wait_change(lambda: page.evaluate(MARKER), before_m)
         assert page.evaluate(MARKER) == [_slider_value(page, "Q_back (back conic)"), _slider_value(page, "s (bending)")]
         _wait_change(criteria, before_c)
+        _wait_change(optics, before_o)  # the PSF figure follows the click too
         # the photo: a click on the overview moves the crop
         page.locator(".bk-tab", has_text="Photo").first.click()
         field = lambda: _text(page, "p:has-text('of field')")  # noqa: E731
