@@ -32,6 +32,12 @@ def shrink(path: str) -> None:
     im.quantize(colors=COLOURS, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
 
 
+def idle(page) -> None:
+    """Wait until the page computes nothing (its busy line gone), and a moment for the pictures to be drawn."""
+    page.wait_for_selector("text=computing:", state="hidden", timeout=900_000)
+    time.sleep(2)
+
+
 def main() -> None:
     from playwright.sync_api import sync_playwright
 
@@ -59,18 +65,19 @@ def main() -> None:
             page = b.new_page(viewport={"width": 1750, "height": 1000})
             page.goto(url)
             page.wait_for_selector("text=MSE_R at 27.6 dB", timeout=300_000)
-            page.wait_for_selector("text=/map: \\d+ x \\d+ designs/", timeout=300_000)  # the map computed
-            time.sleep(5)
+            page.wait_for_selector("text=/map: \\d+ x \\d+ designs/", timeout=900_000)  # the map computed
+            idle(page)
             page.screenshot(path=f"{a.out}/explore_design.png")
             page.locator(".bk-tab", has_text="Photo").first.click()
             box = page.locator("canvas:visible").first.bounding_box()
             page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.35)
-            time.sleep(6)
+            time.sleep(1)
+            idle(page)
             page.screenshot(path=f"{a.out}/explore_photo.png")
             page.locator(".bk-tab", has_text="Restoration lab").first.click()
             page.get_by_text("run the restoration lab").click()
-            page.wait_for_selector("text=its own PSFs", timeout=120_000)
-            time.sleep(2)
+            page.wait_for_selector("text=its own PSFs", timeout=900_000)
+            idle(page)
             page.evaluate("window.scrollTo(0, 0)")
             page.screenshot(path=f"{a.out}/explore_lab.png")
             b.close()

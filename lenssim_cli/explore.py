@@ -1,7 +1,7 @@
 """``lenssim explore``: a local web application over the explorer's computations (issue 32; docs/explore.md).
 
     lenssim explore [PHOTO] [--photo FILE ...] [--design NAME] [--sweep FILE.nc] [--port 5006] [--host 127.0.0.1]
-                    [--max-upload-mb 200]
+                    [--allow-origin ORIGIN ...] [--max-upload-mb 200]
     lenssim explore [PHOTO] --lens LENS --vary NAME=LO:HI[:STEP] [--vary ...] [--hold efl,fnum] [--image file]
                     [--aspherize S7] [--pixel-pitch UM] ...
 
@@ -10,7 +10,10 @@ the criteria, PSFs and MTFs, the cost map; a click on the map selects a design),
 moves the crop; sensor preset, CFA, demosaicing, ISO, seed), the restoration lab (two methods side by side, a
 manufactured lens restored with the nominal PSFs and with its own) and the export (the command line that reproduces
 the photo panel, a PNG of it). Every script and style comes from the installed packages (Bokeh's server serves them);
-nothing is fetched from elsewhere. The server binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning).
+nothing is fetched from elsewhere. The server binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning),
+and answers only requests for the address it was started for, from pages of that address (its Host and Origin,
+:func:`lock_down`; ``--allow-origin`` adds others): 403 otherwise, on every port. Every computation runs off the
+server's event loop (:class:`PageJobs`), the page saying what runs, with a Cancel button.
 An upload is checked as the command line checks a photo (format, size from the header, every pixel finite), under a
 name of the server's own in a private temporary folder removed after reading; no other path is read or written.
 A failed computation shows its one-line error on the page; the app keeps serving.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 
 DEFAULT_PORT = 5006
 DEFAULT_MAX_UPLOAD_MB = 200.0
@@ -35,6 +39,10 @@ SAMPLE_PHOTOS = ("skimage:astronaut", "skimage:chelsea", "skimage:coffee", "skim
 """scikit-image's samples the page offers besides the user's photos (each shipped inside the package: none is
 downloaded)."""
 GENERATED = "generated scene"
+LAB_COLUMN_PX = 260
+"""Width (px) of each of the restoration lab's control columns (method A, method B, the manufactured lens)."""
+LAB_BOX_STYLE = {"border": "1px solid #d0d0d0", "border-radius": "4px", "padding": "4px"}
+"""The frame around each method's controls in the restoration lab."""
 
 
 def register(sub) -> None:
@@ -67,23 +75,30 @@ def register(sub) -> None:
                    help="address to listen on (default 127.0.0.1: this machine only; another one is warned about)")
     p.add_argument("--max-upload-mb", type=float, default=DEFAULT_MAX_UPLOAD_MB,
                    help=f"largest photo a page may upload (MB; default {DEFAULT_MAX_UPLOAD_MB:g})")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="another address the page may be opened at: http://NAME:PORT (a page of that origin may "
+                        "connect, and the server answers to NAME:PORT), or NAME[:PORT] (NAME at the explorer's port); "
+                        "repeat for more. Default: only the address the server was started for (docs/explore.md)")
     p.set_defaults(func=cmd_explore)
 
 
 SLIDER_STEPS_HELP = 100
 
 
-def check_explore_arguments(args) -> None:
+def check_explore_arguments(args) -> list:
+    """Every argument of ``lenssim explore`` that needs no file checked (one-line ``ValueError``); returns
+    ``--allow-origin``'s ``(name, port)`` pairs."""
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port {args.port} is not allowed: 0 (any free port) to 65535")
     if not (math.isfinite(args.max_upload_mb) and 0 < args.max_upload_mb <= 4096):
         raise ValueError(f"--max-upload-mb {args.max_upload_mb:g} is not allowed: more than 0 and at most 4096")
     if not args.host or any(c.isspace() for c in args.host):
         raise ValueError(f"--host {args.host!r} is not allowed: an address or a host name")
+    return [parse_allowed_origin(o) for o in args.allow_origin]
 
 
 def cmd_explore(args) -> int:
-    check_explore_arguments(args)
+    allow_origins = check_explore_arguments(args)
     lens_args = [f for f, v in (("--vary", args.vary), ("--hold", args.hold), ("--aspherize", args.aspherize),
                                 ("--pixel-pitch", args.pixel_pitch),
                                 ("--image", None if args.image == "file" else args.image)) if v is not None]
@@ -120,11 +135,11 @@ def cmd_explore(args) -> int:
         import threading
 
         threading.Thread(target=explorer.compute_map, daemon=True, name="lenssim-explore-map").start()
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
+    if args.host not in LOOPBACK_HOSTS:
         print(f"warning: --host {args.host}: the explorer is reachable from other machines; it has no login",
               file=sys.stderr)
     serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start,
-          photos=photos)
+          photos=photos, allow_origins=allow_origins)
     return 0
 
 
@@ -231,10 +246,110 @@ def _check_photo_bytes(path, shown) -> None:
                          "crop or scale it first")
 
 
+class PageJobs:
+    """The long computations of one page, off the server's event loop: each kind (the design, the photo panel, the
+    restoration lab, opening a photo) in a daemon thread of its own, one at a time per kind; a newer job of a kind
+    supersedes the running one (which stops at its next step, :class:`lenssim_studies.explore.Cancelled`, its result
+    dropped); :meth:`cancel` drops them all.
+
+    ``schedule(fn)`` runs ``fn`` on the page's event loop with its document locked (Bokeh's
+    ``Document.add_next_tick_callback``, safe to call from a thread); None runs every job at once in the caller's
+    thread (no server: tests, the in-process page). ``on_change()`` is called on the loop whenever :attr:`running`
+    changes."""
+
+    def __init__(self, schedule=None, on_change=None):
+        self.schedule = schedule
+        self.on_change = on_change or (lambda: None)
+        self.running: dict = {}
+        """``{kind: threading.Event}``: the jobs running (the event: cancel it)."""
+        self.cancelled: tuple = ()
+        """The kinds the last :meth:`cancel` stopped."""
+        self._turns: dict = {}
+
+    def submit(self, kind: str, work, done, failed) -> None:
+        """Run ``work(cancel)`` (``cancel``: a ``threading.Event``); then, on the loop and unless superseded or
+        cancelled, ``done(result)``, or ``failed(message)`` with its one-line error."""
+        from functools import partial
+
+        old = self.running.get(kind)
+        if old is not None:
+            old.set()
+        token = threading.Event()
+        self.running[kind] = token
+        self.cancelled = ()
+        self.on_change()
+        finish = partial(self._finish, kind, token, done, failed)
+        if self.schedule is None:
+            finish(self._run(work, token))
+            return
+        turn = self._turns.setdefault(kind, threading.Lock())
+
+        def worker():
+            with turn:  # one job of a kind at a time: a superseded one stops at its next step
+                outcome = self._run(work, token)
+            try:
+                self.schedule(partial(finish, outcome))
+            except Exception:  # noqa: BLE001 - the page was closed meanwhile: nothing to show the result on
+                pass
+        threading.Thread(target=worker, daemon=True, name=f"lenssim-explore-{kind}").start()
+
+    @staticmethod
+    def _run(work, token):
+        """``("done", result)``, ``("failed", one line)`` or ``("cancelled", None)``."""
+        from lenssim_studies.explore import Cancelled
+
+        if token.is_set():
+            return "cancelled", None
+        try:
+            return "done", work(token)
+        except Cancelled:
+            return "cancelled", None
+        except (ValueError, OSError) as exc:
+            return "failed", str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        except Exception as exc:  # noqa: BLE001 - a defect: its traceback on the server's stderr, one line on the page
+            import traceback
+
+            traceback.print_exc()
+            return "failed", f"internal error ({type(exc).__name__}; the server's log has the details)"
+
+    def _finish(self, kind, token, done, failed, outcome) -> None:
+        if self.running.get(kind) is not token:  # superseded or cancelled: its result is not wanted
+            return
+        del self.running[kind]
+        self.on_change()
+        status, value = outcome
+        if status == "done":
+            done(value)
+        elif status == "failed":
+            failed(value)
+
+    def cancel(self, *kinds) -> None:
+        """Stop the running jobs of ``kinds`` (all by default): their results are dropped."""
+        stopped = [k for k in (kinds or tuple(self.running)) if k in self.running]
+        for k in stopped:
+            self.running.pop(k).set()
+        if stopped:
+            self.cancelled = tuple(stopped)
+            self.on_change()
+
+    def close(self) -> None:
+        """The page is gone: stop its jobs and tell it nothing more."""
+        self.on_change = lambda: None
+        self.cancel()
+
+
+JOB_LABELS = {"open": "opening the photo", "design": "the criteria and PSFs", "photo": "the photo panel",
+              "lab": "the restoration lab"}
+"""What the busy line calls each kind of job."""
+
+
 def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None, photos=()):
     """The page (a Panel layout) over ``explorer`` (its design sliders are the explorer's: the paper's singlet or any
     lens); ``photos``: the photos offered besides the generated scene and scikit-image's samples. Its widgets are
-    reachable as ``app.widgets`` for tests."""
+    reachable as ``app.widgets`` for tests.
+
+    Served (a Bokeh document), every computation runs off the event loop (:class:`PageJobs`), the first ones once the
+    page has loaded; the page shows what runs, with a Cancel button. Without a server (tests) they run at once."""
     import io
 
     import numpy as np
@@ -245,7 +360,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from lenssim.io.sensor_file import sensor_names
     from lenssim.model.glass import load_glasses
     from lenssim.model.tolerances import GRADES
-    from lenssim_studies.explore import MAP_CRITERIA, PhotoControls, command_line
+    from lenssim_studies.explore import MAP_CRITERIA, Cancelled, PhotoControls, command_line
     from pipeline.camera_chain import DEMOSAIC_METHODS
     from pipeline.cfa import CFA_PATTERNS
 
@@ -271,11 +386,13 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         "restore": pn.widgets.TextInput(label="restoration", value="wiener"),
         "method_a": pn.widgets.TextInput(label="method A", value="wiener"),  # the lab's first picks (controls below)
         "method_b": pn.widgets.TextInput(label="method B", value="richardson_lucy:iterations=20"),
-        "grade": pn.widgets.Select(label="tolerance grade", options=list(GRADES), value="commercial"),
-        "lens_seed": pn.widgets.IntInput(label="lens seed", value=0, start=0),
+        "grade": pn.widgets.Select(label="tolerance grade", options=list(GRADES), value="commercial",
+                                   sizing_mode="stretch_width"),
+        "lens_seed": pn.widgets.IntInput(label="lens seed", value=0, start=0, sizing_mode="stretch_width"),
         "upload": pn.widgets.FileInput(label="upload a photo", accept=",".join(UPLOAD_SUFFIXES)),
     })
-    state = {"center": None, "photo": shown[0]}
+    # the page's own photo (another page's pick or upload does not change it), and what each panel shows now
+    state = {"center": None, "photo": shown[0], "shown": explorer.shown_photo, "design": None, "panel": None}
     error = pn.pane.Alert("", alert_type="danger", visible=False, name="error")
 
     def controls():
@@ -287,30 +404,73 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         return PhotoControls(state["center"], int(w["iso"].value), int(w["seed"].value), sensor, w["cfa"].value,
                              w["demosaic"].value, w["restore"].value.strip(), fw if fw > 0 else None)
 
+    def show_error(message):
+        error.object = f"**error:** {message}"
+        error.visible = True
+
     def guarded(fn, *a):
         """``fn(*a)``, or None with its one-line error shown on the page (the app keeps serving)."""
         try:
             out = fn(*a)
         except (ValueError, OSError) as exc:
-            error.object = f"**error:** {str(exc).splitlines()[0]}"
-            error.visible = True
+            show_error(str(exc).splitlines()[0])
             return None
         error.visible = False
         return out
 
+    # ---- long work off the event loop: what runs, and a Cancel button ------------------------------------------
+    busy_md = pn.pane.Markdown("", name="busy", margin=(4, 10))
+    cancel = pn.widgets.Button(label="Cancel", color="warning", visible=False, width=90)
+    busy_panes = {}  # kind -> the panes its result goes to (shown as loading while it runs)
+
+    def on_jobs():
+        running = [JOB_LABELS[k] for k in JOB_LABELS if k in jobs.running]
+        if running:
+            busy_md.object = f"**computing:** {', '.join(running)} ..."
+        elif jobs.cancelled:
+            busy_md.object = f"cancelled: {', '.join(JOB_LABELS[k] for k in jobs.cancelled)} (what is shown is " \
+                             "labelled with what made it)"
+        else:
+            busy_md.object = ""
+        cancel.visible = bool(running)
+        for kind, panes in busy_panes.items():
+            for pane in panes:
+                pane.loading = kind in jobs.running
+
+    doc = pn.state.curdoc
+    served = doc is not None and doc.session_context is not None
+    jobs = PageJobs(doc.add_next_tick_callback if served else None, on_jobs)
+    cancel.on_click(lambda e: jobs.cancel())
+    if served:
+        pn.state.on_session_destroyed(lambda ctx: jobs.close())
+
+    def submit(kind, work, done, failed=show_error):
+        """``work(cancel)`` off the loop, then ``done(result)`` (the error line hidden), or ``failed(message)``."""
+        def ok(result):
+            error.visible = False
+            done(result)
+        jobs.submit(kind, work, ok, failed)
+
+    def stop_if(cancel_event):
+        if cancel_event.is_set():
+            raise Cancelled()
+
     # ---- design panel ------------------------------------------------------------------------------------------
     criteria_md = pn.pane.Markdown("", name="criteria")
     optics_png = pn.pane.PNG(None, name="optics", sizing_mode="stretch_width")
+    busy_panes["design"] = (criteria_md, optics_png)
     from bokeh.models import ColorBar, ColumnDataSource, LabelSet, LinearColorMapper
     from bokeh.palettes import Viridis256
 
     xk, yk = explorer.map_axes
+    (x0, x1), (y0, y1) = explorer.map_ranges()
     mapper = LinearColorMapper(palette=Viridis256, nan_color="lightgrey")
     map_fig = figure(width=600, height=440, tools="tap", toolbar_location=None, name="map",
+                     x_range=(x0, x1), y_range=(y0, y1),  # the parameters' ranges from the start
                      x_axis_label=explorer.axis_label(xk), y_axis_label=explorer.axis_label(yk),
                      title="click to select a design; white: iso-cost curves (log10 C_a)")
-    img_src = ColumnDataSource({"image": [np.full((1, 1), np.nan)], "x": [0.0], "y": [0.0], "dw": [1.0],
-                                "dh": [1.0]})
+    img_src = ColumnDataSource({"image": [np.full((1, 1), np.nan)], "x": [x0], "y": [y0], "dw": [x1 - x0],
+                                "dh": [y1 - y0]})
     map_fig.image(image="image", x="x", y="y", dw="dw", dh="dh", source=img_src, color_mapper=mapper)
     color_bar = ColorBar(color_mapper=mapper, title="")
     map_fig.add_layout(color_bar, "right")
@@ -318,21 +478,38 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     named = ColumnDataSource({"x": [v[0] for v in points.values()], "y": [v[1] for v in points.values()],
                               "name": list(points)})
     map_fig.scatter("x", "y", source=named, size=9, fill_alpha=0, line_color="red", line_width=2)
-    map_fig.add_layout(LabelSet(x="x", y="y", text="name", source=named, text_font_size="8pt", text_color="red",
-                                x_offset=4, y_offset=4))
+    map_fig.add_layout(LabelSet(x="x", y="y", text="name", source=named, text_font_size="8pt", text_color="#b00000",
+                                x_offset=5, y_offset=5, background_fill_color="white", background_fill_alpha=0.8,
+                                name="design_labels"))  # readable on every colour of the map
     sx, sy = explorer.map_point(controls())
-    sel_src = ColumnDataSource({"x": [sx], "y": [sy]})
+    sel_src = ColumnDataSource({"x": [sx], "y": [sy]}, name="selected")
     map_fig.scatter("x", "y", source=sel_src, marker="x", size=16, line_width=3, color="black")
     contours = {}
 
     def update_design(*_):
         c = controls()
-        crit = guarded(explorer.criteria, c)
-        if crit is not None:
-            criteria_md.object = "| criterion | value |\n|---|---|\n" + "".join(
+        update_map()  # the marker moves at once
+
+        def work(cancel_event):
+            crit = explorer.criteria(c)
+            stop_if(cancel_event)
+            return crit, explorer.optics_figure(c)
+
+        def done(result):
+            crit, optics = result
+            state["design"] = (c, crit, optics)
+            criteria_md.object = f"**{explorer.design_label(c)}**\n\n| criterion | value |\n|---|---|\n" + "".join(
                 f"| {k} | {v:.4g} |\n" for k, v in crit.items())
-            optics_png.object = guarded(explorer.optics_figure, c)
-        update_map()
+            optics_png.object = optics
+            design_download.disabled = False
+
+        def refused(message):
+            show_error(message)
+            state["design"] = None  # no figures of another design beside these sliders
+            criteria_md.object = f"**{explorer.design_label(c)}**: no criteria (see the error above)"
+            optics_png.object = None
+            design_download.disabled = True
+        submit("design", work, done, refused)
 
     map_status = pn.pane.Markdown("", name="map_status")
 
@@ -346,6 +523,9 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
             ds = (sv[-1] - sv[0]) / (len(sv) - 1) if len(sv) > 1 else 1.0
             img_src.data = {"image": [z], "x": [q[0] - dq / 2], "y": [sv[0] - ds / 2], "dw": [q[-1] - q[0] + dq],
                             "dh": [sv[-1] - sv[0] + ds]}
+            # the axes: the parameters' ranges, and the map's grid where a sweep reaches beyond them
+            map_fig.x_range.start, map_fig.x_range.end = min(x0, float(np.min(q))), max(x1, float(np.max(q)))
+            map_fig.y_range.start, map_fig.y_range.end = min(y0, float(np.min(sv))), max(y1, float(np.max(sv)))
             finite = z[np.isfinite(z)]
             if finite.size:
                 mapper.low, mapper.high = float(finite.min()), float(finite.max())
@@ -371,13 +551,12 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     crop_rect = over.quad(left=[0], right=[1], top=[0], bottom=[1], fill_alpha=0, line_color="red", line_width=2)
 
     def draw_overview():
-        """The photo's overview (at most :data:`OVERVIEW_PX` on its longer side) and its axes, for the photo now
-        shown."""
+        """The page's photo's overview (at most :data:`OVERVIEW_PX` on its longer side) and its axes."""
         from pipeline.colour_space import linear_to_srgb
 
-        H, W = explorer.photo_shape[-2:]
+        H, W = state["shown"].shape[-2:]
         step = max(1, math.ceil(max(H, W) / OVERVIEW_PX))
-        img = explorer._ideal().load()[..., ::step, ::step]
+        img = state["shown"].photo.load()[..., ::step, ::step]
         a = (linear_to_srgb(img.clamp(0, 1))[0].cpu().numpy() * 255).astype(np.uint8)
         a = np.repeat(a, 3, axis=0) if a.shape[0] == 1 else a
         rgba = np.dstack([a[0], a[1], a[2], np.full_like(a[0], 255)]).view(np.uint32)[..., 0]
@@ -391,32 +570,44 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     scores = {k: pn.pane.Markdown("", name=f"score_{k}") for k in ("sensor", "restored")}
     field_md = pn.pane.Markdown("", name="field")
     command = pn.pane.Markdown("", name="command")
+    busy_panes["photo"] = tuple(images.values())
+
+    def move_crop(box):
+        crop_rect.data_source.data = {"left": [box[2]], "right": [box[3]], "top": [box[0]], "bottom": [box[1]]}
 
     def update_photo(*_):
-        r = guarded(explorer.photo_panel, controls(), photo_controls())
-        if r is None:
-            return
-        b = r["box"]
-        crop_rect.data_source.data = {"left": [b[2]], "right": [b[3]], "top": [b[0]], "bottom": [b[1]]}
-        for k, pane in images.items():
-            pane.object = r["png"][k]
-        for k, pane in scores.items():
-            pane.object = f"**{k}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, SSIM {r['scores'][k]['ssim']:.3f}"
-        field_md.object = f"crop {b} at {r['field_deg']:.2f} deg of field"
-        shown = None if state["photo"] == GENERATED else state["photo"]
-        command.object = "```\n" + command_line(shown, controls(), photo_controls(), explorer) + "\n```"
+        c, pc, shown_photo, name = controls(), photo_controls(), state["shown"], state["photo"]
+        move_crop(explorer.crop_box(pc.center, shown_photo.shape))  # the rectangle moves at once
 
-    def show_photo(photo, source, name):
-        """Show ``photo`` (its caches dropped, the crop back at the centre)."""
-        explorer.set_photo(photo, source)
-        state["center"], state["photo"] = None, name
+        def done(r):
+            state["panel"] = (c, pc, shown_photo, r)
+            move_crop(r["box"])
+            for k, pane in images.items():
+                pane.object = r["png"][k]
+            for k, pane in scores.items():
+                pane.object = f"**{k}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, SSIM {r['scores'][k]['ssim']:.3f}"
+            field_md.object = f"crop {r['box']} at {r['field_deg']:.2f} deg of field ({explorer.design_label(c)})"
+            named_photo = None if name == GENERATED else name
+            command.object = "```\n" + command_line(named_photo, c, pc, explorer, shown_photo.shape) + "\n```"
+            download.disabled = False
+        submit("photo", lambda cancel_event: explorer.photo_panel(c, pc, photo=shown_photo, cancel=cancel_event),
+               done)
+
+    def show_photo(shown_photo, name):
+        """Show ``shown_photo`` on this page (the crop back at the centre; the lab's pictures, of the previous photo,
+        cleared)."""
+        jobs.cancel("lab")
+        state["center"], state["photo"], state["shown"] = None, name, shown_photo
+        for k in lab_imgs:
+            lab_imgs[k].object, lab_scores[k].object = None, ""
+        lab_note.object = ""
         draw_overview()
         update_photo()
 
     def on_pick(event):
-        opened = guarded(_open_photo, event.new)
-        if opened is not None:
-            show_photo(*opened, event.new)
+        name = event.new
+        submit("open", lambda cancel_event: explorer.new_photo(*_open_photo(name)),
+               lambda shown_photo: show_photo(shown_photo, name))
 
     w["photo"].param.watch(on_pick, "value")
 
@@ -427,14 +618,14 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     over.on_event(Tap, on_tap)
 
     def on_upload(event):
-        data = w["upload"].value
-        name = w["upload"].filename or ""
-        photo = guarded(_read_upload, data, name, max_upload_mb)
-        if photo is None:
-            return
         from pathlib import PurePath
 
-        show_photo(photo, "uploaded photo", PurePath(name).name or "uploaded photo")
+        data = w["upload"].value
+        name = w["upload"].filename or ""
+        shown_name = PurePath(name).name or "uploaded photo"
+        submit("open", lambda cancel_event: explorer.new_photo(_read_upload(data, name, max_upload_mb),
+                                                               "uploaded photo"),
+               lambda shown_photo: show_photo(shown_photo, shown_name))
 
     w["upload"].param.watch(on_upload, "value")
 
@@ -442,22 +633,23 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from pipeline.restoration import RESTORATION_METHODS
 
     def option_widget(method, key, default):
-        """A control for one option of a restoration method, from its default's type."""
-        label = f"{key}"
+        """A control for one option of a restoration method, from its default's type (as wide as its column)."""
+        kw = {"label": f"{key}", "sizing_mode": "stretch_width"}
         if isinstance(default, bool):
-            return pn.widgets.Checkbox(label=label, value=default)
+            return pn.widgets.Checkbox(value=default, **kw)
         if isinstance(default, int):
-            return pn.widgets.IntInput(label=label, value=default, start=1)
+            return pn.widgets.IntInput(value=default, start=1, **kw)
         if isinstance(default, float):
-            return pn.widgets.FloatInput(label=label, value=default)
-        return pn.widgets.TextInput(label=label, value=str(default))
+            return pn.widgets.FloatInput(value=default, **kw)
+        return pn.widgets.TextInput(value=str(default), **kw)
 
     def method_controls(tag, initial):
         """A method picker and its options as controls; ``spec()`` gives ``NAME:key=value,...``."""
         name, _, rest = initial.partition(":")
         given = dict(kv.split("=", 1) for kv in rest.split(",") if "=" in kv)
-        pick = pn.widgets.Select(label=f"method {tag}", options=list(RESTORATION_METHODS), value=name)
-        box = pn.Column()
+        pick = pn.widgets.Select(label=f"method {tag}", options=list(RESTORATION_METHODS), value=name,
+                                 sizing_mode="stretch_width")
+        box = pn.Column(sizing_mode="stretch_width", margin=0)
         controls_of = {}
 
         def rebuild(*_):
@@ -477,72 +669,71 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
             m = RESTORATION_METHODS[pick.value]
             changed = [f"{k}={controls_of[k].value}" for k, default in m.options if controls_of[k].value != default]
             return pick.value + (":" + ",".join(changed) if changed else "")
-        return pn.Column(pick, box, width=220), spec
+        # a fixed width with its controls inside it: the two methods' boxes side by side, apart
+        return pn.Column(pick, box, width=LAB_COLUMN_PX, margin=(5, 15, 5, 5), styles=LAB_BOX_STYLE), spec
 
     method_a_box, spec_a = method_controls("A", w["method_a"].value)
     method_b_box, spec_b = method_controls("B", w["method_b"].value)
     lab_imgs = {k: pn.pane.PNG(None, name=f"lab_{k}", width=256, height=256) for k in ("a", "b", "nominal", "own")}
     lab_scores = {k: pn.pane.Markdown("", name=f"lab_score_{k}") for k in lab_imgs}
-    lab_button = pn.widgets.Button(label="run the restoration lab", color="primary")
+    lab_button = pn.widgets.Button(label="run the restoration lab", color="primary", sizing_mode="stretch_width")
+    lab_note = pn.pane.Markdown("", name="lab_note")
+    busy_panes["lab"] = tuple(lab_imgs.values())
 
     def update_lab(*_):
         a, b = spec_a(), spec_b()
-        r = guarded(explorer.restoration_lab, controls(), photo_controls(), a, b, w["grade"].value,
-                    int(w["lens_seed"].value))
-        if r is None:
-            return
-        labels = {"a": a, "b": b, "nominal": "as built, nominal PSFs",
-                  "own": "as built, its own PSFs"}
-        for k in lab_imgs:
-            lab_imgs[k].object = r["png"][k]
-            lab_scores[k].object = f"**{labels[k]}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, " \
-                                   f"SSIM {r['scores'][k]['ssim']:.3f}"
+        c, pc, shown_photo = controls(), photo_controls(), state["shown"]
+        grade, lens_seed = w["grade"].value, int(w["lens_seed"].value)
+
+        def done(r):
+            labels = {"a": a, "b": b, "nominal": "as built, nominal PSFs", "own": "as built, its own PSFs"}
+            for k in lab_imgs:
+                lab_imgs[k].object = r["png"][k]
+                lab_scores[k].object = f"**{labels[k]}**: PSNR {r['scores'][k]['psnr_db']:.2f} dB, " \
+                                       f"SSIM {r['scores'][k]['ssim']:.3f}"
+            lab_note.object = f"{explorer.design_label(c)}; crop {explorer.crop_box(pc.center, shown_photo.shape)}; " \
+                              f"grade {grade}, lens seed {lens_seed}"
+        submit("lab", lambda cancel_event: explorer.restoration_lab(c, pc, a, b, grade, lens_seed, photo=shown_photo,
+                                                                    cancel=cancel_event), done)
 
     lab_button.on_click(update_lab)
 
-    # ---- export ---------------------------------------------------------------------------------------------------
+    # ---- export: what the panels show (computed already: nothing long runs here) ----------------------------------
     def _save(fig):
-        import matplotlib.pyplot as plt
-
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
-        plt.close(fig)
         buf.seek(0)
         return buf
 
     def panel_png():
         """The photo panel as a PNG: ideal, sensor and restored crops with their scores, what made them."""
-        import matplotlib
-
-        matplotlib.use("Agg")
         import matplotlib.image
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
-        r = explorer.photo_panel(controls(), photo_controls())
-        fig, axes = plt.subplots(1, 3, figsize=(9, 3.4), constrained_layout=True)
-        for ax, k in zip(axes, ("ideal", "sensor", "restored")):
+        if state["panel"] is None:
+            raise ValueError("the photo panel is not computed yet")
+        c, pc, shown_photo, r = state["panel"]
+        fig = Figure(figsize=(9, 3.4), layout="constrained")
+        for ax, k in zip(fig.subplots(1, 3), ("ideal", "sensor", "restored")):
             ax.imshow(matplotlib.image.imread(io.BytesIO(r["png"][k]), format="png"))
             sc = r["scores"].get(k)
             ax.set_title(k + ("" if sc is None else f": {sc['psnr_db']:.2f} dB, SSIM {sc['ssim']:.3f}"), fontsize=9)
             ax.set_axis_off()
-        fig.suptitle(f"{explorer.photo_source}, {explorer.design_label(controls())}, ISO {w['iso'].value}, crop at "
-                     f"{r['field_deg']:.2f} deg", fontsize=9)
+        fig.suptitle(f"{shown_photo.source}, {explorer.design_label(c)}, ISO {pc.iso}, crop at {r['field_deg']:.2f} "
+                     "deg", fontsize=9)
         return _save(fig)
 
     def design_png():
         """The design panel as a PNG: the criteria, the cost map with the design, the PSFs and MTFs."""
-        import matplotlib
-
-        matplotlib.use("Agg")
         import matplotlib.image
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
 
-        c = controls()
-        crit = explorer.criteria(c)
+        if state["design"] is None:
+            raise ValueError("the design panel is not computed yet")
+        c, crit, optics = state["design"]
         crit_img = matplotlib.image.imread(io.BytesIO(explorer.cost_map(w["criterion"].value, int(w["snr"].value), c)),
                                            format="png")
-        optics = matplotlib.image.imread(io.BytesIO(explorer.optics_figure(c)), format="png")
-        fig = plt.figure(figsize=(12, 8.5), constrained_layout=True)
+        fig = Figure(figsize=(12, 8.5), layout="constrained")
         top, bottom = fig.subfigures(2, 1, height_ratios=(1.25, 1))
         ax_t, ax_m = top.subplots(1, 2, width_ratios=(0.8, 1.2))
         ax_t.set_axis_off()
@@ -551,22 +742,25 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         ax_m.imshow(crit_img)
         ax_m.set_axis_off()
         ax_o = bottom.subplots()
-        ax_o.imshow(optics)
+        ax_o.imshow(matplotlib.image.imread(io.BytesIO(optics), format="png"))
         ax_o.set_axis_off()
         fig.suptitle(explorer.design_label(c), fontsize=10)
         return _save(fig)
 
     download = pn.widgets.FileDownload(callback=panel_png, filename="lenssim_explore.png", label="download the panel "
-                                       "as PNG", color="default")
+                                       "as PNG", color="default", disabled=True)
     design_download = pn.widgets.FileDownload(callback=design_png, filename="lenssim_design.png",
-                                              label="download the design panel as PNG", color="default")
+                                              label="download the design panel as PNG", color="default", disabled=True)
     exports = [download]
     if hasattr(explorer, "lens_toml"):  # any lens: the design as a lens file, which the command line names
         from lenssim_studies.explore_lens import LENS_EXPORT_FILE
 
-        exports.append(pn.widgets.FileDownload(callback=lambda: io.BytesIO(explorer.lens_toml(controls()).encode()),
-                                               filename=LENS_EXPORT_FILE, label=f"download the lens ({LENS_EXPORT_FILE})",
-                                               color="default"))
+        def lens_file():
+            if state["panel"] is None:
+                raise ValueError("the photo panel is not computed yet")
+            return io.BytesIO(explorer.lens_toml(state["panel"][0]).encode())  # the design of the command shown
+        exports.append(pn.widgets.FileDownload(callback=lens_file, filename=LENS_EXPORT_FILE,
+                                               label=f"download the lens ({LENS_EXPORT_FILE})", color="default"))
 
     for sl in sliders:
         w[sl.key].param.watch(lambda e: (update_design(), update_photo()), "value_throttled")
@@ -596,9 +790,11 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     photo_tab = pn.Column(pn.Row(over, pn.Column(field_md, command, *exports)),
                           pn.Row(*[pn.Column(f"**{k}**", images[k], scores.get(k, "")) for k in images]),
                           name="Photo")
-    lab_tab = pn.Column(pn.Row(method_a_box, method_b_box, pn.Column(w["grade"], w["lens_seed"], lab_button)),
-                        pn.Row(*[pn.Column(lab_imgs[k], lab_scores[k]) for k in lab_imgs]), name="Restoration lab")
-    app = pn.Row(sidebar, pn.Column(error, pn.Tabs(design_tab, photo_tab, lab_tab)))
+    lab_tab = pn.Column(pn.Row(method_a_box, method_b_box,
+                               pn.Column(w["grade"], w["lens_seed"], lab_button, width=LAB_COLUMN_PX)),
+                        lab_note, pn.Row(*[pn.Column(lab_imgs[k], lab_scores[k]) for k in lab_imgs]),
+                        name="Restoration lab")
+    app = pn.Row(sidebar, pn.Column(error, pn.Row(busy_md, cancel), pn.Tabs(design_tab, photo_tab, lab_tab)))
     if explorer.map_data is None:  # the map is being computed in the background: redrawn until it is there
         def poll():
             update_map()
@@ -608,14 +804,16 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         pn.state.onload(cb.start)
     app.widgets = w
     app.panes = {"criteria": criteria_md, "map": map_fig, "optics": optics_png, "images": images, "scores": scores,
-                 "command": command, "overview": over, "error": error, "lab": lab_imgs, "field": field_md}
+                 "command": command, "overview": over, "error": error, "lab": lab_imgs, "field": field_md,
+                 "busy": busy_md, "selected": sel_src, "design_labels": map_fig.select_one({"name": "design_labels"})}
     app.specs = {"a": spec_a, "b": spec_b}
     app.actions = {"tap": on_tap, "map_tap": on_map_tap, "update_design": update_design, "update_photo": update_photo,
                    "update_lab": update_lab, "upload": on_upload, "pick": on_pick, "panel_png": panel_png,
-                   "design_png": design_png}
+                   "design_png": design_png, "cancel": jobs.cancel}
     app.exports = exports
-    update_design()
-    update_photo()
+    app.jobs = jobs
+    update_map()
+    pn.state.onload(lambda: (update_design(), update_photo()))  # served: once the page is there, off the loop
     return app
 
 
@@ -656,20 +854,146 @@ def _read_upload(data: bytes | None, filename: str, max_upload_mb: float):
             raise ValueError(str(exc).splitlines()[0].replace(repr(path), repr(shown)).replace(path, shown)) from None
 
 
-def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=print, start=None,
-          photos=()):
-    """Serve the app until interrupted; prints its address."""
+# ---- who may connect ----------------------------------------------------------------------------------------------
+LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
+"""This machine's own names: a server bound to one of them answers to all three (at its port)."""
+WILDCARD_HOSTS = ("0.0.0.0", "::")
+"""Addresses that bind every interface: the server answers to this machine's own names and its host name."""
+MAX_REFUSALS_REPORTED = 32
+"""Distinct refused Host or Origin values reported on stderr (each once), so that a hostile page cannot flood it."""
+
+
+def _unbracket(name: str) -> str:
+    return name[1:-1] if name.startswith("[") and name.endswith("]") else name
+
+
+def _valid_name(name: str) -> bool:
+    """A host name (letters, digits, hyphens between dots) or an IP address."""
+    import ipaddress
+    import re
+
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        return re.fullmatch(r"[a-z0-9]([a-z0-9-]*[a-z0-9])?(\.[a-z0-9]([a-z0-9-]*[a-z0-9])?)*\.?", name) is not None
+
+
+def parse_allowed_origin(text: str) -> tuple[str, int | None]:
+    """``--allow-origin``'s ``http[s]://NAME[:PORT]`` or ``NAME[:PORT]`` -> ``(name, port)`` (the name in lower case;
+    port None: the explorer's own). An origin with a scheme and no port has its scheme's port (80, 443), as a browser
+    sends it; a bare NAME is that name at the explorer's port. One-line ``ValueError`` for anything else (a path, a
+    wildcard, a bad port)."""
+    from urllib.parse import urlsplit
+
+    bad = (f"--allow-origin {text!r} is not allowed: an origin, http://NAME:PORT or https://NAME[:PORT], or NAME[:PORT] "
+           "(NAME at the explorer's port); no path, no wildcard")
+    u = urlsplit(text if "://" in text else "//" + text)
+    try:
+        port = u.port
+    except ValueError:
+        raise ValueError(bad) from None
+    name = (u.hostname or "").lower()
+    if (u.scheme not in ("", "http", "https") or u.path not in ("", "/") or u.query or u.fragment or u.username
+            or u.password is not None or not _valid_name(name) or port == 0):
+        raise ValueError(bad)
+    if port is None and u.scheme:
+        port = 443 if u.scheme == "https" else 80
+    return name, port
+
+
+def allowed_addresses(host: str, port: int, origins=()) -> frozenset:
+    """The ``(name, port)`` pairs a server bound to ``host``:``port`` answers to (its Host header) and accepts pages
+    from (the Origin of a request, a WebSocket's above all): the name it was started for (all of
+    :data:`LOOPBACK_HOSTS` for one of them; those and this machine's host name for a wildcard address) at its port,
+    and ``origins`` (:func:`parse_allowed_origin`'s pairs; a port None is the server's)."""
+    import socket
+
+    name = _unbracket(host.lower())
+    names = {name}
+    if name in LOOPBACK_HOSTS:
+        names |= set(LOOPBACK_HOSTS)
+    if name in WILDCARD_HOSTS:
+        names = set(LOOPBACK_HOSTS) | {socket.gethostname().lower()}
+    return frozenset({(n, port) for n in names} | {(n, port if p is None else p) for n, p in origins})
+
+
+def _address_of(text: str | None, default_port: int):
+    """``(name, port)`` of a Host header's ``NAME[:PORT]`` (None when it is not one)."""
+    from urllib.parse import urlsplit
+
+    if not text or any(c in text for c in "/@?#\\ \t"):
+        return None
+    try:
+        u = urlsplit("//" + text)
+        port = u.port
+    except ValueError:
+        return None
+    return (u.hostname or "").lower(), default_port if port is None else port
+
+
+def refusal(host_header: str | None, origin_header: str | None, allowed) -> str | None:
+    """Why a request with these headers is refused (None: it is accepted): its Host is not one of ``allowed``
+    (:func:`allowed_addresses`: DNS rebinding), or it comes from a page (its Origin) of another address."""
+    from urllib.parse import urlsplit
+
+    if _address_of(host_header, 80) not in allowed:
+        return f"Host {host_header!r}"
+    if origin_header is not None:  # a browser's request from a page (every WebSocket handshake)
+        u = urlsplit(origin_header)
+        default = {"http": 80, "https": 443}.get(u.scheme)
+        if default is None or u.path or _address_of(u.netloc, default) not in allowed:
+            return f"Origin {origin_header!r}"
+    return None
+
+
+def lock_down(server, allowed, report=None) -> None:
+    """Make ``server`` (Bokeh's, from ``pn.serve(..., start=False)``) answer 403 to every request that
+    :func:`refusal` refuses, before any handler sees it (the page, its scripts, the WebSocket), and make Bokeh's own
+    WebSocket origin list ``allowed``. ``report(line)``: told of each refused value once (at most
+    :data:`MAX_REFUSALS_REPORTED`)."""
+    from tornado.web import ErrorHandler
+
+    app = server._tornado  # Bokeh's Tornado application (Bokeh 3: the server has no public name for it)
+    origins = app.websocket_origins  # the live set Bokeh's WebSocket handler checks
+    origins.clear()
+    origins.update(f"[{n}]:{p}" if ":" in n else f"{n}:{p}" for n, p in allowed)
+    find_handler = app.find_handler
+    reported = set()
+
+    def checked_find_handler(request, **kwargs):
+        why = refusal(request.headers.get("Host"), request.headers.get("Origin"), allowed)
+        if why is None:
+            return find_handler(request, **kwargs)
+        if report is not None and why not in reported and len(reported) < MAX_REFUSALS_REPORTED:
+            reported.add(why)
+            report(f"lenssim explore: refused a request from {why} (403): not an address this explorer was started "
+                   "for; allow another with --allow-origin")
+        return app.get_handler_delegate(request, ErrorHandler, {"status_code": 403})
+    app.find_handler = checked_find_handler
+
+
+def _print_now(line: str) -> None:
+    print(line, flush=True)  # at once: a script reading the address (--port 0) waits for it
+
+
+def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=_print_now, start=None,
+          photos=(), allow_origins=()):
+    """Serve the app until interrupted; prints its address. Only requests for the address it was started for (and
+    ``allow_origins``, :func:`parse_allowed_origin`'s pairs) are answered (:func:`lock_down`), on every port."""
     import panel as pn
 
     server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start, photos=photos),
                       address=host,
                       port=port,
-                      show=False, start=False, websocket_origin=[f"{host}:{port}", f"localhost:{port}"]
-                      if port and host in ("127.0.0.1", "localhost", "::1") else "*",
+                      show=False, start=False,
                       websocket_max_message_size=int(max_upload_mb * 1e6) + 2**20,
                       title="lenssim explore")
+    lock_down(server, allowed_addresses(host, server.port, allow_origins),  # the port bound (also for --port 0)
+              report=lambda line: print(line, file=sys.stderr, flush=True))
     server.start()
-    show_address(f"lenssim explore: http://{host}:{server.port}/ (Ctrl-C to stop)")
+    shown = "127.0.0.1" if host in WILDCARD_HOSTS else f"[{host}]" if ":" in host else host
+    show_address(f"lenssim explore: http://{shown}:{server.port}/ (Ctrl-C to stop)")
     try:
         server.io_loop.start()
     except KeyboardInterrupt:

@@ -17,11 +17,17 @@ data and PNG bytes:
 
 PSF providers are cached by design (and lens sample), simulated crops by everything they depend on, so a control
 changes only what depends on it.
+
+The page runs these functions in worker threads, one page's photo beside another's: the caches are safe to share
+between threads; each photo shown is a :class:`ShownPhoto` whose tag keys every result made from it (a result of a
+photo never answers for another, whichever thread finishes first); the long ones (:meth:`Explorer.photo_panel`,
+:meth:`Explorer.restoration_lab`) take a ``cancel`` event, checked between their steps (:class:`Cancelled`).
 """
 
 from __future__ import annotations
 
 import io
+import itertools
 import math
 import threading
 from collections import OrderedDict
@@ -37,8 +43,8 @@ from pipeline.photo import Photo
 
 from .paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
 
-__all__ = ["Explorer", "DesignControls", "PhotoControls", "Slider", "command_line", "EXPLORE_CROP_PX", "MAP_GRID",
-           "PSF_ANGLES_DEG", "CACHE_ENTRIES"]
+__all__ = ["Explorer", "DesignControls", "PhotoControls", "Slider", "ShownPhoto", "Cancelled", "command_line",
+           "psf_window_px", "ensquared_half_width", "EXPLORE_CROP_PX", "MAP_GRID", "PSF_ANGLES_DEG", "CACHE_ENTRIES"]
 
 EXPLORE_CROP_PX = 256
 """Side (px) of the photo panel's crop."""
@@ -46,8 +52,15 @@ MAP_GRID = {"s": (-2.0, 1.0, 13), "Q_back": (-10.0, 1.2, 15)}
 """The coarse grid (start, stop, count) of the cost map when no sweep file is given: 195 designs, ~1 min once."""
 PSF_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
 """Field angles (deg) of the PSF and MTF panel."""
-PSF_WINDOW_UM = 100.0
-"""Side (um) of the window the PSFs are shown on."""
+PSF_WINDOW_ENERGY = 0.99
+"""Fraction of each PSF's energy inside the square window the PSF panels share (sized to the widest PSF shown)."""
+PSF_WINDOW_MARGIN = 1.5
+"""The shared window's half-width is this times the widest PSF's :data:`PSF_WINDOW_ENERGY` half-width, so that the
+faint edge of the PSF is seen inside it."""
+PSF_WINDOW_MIN_PX = 8
+"""Smallest half-width (samples) of the PSF window: a sharp PSF still shows its first rings."""
+PSF_DECADES = 5.0
+"""Decades of the PSF panels' shared log10 colour scale, below the brightest sample shown."""
 CACHE_ENTRIES = 64
 """Results kept per cache (least recently used dropped)."""
 PSF_CACHE_REQUESTS = 96
@@ -59,32 +72,69 @@ seed, chain or restoration of the same crop skips the blur."""
 MAP_CRITERIA = ("mse_r", "mse_s", "rms_w", "strehl", "mtf50", "cost")
 
 
+class Cancelled(Exception):
+    """A computation stopped between two of its steps because its ``cancel`` event was set (nothing is kept)."""
+
+
+def _stop_if(cancel: threading.Event | None) -> None:
+    """Raise :class:`Cancelled` when ``cancel`` is set (between the steps of a long computation)."""
+    if cancel is not None and cancel.is_set():
+        raise Cancelled()
+
+
 class _LRU(OrderedDict):
-    """A dict that keeps its last ``size`` entries used (:data:`CACHE_ENTRIES` by default)."""
+    """A dict that keeps its last ``size`` entries used (:data:`CACHE_ENTRIES` by default), safe to share between
+    threads (two threads missing the same key both make it; the last one made is kept)."""
 
     def __init__(self, size: int = CACHE_ENTRIES):
         super().__init__()
         self.size = size
+        self._guard = threading.RLock()
 
     def __setitem__(self, key, value):
-        super().__setitem__(key, value)
-        while len(self) > self.size:
-            self.popitem(last=False)
+        with self._guard:
+            super().__setitem__(key, value)
+            while len(self) > self.size:
+                self.popitem(last=False)
+
+    def get(self, key, default=None):
+        with self._guard:
+            return super().get(key, default)
+
+    def clear(self):
+        with self._guard:
+            super().clear()
 
     def get_or(self, key, make):
-        """The entry ``key``, made by ``make()`` (and kept) when missing."""
-        if key in self:
-            self.move_to_end(key)
-            return self[key]
+        """The entry ``key``, made by ``make()`` (and kept) when missing; ``make`` runs without the lock."""
+        with self._guard:
+            if key in self:
+                self.move_to_end(key)
+                return self[key]
         value = make()
         self[key] = value
         return value
 
 
+class _Tagged:
+    """The part of a blurred-region cache (:attr:`_CachedPSF.blurred`) that belongs to one photo (its tag prefixed to
+    every key): :func:`pipeline.simulate.simulate_crops` takes it as its ``blur_cache``."""
+
+    def __init__(self, lru: _LRU, tag: int):
+        self.lru, self.tag = lru, tag
+
+    def get(self, key, default=None):
+        return self.lru.get((self.tag, key), default)
+
+    def __setitem__(self, key, value):
+        self.lru[(self.tag, key)] = value
+
+
 class _CachedPSF(DerivedPSF):
     """A PSF provider whose PSFs are kept (the last :data:`PSF_CACHE_REQUESTS` requests): the blur and the restoration
     ask for the same windows' PSFs, and so does every ISO, seed and chain of the same crop. ``blurred`` keeps the
-    blurred regions of its crops (:func:`pipeline.simulate.simulate_crops`'s ``blur_cache``)."""
+    blurred regions of its crops (:func:`pipeline.simulate.simulate_crops`'s ``blur_cache``, through
+    :class:`_Tagged`: keyed by the photo too)."""
 
     def __init__(self, base: PSFProvider):
         self.base = base
@@ -133,6 +183,25 @@ class DesignControls:
                 self.glass)
 
 
+@dataclass(frozen=True, eq=False)
+class ShownPhoto:
+    """A photo the explorer simulates (:class:`pipeline.photo.Photo`), its source as shown, and a tag of its own: every
+    result made from it is cached under the tag, so that two photos (two pages, or one page before and after a pick)
+    never share a result, even when they have the same size."""
+
+    photo: Photo
+    source: str
+    tag: int
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.photo.shape)
+
+
+_PHOTO_TAGS = itertools.count(1)
+"""Tags of :class:`ShownPhoto` (each photo its own)."""
+
+
 @dataclass(frozen=True)
 class PhotoControls:
     """The photo panel's controls: crop centre (row, col, px; None: the frame's centre), ISO, seed, the camera chain
@@ -163,22 +232,50 @@ def _png(rgb: torch.Tensor) -> bytes:
     return buf.getvalue()
 
 
+def ensquared_half_width(psf: torch.Tensor, fraction: float) -> int:
+    """The smallest half-width ``h`` (samples) whose square ``(2h + 1)`` samples on a side, centred at ``[n//2, n//2]``,
+    holds ``fraction`` of the PSF's sum (``psf``: ``(n, n)``, non-negative; the array's half-size when no square
+    inside it does)."""
+    p = psf.detach().to("cpu", torch.float64)
+    n = p.shape[-1]
+    c = n // 2
+    idx = (torch.arange(n) - c).abs()
+    ring = torch.maximum(idx[:, None], idx[None, :])  # the square each sample lies on
+    held = torch.bincount(ring.flatten(), weights=p.flatten()).cumsum(0)
+    total = float(held[-1])
+    if not total > 0:
+        return 0
+    inside = torch.nonzero(held >= fraction * total)
+    return int(inside[0]) if len(inside) else c
+
+
+def psf_window_px(psfs) -> int:
+    """Half-width (samples) of the square window the PSF panels share: :data:`PSF_WINDOW_MARGIN` times the widest
+    PSF's :data:`PSF_WINDOW_ENERGY` half-width (:func:`ensquared_half_width`), at least :data:`PSF_WINDOW_MIN_PX`, at
+    most what the arrays hold."""
+    widest = max(ensquared_half_width(p, PSF_WINDOW_ENERGY) for p in psfs)
+    room = min((p.shape[-1] - 1) // 2 for p in psfs)
+    return int(min(room, max(PSF_WINDOW_MIN_PX, math.ceil(PSF_WINDOW_MARGIN * widest))))
+
+
 def psf_mtf_figure(psfs, angles_deg, pitch_um: float, title: str) -> bytes:
-    """PNG: each PSF (``(n, n)``, centred at ``[n//2, n//2]``) in log10 on a window of :data:`PSF_WINDOW_UM` (axes in
-    um), labelled by its field angle (deg), and the MTFs along x and y (line spreads' transforms) against cycles/mm."""
-    import matplotlib
+    """PNG: each PSF (``(n, n)``, centred at ``[n//2, n//2]``) in log10 on one window sized to the widest of them
+    (:func:`psf_window_px`; axes in um, its size in the title) and one colour scale (:data:`PSF_DECADES` below the
+    brightest sample), labelled by its field angle (deg), and the MTFs along x and y (line spreads' transforms) against
+    cycles/mm."""
+    from matplotlib.figure import Figure  # no pyplot: the page draws in worker threads
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(psfs) + 1, figsize=(3.0 * (len(psfs) + 1), 3.2), constrained_layout=True)
-    for ax, a, p in zip(axes, angles_deg, psfs):
+    fig = Figure(figsize=(3.0 * (len(psfs) + 1), 3.2), layout="constrained")
+    axes = fig.subplots(1, len(psfs) + 1)
+    h = psf_window_px(psfs)
+    e = (h + 0.5) * pitch_um  # the window's edge: the outer samples' edges
+    shown = [p[p.shape[-1] // 2 - h:p.shape[-1] // 2 + h + 1, p.shape[-1] // 2 - h:p.shape[-1] // 2 + h + 1]
+             for p in psfs]
+    top = math.log10(max(float(s.max()) for s in shown) or 1e-300)
+    for ax, a, p, s in zip(axes, angles_deg, psfs, shown):
         n = p.shape[-1]
-        c = n // 2
-        h = min(c, max(8, int(PSF_WINDOW_UM / pitch_um / 2)))
-        e = h * pitch_um
-        ax.imshow(torch.log10(p[c - h:c + h, c - h:c + h].clamp_min(1e-7)).numpy(), cmap="magma", vmin=-6, vmax=-1,
-                  extent=[-e, e, e, -e])
+        im = ax.imshow(torch.log10(s.clamp_min(1e-300)).numpy(), cmap="magma", vmin=top - PSF_DECADES, vmax=top,
+                       extent=[-e, e, e, -e])
         ax.set_title(f"PSF at {a:.3g} deg", fontsize=9)
         ax.set_xlabel("x [um]", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -187,23 +284,22 @@ def psf_mtf_figure(psfs, angles_deg, pitch_um: float, title: str) -> bytes:
         mtf_y = torch.fft.rfft(p.sum(1)).abs()
         axes[-1].plot(f.numpy(), (mtf_x / mtf_x[0]).numpy(), label=f"{a:.3g} deg, x")
         axes[-1].plot(f.numpy(), (mtf_y / mtf_y[0]).numpy(), "--", label=f"{a:.3g} deg, y")
-    axes[0].set_ylabel("y [um]  (log10 PSF)", fontsize=8)
+    fig.colorbar(im, ax=axes[len(psfs) - 1], label="log10 PSF (each sample)", shrink=0.8)
+    axes[0].set_ylabel("y [um]", fontsize=8)
     axes[-1].set_xlabel("spatial frequency [cycles/mm]", fontsize=8)
     axes[-1].set_ylabel("MTF", fontsize=8)
     axes[-1].set_title("MTF across the field", fontsize=9)
     axes[-1].set_ylim(0, 1.02)
     axes[-1].legend(fontsize=6, ncol=2)
     axes[-1].tick_params(labelsize=7)
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(f"{title}\nwindow +-{e:.3g} um (each PSF's {PSF_WINDOW_ENERGY:.0%} energy square inside, "
+                 f"x{PSF_WINDOW_MARGIN:g}); one colour scale", fontsize=9)
     return _figure_png(fig)
 
 
 def _figure_png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
     return buf.getvalue()
 
 
@@ -221,6 +317,8 @@ class Explorer:
     _caches: dict = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     map_progress: tuple = (0, 0)
+    _shown: ShownPhoto | None = field(default=None, repr=False)
+    _photo_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def _cache(self, name: str) -> _LRU:
         return self._caches.setdefault(name, _LRU())
@@ -245,6 +343,12 @@ class Explorer:
     def map_axes(self) -> tuple[str, str]:
         """The cost map's (horizontal, vertical) axes: slider keys, also the keys of :attr:`map_data`."""
         return ("Q_back", "s")
+
+    def map_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The ranges of the map's (horizontal, vertical) parameters, as their sliders give them (the map is drawn
+        over these from the start, before it is computed)."""
+        ranges = {sl.key: (sl.start, sl.end) for sl in self.sliders()}
+        return tuple(ranges.get(k, (-0.5, 0.5)) for k in self.map_axes)
 
     def map_point(self, controls) -> tuple[float, float]:
         """Where ``controls`` sits on the map (horizontal, vertical)."""
@@ -387,14 +491,14 @@ class Explorer:
 
     def cost_map(self, criterion: str, snr_index: int, selected: DesignControls) -> bytes:
         """PNG: ``criterion`` (log10 where positive and spanning decades) over the (s, Q_back) plane, the cost's
-        iso-cost curves, the named designs and ``selected``; a note while the map is not computed yet."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        iso-cost curves, the named designs (labels outlined in white, readable on every colour) and ``selected``; a
+        note while the map is not computed yet."""
+        from matplotlib import patheffects
+        from matplotlib.figure import Figure  # no pyplot: the page draws in worker threads
 
         layer = self.map_layer(criterion, snr_index)
-        fig, ax = plt.subplots(figsize=(5.6, 4.4), constrained_layout=True)
+        fig = Figure(figsize=(5.6, 4.4), layout="constrained")
+        ax = fig.subplots()
         if layer is None:
             done, total = self.map_progress
             ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
@@ -411,7 +515,8 @@ class Explorer:
             ax.clabel(c, fontsize=6, fmt=lambda v: f"C_a 1e{v:.1f}")
         for name, (px, py) in self.named_points().items():
             ax.plot(px, py, "o", mfc="none", mec="r", ms=7)
-            ax.annotate(name, (px, py), fontsize=6, color="r", xytext=(3, 3), textcoords="offset points")
+            ax.annotate(name, (px, py), fontsize=6, color="r", xytext=(3, 3), textcoords="offset points",
+                        path_effects=[patheffects.withStroke(linewidth=2.5, foreground="w")])
         sx, sy = self.map_point(selected)
         ax.plot(sx, sy, "x", color="k", ms=10, mew=2, label="selected")
         ax.set_xlabel(self.axis_label(layer["x_name"]))
@@ -421,32 +526,52 @@ class Explorer:
         return _figure_png(fig)
 
     # ---- photo -----------------------------------------------------------------------------------------------------
-    def _ideal(self):
-        if self.photo is None:
+    def new_photo(self, photo, source: str) -> ShownPhoto:
+        """``photo`` (linear ``(1, C, H, W)``, a :class:`pipeline.photo.Photo`, or None: the generated scene at the
+        sensor's size) as a photo of its own to simulate (:class:`ShownPhoto`): what a page passes as ``photo=``."""
+        if photo is None:
             from pipeline.photo import open_photo
 
-            self.photo = open_photo(None, self.camera)
-            self.photo_source = self.photo.source
-        return self.photo if isinstance(self.photo, Photo) else Photo.of(self.photo, self.photo_source)
+            photo = open_photo(None, self.camera)
+            source = photo.source
+        if not isinstance(photo, Photo):
+            photo = Photo.of(photo, source)
+        return ShownPhoto(photo, source, next(_PHOTO_TAGS))
+
+    @property
+    def shown_photo(self) -> ShownPhoto:
+        """The explorer's own photo (what an update function uses when no ``photo`` is passed)."""
+        with self._photo_lock:
+            if self._shown is None:
+                self._shown = self.new_photo(self.photo, self.photo_source)
+                self.photo, self.photo_source = self._shown.photo, self._shown.source
+            return self._shown
+
+    def _ideal(self, photo: ShownPhoto | None = None) -> Photo:
+        return (photo or self.shown_photo).photo
 
     def set_photo(self, photo, source: str) -> None:
-        """Show another photo: every result made from the previous one dropped (its panels, labs, blurred regions)."""
-        self.photo, self.photo_source = photo, source
-        for k in ("photo", "lab", "field"):
+        """Make ``photo`` the explorer's own: the results of the previous one are dropped (its panels, labs, blurred
+        regions; each was kept under its photo's tag, so none answers for this one)."""
+        shown = self.new_photo(photo, source)
+        with self._photo_lock:
+            self._shown = shown
+            self.photo, self.photo_source = shown.photo, shown.source
+        for k in ("photo", "lab"):
             self._caches.pop(k, None)
-        for prov in self._cache("psf").values():
+        for prov in list(self._cache("psf").values()):
             prov.blurred.clear()
 
     @property
     def photo_shape(self) -> tuple:
-        return self._ideal().shape
+        return self.shown_photo.shape
 
-    def crop_box(self, center) -> tuple[int, int, int, int]:
+    def crop_box(self, center, shape=None) -> tuple[int, int, int, int]:
         """The :data:`EXPLORE_CROP_PX` box centred as near ``center`` (row, col; None: the frame's centre) as fits the
-        photo."""
+        photo (of ``shape``; the explorer's own by default)."""
         from pipeline.simulate import crop_at_pixel
 
-        H, W = self.photo_shape[-2:]
+        H, W = (self.photo_shape if shape is None else shape)[-2:]
         r, c = (H // 2, W // 2) if center is None else (min(max(int(center[0]), 0), H - 1),
                                                         min(max(int(center[1]), 0), W - 1))
         return crop_at_pixel((H, W), r, c, min(EXPLORE_CROP_PX, H, W))
@@ -462,15 +587,21 @@ class Explorer:
             s = replace(s, cfa=pc.cfa)
         return CameraChain(s, demosaic=pc.demosaic)
 
-    def _full_well(self, pc: PhotoControls, chain) -> float:
+    def _full_well(self, pc: PhotoControls, chain, shape) -> float:
         if pc.full_well is not None:
             from pipeline.checks import check_full_well
 
             return check_full_well(pc.full_well, "full well")
-        table = self.sensor if chain is None else chain.sensor
+        table = self.sensor_for(shape) if chain is None else chain.sensor
         return table.full_well_for_iso(pc.iso)
 
-    def _provider(self, controls: DesignControls, lens=None):
+    def sensor_for(self, shape) -> object:
+        """The sensor a photo of ``shape`` is simulated on (its pixels, noise and ISO table): the camera's."""
+        return self.camera.sensor
+
+    def _provider(self, controls: DesignControls, lens=None, shape=None):
+        """The design's PSFs (of the manufactured ``lens``, if given) over a photo of ``shape`` (the paper's camera:
+        the same for every photo)."""
         key = controls.key() + (None if lens is None else id(lens),)
         d = self.check(controls)
         cam = self.camera_for(controls)
@@ -492,68 +623,79 @@ class Explorer:
         if grade not in GRADES:
             raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
 
-    def _built_provider(self, controls: DesignControls, grade: str, lens_seed: int):
+    def _built_provider(self, controls: DesignControls, grade: str, lens_seed: int, shape=None):
         """The PSFs of one manufactured lens of ``controls``'s design (drawn from ``grade`` with ``lens_seed``)."""
-        return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed))
+        return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed), shape)
 
-    def photo_panel(self, controls: DesignControls, pc: PhotoControls) -> dict:
-        """The crop at ``pc.center`` through the design and the chain: ``{"box", "field_deg", "png": {"ideal",
-        "sensor", "restored"}, "scores": {"sensor", "restored"}}`` (PSNR dB and SSIM in sRGB)."""
+    def photo_panel(self, controls: DesignControls, pc: PhotoControls, *, photo: ShownPhoto | None = None,
+                    cancel: threading.Event | None = None) -> dict:
+        """The crop at ``pc.center`` of ``photo`` (the explorer's own by default) through the design and the chain:
+        ``{"box", "field_deg", "png": {"ideal", "sensor", "restored"}, "scores": {"sensor", "restored"}}`` (PSNR dB
+        and SSIM in sRGB). ``cancel`` set before the crop is simulated: :class:`Cancelled`."""
         from pipeline.simulate import simulate_crops
+
+        shown = photo or self.shown_photo
 
         def make():
             chain = self._chain(pc)
-            fw = self._full_well(pc, chain)
-            box = self.crop_box(pc.center)
-            prov = self._provider(controls)
-            (r,) = simulate_crops(self._ideal(), prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                  sensor=self.sensor, chain=chain, blur_cache=prov.blurred,
-                                  blur_zones="auto")
+            fw = self._full_well(pc, chain, shown.shape)
+            box = self.crop_box(pc.center, shown.shape)
+            prov = self._provider(controls, shape=shown.shape)
+            _stop_if(cancel)
+            (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
+                                  sensor=self.sensor_for(shown.shape), chain=chain,
+                                  blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")
             name = r.methods[0]
             return {"box": box, "field_deg": r.field_deg,
                     "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
                     "scores": {"sensor": r.scores["sensor"], "restored": r.scores[name]}}
-        return self._cache("photo").get_or((controls.key(), pc), make)
+        return self._cache("photo").get_or((shown.tag, controls.key(), pc), make)
 
     def restoration_lab(self, controls: DesignControls, pc: PhotoControls, method_a: str, method_b: str,
-                        grade: str = "commercial", lens_seed: int = 0) -> dict:
-        """Two restorations of the same noisy crop (``method_a``, ``method_b``: ``NAME[:key=value,...]``), and one
-        manufactured lens (drawn from ``grade`` with ``lens_seed``) restored with the nominal PSFs and with its own:
-        ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``, ``nominal``, ``own``."""
+                        grade: str = "commercial", lens_seed: int = 0, *, photo: ShownPhoto | None = None,
+                        cancel: threading.Event | None = None) -> dict:
+        """Two restorations of the same noisy crop of ``photo`` (the explorer's own by default; ``method_a``,
+        ``method_b``: ``NAME[:key=value,...]``), and one manufactured lens (drawn from ``grade`` with ``lens_seed``)
+        restored with the nominal PSFs and with its own: ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``,
+        ``nominal``, ``own``. ``cancel`` is checked before each of its four simulations (:class:`Cancelled`)."""
         from pipeline.simulate import simulate_crops
 
         self.check_grade(grade)
+        shown = photo or self.shown_photo
 
         def make():
             chain = self._chain(pc)
-            fw = self._full_well(pc, chain)
-            box = self.crop_box(pc.center)
-            nominal = self._provider(controls)
+            fw = self._full_well(pc, chain, shown.shape)
+            box = self.crop_box(pc.center, shown.shape)
+            sensor = self.sensor_for(shown.shape)
+            nominal = self._provider(controls, shape=shown.shape)
+
+            def run(prov, method, restoration_psf=None):
+                _stop_if(cancel)
+                return simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
+                                      chain=chain, restoration_psf=restoration_psf,
+                                      blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")[0]
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
-            ra, rb = (simulate_crops(self._ideal(), nominal, fw, [box], seed=pc.seed, methods=(m,),
-                                     sensor=self.sensor, chain=chain, blur_cache=nominal.blurred,
-                                     blur_zones="auto")[0]
-                      for m in (method_a, method_b))
+            ra, rb = run(nominal, method_a), run(nominal, method_b)
             a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
             sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
-            built = self._built_provider(controls, grade, lens_seed)
-            runs = {tag: simulate_crops(self._ideal(), built, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                        sensor=self.sensor, chain=chain, restoration_psf=prov,
-                                        blur_cache=built.blurred, blur_zones="auto")[0]
-                    for tag, prov in (("nominal", nominal), ("own", built))}
+            _stop_if(cancel)
+            built = self._built_provider(controls, grade, lens_seed, shown.shape)
+            runs = {tag: run(built, pc.restore, prov) for tag, prov in (("nominal", nominal), ("own", built))}
             out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
             for tag, r in runs.items():
                 m = r.methods[0]
                 out["png"][tag], out["scores"][tag] = _png(r.images[m]), r.scores[m]
             return out
-        return self._cache("lab").get_or((controls.key(), pc, method_a, method_b, grade, lens_seed), make)
+        return self._cache("lab").get_or((shown.tag, controls.key(), pc, method_a, method_b, grade, lens_seed), make)
 
 
-def command_line(photo: str | None, controls, pc: PhotoControls, explorer: Explorer) -> str:
-    """The ``lenssim simulate`` command that reproduces the photo panel (its crop, centred at the same pixel)."""
+def command_line(photo: str | None, controls, pc: PhotoControls, explorer: Explorer, shape=None) -> str:
+    """The ``lenssim simulate`` command that reproduces the photo panel (its crop, centred at the same pixel, on a
+    photo of ``shape``: the explorer's own by default)."""
     import shlex
 
-    box = explorer.crop_box(pc.center)
+    box = explorer.crop_box(pc.center, shape)
     size = box[1] - box[0]
     parts = ["lenssim", "simulate"] + ([photo] if photo else []) + explorer.design_arguments(controls)
     parts += (["--iso", str(pc.iso)] if pc.full_well is None else ["--full-well", f"{pc.full_well:g}"])

@@ -283,12 +283,12 @@ class LensExplorer(Explorer):
         raise ValueError("--sweep is a sweep of the paper's singlet: a lens's map is computed by the explorer")
 
     # ---- photo -----------------------------------------------------------------------------------------------------
-    def _photo_field(self) -> tuple[float, float]:
-        """The photo's pixel pitch (um) and the largest field angle its blur asks PSFs at (deg), as ``lenssim simulate
-        --lens`` takes them."""
+    def _photo_field(self, shape=None) -> tuple[float, float]:
+        """The pixel pitch (um) of a photo of ``shape`` (the explorer's own by default) and the largest field angle its
+        blur asks PSFs at (deg), as ``lenssim simulate --lens`` takes them."""
         from pipeline.blur import PAPER_SCHEME
 
-        shape = self.photo_shape
+        shape = tuple(self.photo_shape if shape is None else shape)
         return self._cache("field").get_or(tuple(shape), lambda: photo_field(
             self.prescription, self._nominal(), shape, pitch_um=self.pixel_pitch_um, margin_px=PAPER_SCHEME.core))
 
@@ -299,20 +299,29 @@ class LensExplorer(Explorer):
 
     @property
     def sensor(self):
+        return self.sensor_for(self.photo_shape)
+
+    def sensor_for(self, shape):
+        """The sensor a photo of ``shape`` is simulated on: the paper's noise and ISO table, the photo's pixels at
+        :meth:`_photo_field`'s pitch."""
         from lenssim_studies.paper import PAPER_CAMERA
 
-        H, W = self.photo_shape[-2:]
-        return replace(PAPER_CAMERA.sensor, pixel_pitch_um=self._photo_field()[0], width_px=int(W), height_px=int(H))
+        H, W = shape[-2:]
+        return replace(PAPER_CAMERA.sensor, pixel_pitch_um=self._photo_field(shape)[0], width_px=int(W),
+                       height_px=int(H))
 
-    def _provider(self, controls: LensControls, lens=None):
-        """The PSFs of the design (or of the manufactured ``lens``, a SequentialLens) over the photo."""
+    def _provider(self, controls: LensControls, lens=None, shape=None):
+        """The PSFs of the design (or of the manufactured ``lens``, a SequentialLens) over a photo of ``shape`` (the
+        explorer's own by default)."""
+        shape = tuple(self.photo_shape if shape is None else shape)
+
         def make():
             q, seq = self.check(controls)
-            pitch, amax = self._photo_field()
-            H, W = self.photo_shape[-2:]
+            pitch, amax = self._photo_field(shape)
+            H, W = shape[-2:]
             return _CachedPSF(sequential_provider(q, seq if lens is None else lens, pitch_um=pitch, sampling="area",
                                                   max_field_deg=amax, width_px=int(W), height_px=int(H)))
-        key = controls.key() + (tuple(self.photo_shape), None if lens is None else lens.cache_key())
+        key = controls.key() + (shape, None if lens is None else lens.cache_key())
         return self._cache("psf").get_or(key, make)
 
     def check_grade(self, grade: str) -> None:
@@ -320,7 +329,7 @@ class LensExplorer(Explorer):
 
         surface_grade(grade)
 
-    def _built_provider(self, controls: LensControls, grade: str, lens_seed: int):
+    def _built_provider(self, controls: LensControls, grade: str, lens_seed: int, shape=None):
         from lenssim.model.surface_tolerances import surface_grade
         from lenssim.sequential_tolerance import manufactured_lens
 
@@ -328,7 +337,7 @@ class LensExplorer(Explorer):
         centred = replace(surface_grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,
                           element_decentre_um=0.0, element_tilt_arcmin=0.0)
         pert = centred.sample(q, 1, seed=int(lens_seed))
-        return self._provider(controls, manufactured_lens(seq, pert, 0))
+        return self._provider(controls, manufactured_lens(seq, pert, 0), shape)
 
     # ---- export ---------------------------------------------------------------------------------------------------
     def is_file_design(self, controls: LensControls) -> bool:

@@ -141,10 +141,13 @@ def test_the_page_on_a_lens_without_a_browser(explorer, tmp_path):
 
     app = build_app(explorer, "skimage:astronaut")
     assert {"E1.bending", "S2.conic"} <= set(app.widgets) and not app.widgets["glass"].visible
+    fig = app.panes["map"]  # the axes: the ranges given by --vary
+    assert (fig.x_range.start, fig.x_range.end, fig.y_range.start, fig.y_range.end) == (-1.0, 0.0, -10.0, 0.0)
     before = app.panes["criteria"].object
     assert "EFL [mm]" in before
     app.actions["map_tap"](SimpleNamespace(x=-0.51, y=-4.96))
     assert (app.widgets["E1.bending"].value, app.widgets["S2.conic"].value) == (-0.5, -5.0)
+    assert app.panes["selected"].data == {"x": [-0.5], "y": [-5.0]}
     assert app.panes["criteria"].object != before
     assert f"--lens {LENS_EXPORT_FILE}" in app.panes["command"].object
     toml = app.exports[1]._callback().read().decode() if hasattr(app.exports[1], "_callback") else \
