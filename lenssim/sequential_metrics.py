@@ -187,8 +187,8 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     geo = psf.geometry
     rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
     cols = torch.zeros_like(rows)
-    _grid_size(psf, psf.estimated_extent_px(), numerics)  # from a few rays, before the wavefront table (minutes for a
-    # lens far out of focus)
+    # the grid and its FFT from a few rays, before the wavefront table (minutes for a lens far out of focus)
+    psf.check_fft_size(_grid_size(psf, psf.estimated_extent_px(), numerics))
     support = int(psf.extents_px(rows, cols, (0.0, 0.0)).max())
     if reference is not None:
         _check_reference(psf, reference, alpha)
