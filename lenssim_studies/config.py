@@ -23,7 +23,7 @@ from lenssim.model.lens import Lens, LensError
 from lenssim.model.numerics import DEFAULT_NUMERICS, Numerics
 from lenssim.model.sensor import Sensor
 from lenssim.model.spectrum import Spectrum
-from lenssim.validate import ResourceLimitError, check_memory, check_real
+from lenssim.validate import ResourceLimitError, check_memory, check_real, listed, quoted
 
 from .paper import PAPER_CAMERA, PAPER_GRID, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM
 
@@ -100,12 +100,12 @@ class SweepConfig:
             f = dict(self.focus)
             bad = set(f) - {"criterion", "snr_db", "bounds_um", "tol_um"}
             if bad:
-                raise ValueError(f"[focus]: unknown key(s) {sorted(bad)}; allowed: criterion, snr_db, bounds_um, tol_um")
+                raise ValueError(f"[focus]: unknown key(s) {listed(sorted(bad))}; allowed: criterion, snr_db, bounds_um, tol_um")
             if "focus_shift_um" in grid or "focus_shift_um" in self.fixed:
                 raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
             crit = f.get("criterion", "mse_r")
             if crit not in lens_criteria():
-                raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(lens_criteria())}")
+                raise ValueError(f"[focus] criterion {quoted(crit)} is not known; valid: {listed(lens_criteria(), near=[crit])}")
             object.__setattr__(self, "focus", {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
                           "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
                           "tol_um": float(f.get("tol_um", 1.0))})
@@ -217,7 +217,8 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
     sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "channels", "grid", "fixed", "numerics",
                                             "focus")}
     if raw:
-        raise ValueError(f"{where}: unknown section(s) {sorted(raw)}; allowed: {', '.join(f'[{k}]' for k in sections)}")
+        raise ValueError(f"{where}: unknown section(s) {listed(sorted(raw))}; allowed: "
+                         f"{listed((f'[{k}]' for k in sections), near=[f'[{k}]' for k in sorted(raw)])}")
     lens_kw, grid, numerics = dict(sections["lens"]), dict(sections["grid"]), dict(sections["numerics"])
     try:
         spectrum = Spectrum(**sections["spectrum"]) if sections["spectrum"] else None
@@ -237,7 +238,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             bad = set(ch) - {"camera", "illuminant", "per_channel"}
             if bad or "camera" not in ch:
                 raise ValueError(f"[channels]: give camera (and optionally illuminant, per_channel); unknown key(s) "
-                                 f"{sorted(bad)}" if bad else "[channels]: camera = NAME is missing")
+                                 f"{listed(sorted(bad))}" if bad else "[channels]: camera = NAME is missing")
             channels = channel_spectra(**ch)
         camera = Camera(paper_lens_with(lens_kw), paper_sensor_with(sensor_kw), spectrum or PAPER_SPECTRUM,
                         channels=channels)
@@ -255,11 +256,11 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             raise ValueError(f"{where} [grid]: {exc}; or snr_db") from None
         v = grid[key]
         if not (isinstance(v, list) and len(v) == 3):
-            raise ValueError(f"{where} [grid] {key}={v!r} is not allowed: [start, stop, step]")
+            raise ValueError(f"{where} [grid] {key}={quoted(v)} is not allowed: [start, stop, step]")
     bad = set(numerics) - set(_NUMERICS_KEYS) - {"rho0", "psd_model"}
     if bad:
-        raise ValueError(f"{where} [numerics]: unknown key(s) {sorted(bad)}; allowed: "
-                         f"{sorted(set(_NUMERICS_KEYS) | {'rho0', 'psd_model'})}")
+        raise ValueError(f"{where} [numerics]: unknown key(s) {listed(sorted(bad))}; allowed: "
+                         f"{listed(sorted(set(_NUMERICS_KEYS) | {'rho0', 'psd_model'}), near=sorted(bad))}")
     for k in ("rho0", "psd_model"):
         if k in numerics:
             kw[k] = numerics.pop(k)
