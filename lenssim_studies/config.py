@@ -54,6 +54,13 @@ def grid_values(start: float, stop: float, step: float) -> np.ndarray:
     return np.round(start + step * np.arange(grid_count(start, stop, step)), 10)
 
 
+def _numbers(name: str, v, allowed: str) -> tuple[float, ...]:
+    """``v`` (a list of finite numbers) as a tuple of floats; ``ValueError`` naming ``name`` and ``allowed``."""
+    if not isinstance(v, (list, tuple)):
+        raise ValueError(f"{name}={quoted(v)} is not allowed: a list of numbers ({allowed})")
+    return tuple(check_real(name, x) for x in v)
+
+
 @dataclass(frozen=True)
 class SweepConfig:
     """A sweep: camera, grid ``{parameter: (start, stop, step)}``, SNRs (dB), image model, numerics."""
@@ -93,7 +100,9 @@ class SweepConfig:
                 raise ValueError(f"design parameter {name} is both fixed and gridded (or fixed twice)")
             fixed[name] = check_real(f"fixed {name}", v)
         object.__setattr__(self, "fixed", fixed)
-        object.__setattr__(self, "snr_db", tuple(float(x) for x in self.snr_db))
+        object.__setattr__(self, "snr_db", _numbers("snr_db", self.snr_db, "SNRs in dB"))
+        if not self.snr_db:
+            raise ValueError("snr_db=[] is not allowed: at least one SNR in dB")
         if self.focus is not None:
             from lenssim.focus import FOCUS_BOUNDS_UM
 
@@ -104,11 +113,15 @@ class SweepConfig:
             if "focus_shift_um" in grid or "focus_shift_um" in self.fixed:
                 raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
             crit = f.get("criterion", "mse_r")
-            if crit not in lens_criteria():
-                raise ValueError(f"[focus] criterion {quoted(crit)} is not known; valid: {listed(lens_criteria(), near=[crit])}")
-            object.__setattr__(self, "focus", {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
-                          "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
-                          "tol_um": float(f.get("tol_um", 1.0))})
+            if not isinstance(crit, str) or crit not in lens_criteria():
+                raise ValueError(f"[focus] criterion {quoted(crit)} is not known; valid: "
+                                 f"{listed(lens_criteria(), near=[str(crit)])}")
+            bounds = _numbers("[focus] bounds_um", f.get("bounds_um", FOCUS_BOUNDS_UM), "[low, high] in um")
+            if len(bounds) != 2 or not bounds[0] < bounds[1]:
+                raise ValueError(f"[focus] bounds_um={quoted(list(bounds))} is not allowed: [low, high] in um, low < high")
+            object.__setattr__(self, "focus", {
+                "criterion": crit, "snr_db": check_real("[focus] snr_db", f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
+                "bounds_um": list(bounds), "tol_um": check_real("[focus] tol_um", f.get("tol_um", 1.0), 0.0, lo_open=True)})
         if self.psd_model not in PSD_MODELS:
             raise ValueError(f"psd_model={self.psd_model!r} is not allowed: one of {', '.join(PSD_MODELS)}")
 
@@ -248,7 +261,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
         raise ValueError(f"{where}: {exc}") from None
     kw = {}
     if "snr_db" in grid:
-        kw["snr_db"] = tuple(float(x) for x in grid.pop("snr_db"))
+        kw["snr_db"] = grid.pop("snr_db")
     for key in list(grid):
         try:
             parameter_name(key)
