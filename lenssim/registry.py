@@ -26,7 +26,9 @@ class Registry(dict):
     def validate(self, name: str):
         """The entry ``name``; ``ValueError`` listing the valid names otherwise."""
         if name not in self:
-            raise ValueError(f"{self.noun} {name!r} is not known; valid: {', '.join(self)}")
+            from .validate import listed, quoted
+
+            raise ValueError(f"{self.noun} {quoted(name)} is not known; valid: {listed(self, near=[name])}")
         return self[name]
 
 

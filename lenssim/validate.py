@@ -18,7 +18,8 @@ import torch
 __all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "ResumeWarning", "check_real", "check_int", "check_finite",
            "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
            "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED", "check_snr_db", "check_pixel_pitch_um",
-           "PIXEL_PITCH_RANGE_UM", "check_max_fft_size", "OTF_BYTES_PER_SAMPLE", "check_distinct"]
+           "PIXEL_PITCH_RANGE_UM", "check_max_fft_size", "OTF_BYTES_PER_SAMPLE", "check_distinct", "MAX_NAMES_LISTED",
+           "MAX_QUOTED_CHARS", "quoted", "listed"]
 
 SNR_DB_RANGE = (-20.0, 100.0)
 """SNR (dB per pixel) accepted by the criteria: beyond 100 dB the noise variance (1e-10) is below the
@@ -46,6 +47,47 @@ OTF_BYTES_PER_SAMPLE = 24
 MAX_SEED = 2**62
 """Largest random seed a run takes: torch's generators take seeds below 2**64, and runs add offsets to the seed
 (one per crop or lens chunk), so a margin is left below that."""
+
+
+MAX_NAMES_LISTED = 5
+"""Names one message lists (unknown keys or sections, the allowed ones, ...): the first few and how many more, so
+that a file of a million unknown keys is refused in one short line."""
+
+MAX_QUOTED_CHARS = 40
+"""Characters of one name or value from the user's input that a message quotes: a longer one (a key of a megabyte)
+shows its start, ``...`` and its length."""
+
+
+def quoted(value, *, limit: int = MAX_QUOTED_CHARS) -> str:
+    """``repr(value)`` for a message, of at most ``limit`` characters (of a string) or ``limit`` characters of its
+    ``repr`` (anything else): a longer one is cut, with its length, e.g.
+    ``'aaaaaaaa...' (5000 characters)``. Control characters and quotes are escaped (``repr``), so the message
+    stays on one line."""
+    if isinstance(value, str):
+        return repr(value) if len(value) <= limit else f"{value[:limit]!r}... ({len(value)} characters)"
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def listed(names, *, limit: int = MAX_NAMES_LISTED, near=(), quote: bool = False) -> str:
+    """Names for a message, e.g. ``a, b, c, d, e and 1995 more``: at most ``limit`` of them, each at most
+    :data:`MAX_QUOTED_CHARS` long (``quote``: as :func:`quoted` writes them, else bare unless too long). The names
+    closest to the first few of ``near`` (the unknown ones a user gave, say) come first, so that a list of the
+    allowed names cut short still shows what was meant."""
+    import difflib
+
+    names = [str(n) for n in names]
+    if near:
+        close = []
+        for n in list(near)[:limit]:
+            close += [c for c in difflib.get_close_matches(str(n)[:MAX_QUOTED_CHARS], names, n=2) if c not in close]
+        names = close + [n for n in names if n not in close]
+
+    def one(n):
+        return quoted(n) if quote or len(n) > MAX_QUOTED_CHARS else n
+
+    shown = ", ".join(one(n) for n in names[:limit]) or "none"
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
 class ResourceLimitError(ValueError):

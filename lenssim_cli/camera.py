@@ -140,8 +140,10 @@ def _iso_well(sensor, iso, args) -> float:
     try:
         return sensor.full_well_for_iso(iso)
     except ValueError:
+        from lenssim.validate import listed
+
         where = f" of --sensor {args.sensor}" if getattr(args, "sensor", None) else ""
-        raise ValueError(f"ISO {iso} is not allowed: one of {', '.join(map(str, sensor.isos))} (the ISO table{where}; "
+        raise ValueError(f"ISO {iso} is not allowed: one of {listed(sensor.isos)} (the ISO table{where}; "
                          "or give --full-well)") from None
 
 
@@ -180,13 +182,12 @@ def _check_size(source, shape) -> None:
 def _load(spec, device, keep_bytes=None):
     """The photo as a :class:`pipeline.photo.Photo` (every pixel checked, kept in memory if it fits, else read
     region by region), on ``device``, and its description."""
-    from tqdm import tqdm
-
+    from lenssim_studies.progress import progress_bar
     from pipeline.photo import PHOTO_KEEP_BYTES, open_photo
 
     info = _header(spec)
-    with tqdm(total=None if info is None else info.height, unit="row", desc=f"checking {spec}", file=sys.stderr,
-              delay=PROGRESS_DELAY_S, mininterval=2.0, leave=False) as bar:  # shown only for a long check
+    with progress_bar(total=None if info is None else info.height, unit="row", desc=f"checking {spec}",
+                      delay=PROGRESS_DELAY_S, leave=False) as bar:  # shown only for a long check
         photo = open_photo(spec, PAPER_CAMERA, keep_bytes=PHOTO_KEEP_BYTES if keep_bytes is None else keep_bytes,
                            progress=bar.update)
     _check_size(photo.source, photo.shape)
@@ -227,10 +228,11 @@ def _angles(args, ideal, size, geometry, preferred, source) -> tuple[float, ...]
 
 
 def _window_bar(desc: str):
-    """A progress bar of windows computed on stderr, shown once the work has run :data:`PROGRESS_DELAY_S`."""
-    from tqdm import tqdm
+    """A progress bar of windows computed, shown once the work has run :data:`PROGRESS_DELAY_S`; its total is set by
+    ``simulate_crops(..., progress_total=bar.reset)`` before the work starts."""
+    from lenssim_studies.progress import progress_bar
 
-    return tqdm(unit="window", desc=desc, file=sys.stderr, delay=PROGRESS_DELAY_S, mininterval=2.0, leave=False)
+    return progress_bar(total=None, unit="window", desc=desc, delay=PROGRESS_DELAY_S, leave=False)
 
 
 def _check_photo_shape(args, shape, source, psf) -> None:
@@ -408,7 +410,7 @@ def cmd_simulate(args) -> int:
             with _window_bar("blur + restore crops") as bar:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                          blur_zones=args.zones,
-                                         sensor=_sensor(psf), progress=bar.update, chain=chain)
+                                         sensor=_sensor(psf), progress=bar.update, progress_total=bar.reset, chain=chain)
         report["crops"] = []
         for i, (a, r) in enumerate(zip(angles, results)):
             asked = {"requested_deg": a} if not getattr(args, "at_pixels", None) else \
@@ -608,8 +610,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     (``restored_calibrated``); the checkpoint's stamp holds the lens, so no other lens's sensor image is resumed."""
     import shutil
 
-    from tqdm import tqdm
-
+    from lenssim_studies.progress import progress_bar
     from pipeline.blur import window_count
     from pipeline.field_map import plot_field_psnr
     from pipeline.simulate import crops_from_frame, score_frame, simulate_frame
@@ -619,7 +620,7 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     checkpoint = out / ".checkpoint"
     passes = 1 if restorers is None else len(restorers)
     total = passes * n + window_count(ideal.shape, scheme, zones=args.zones)
-    with tqdm(total=total, unit="window", desc="blur + restore", file=sys.stderr, mininterval=2.0) as bar:
+    with progress_bar(total=total, unit="window", desc="blur + restore") as bar:
         frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update, blur_zones=args.zones,
                                checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers,
                                chain=args.chain)
@@ -703,10 +704,12 @@ def cmd_psnr_table(args) -> int:
     lenses = each_lens(args)
     if args.designs is None:  # the paper's designs, unless only lenses are asked for
         args.designs = [] if lenses else list(PAPER_DESIGNS)
+    from lenssim.validate import listed, quoted
+
     named = designs(args.designs_file)
     for d in args.designs:
         if d not in named:
-            raise ValueError(f"design {d!r} is not known; choose from {', '.join(sorted(named))}")
+            raise ValueError(f"design {quoted(d)} is not known; choose from {listed(sorted(named), near=[d])}")
     camera = PAPER_CAMERA
     wells = [_iso_well(table, i, args) for i in args.isos]
     from pipeline.restoration import parse_restoration
@@ -756,6 +759,7 @@ def cmd_psnr_table(args) -> int:
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
                                          sensor=camera.sensor, restoration_psf=nominal, progress=bar.update,
+                                         progress_total=bar.reset,
                                          chain=chain, blur_zones="auto")
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
                                                                   methods=(spec,), sensor=camera.sensor, chain=chain,
@@ -777,7 +781,7 @@ def cmd_psnr_table(args) -> int:
             name = lens_label(ns)
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,), sensor=psf.sensor,
-                                         progress=bar.update, chain=chain, blur_zones="auto")
+                                         progress=bar.update, progress_total=bar.reset, chain=chain, blur_zones="auto")
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, "lens_file": ns.lens,

@@ -7,6 +7,7 @@ import dataclasses
 
 from lenssim import PARAMETERS, Design
 from lenssim.torch_utils import DEVICE_CHOICES
+from lenssim.validate import listed, quoted
 
 __all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
            "add_camera_arguments", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args",
@@ -120,7 +121,8 @@ def design_from_args(args, *, name: str = "custom") -> Design:
     if getattr(args, "design", None) is not None:
         table_ = designs(getattr(args, "designs", None))
         if args.design not in table_:
-            raise ValueError(f"design {args.design!r} is not known; choose from {', '.join(sorted(table_))}")
+            raise ValueError(f"design {quoted(args.design)} is not known; choose from "
+                             f"{listed(sorted(table_), near=[args.design])}")
         d = table_[args.design]
         return d.replace(**given) if given else d
     if not given:
@@ -206,7 +208,7 @@ def graded_tolerances(args, grade, from_dict):
     unknown = sorted(set(table) - {"tolerances"})
     if unknown or "tolerances" not in table:
         raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
-                         + (f"; unknown table(s) {unknown}" if unknown else ""))
+                         + (f"; unknown table(s) {listed(unknown)}" if unknown else ""))
     return from_dict({"grade": name, **table["tolerances"]})
 
 

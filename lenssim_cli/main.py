@@ -57,8 +57,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+MAX_MESSAGE_CHARS = 1000
+"""The longest error or warning line printed (characters): the net under every message, whose own wording keeps to
+a few names and short quotes (:func:`lenssim.validate.listed`, :func:`lenssim.validate.quoted`); a longer one keeps
+its start and its end (what is allowed) and says how much was left out."""
+
+
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if len(text) <= MAX_MESSAGE_CHARS:
+        return text
+    head, tail = MAX_MESSAGE_CHARS * 2 // 3, MAX_MESSAGE_CHARS // 4
+    return f"{text[:head]} [... {len(text) - head - tail} characters left out ...] {text[-tail:]}"
 
 
 SYMLINK_LOOP = re.compile(r"^Symlink loop from (.*)$", re.DOTALL)

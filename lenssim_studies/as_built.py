@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -158,14 +157,14 @@ def as_built_study(study: AsBuiltStudy, out, *, reference: Design | None = None,
     """Run (or resume) the study into ``out``; returns its results (also ``as_built.json``, ``report.md`` and the
     figure ``fig6_as_built.png/.svg``). ``reference``: the nominal end-to-end design the robust optimum is compared
     with (default: the best nominal MSE_R over the levels)."""
-    from tqdm import tqdm
+    from .progress import progress_bar
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     log(f"nominal optima on {len(study.levels)} iso-cost levels")
     opt = nominal_optima(study, log)
-    bar = tqdm(total=len(opt) * len(STRATEGIES), unit="design", disable=not show_progress, file=sys.stderr,
-               desc=f"as-built ({study.n_lenses} lenses per design)")
+    bar = progress_bar(total=len(opt) * len(STRATEGIES), unit="design", show=show_progress,
+                       desc=f"as-built ({study.n_lenses} lenses per design)")
     table = []
     for row in opt:
         for k in STRATEGIES:
@@ -189,11 +188,14 @@ def as_built_study(study: AsBuiltStudy, out, *, reference: Design | None = None,
             cand.append((row["level"], float(row["s"][i]), float(row["Q_back"][i]), float(row["values"]["mse_r"][i])))
     log(f"robust search: {len(cand)} designs around C_a = {e2e[best_level]['level']:.1e}")
     robust = []
-    for level, s, q, nom in tqdm(cand, unit="design", disable=not show_progress, file=sys.stderr, desc="robust"):
+    bar = progress_bar(total=len(cand), unit="design", show=show_progress, desc="robust")
+    for level, s, q, nom in cand:
         mc = as_built_design(study, s, q, out)
+        bar.update(1)
         robust.append({"level": level, "s": s, "Q_back": q, "nominal_mse_r": nom,
                        "nominal_restoration": _stats(mc["mse_r_nominal"], study.seed),
                        "calibrated": _stats(mc["mse_r"], study.seed)})
+    bar.close()
     if reference is None:
         ref_row = min(e2e, key=lambda t: t["nominal_mse_r"])
         reference = Design(s=ref_row["s"], Q_back=ref_row["Q_back"])

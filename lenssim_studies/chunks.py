@@ -63,12 +63,11 @@ def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight,
     ``weight(i)``: chunk ``i``'s share of the progress bar (``desc``, on stderr, counted in ``unit``). With ``max_chunks`` at most
     that many are computed; if any are left, None. ``kind`` names the chunks in messages ("sweep", "tolerance").
     """
-    import sys
     import warnings
 
-    from tqdm import tqdm
-
     from lenssim.validate import ResumeWarning
+
+    from .progress import progress_bar
 
     for i, p in enumerate(paths):
         if p.exists():
@@ -78,7 +77,7 @@ def resume_chunks(paths: list[Path], *, kind: str, read, write, compute, weight,
                 p.unlink()
     total = sum(weight(i) for i in range(len(paths)))
     done = sum(weight(i) for i, p in enumerate(paths) if p.exists())
-    bar = tqdm(total=total, initial=done, unit=unit, disable=not show_progress, file=sys.stderr, desc=desc)
+    bar = progress_bar(total=total, initial=done, unit=unit, show=show_progress, desc=desc)
     todo = [i for i, p in enumerate(paths) if not p.exists()]
     stopped = max_chunks is not None and len(todo) > max_chunks
     todo = todo[:max_chunks] if max_chunks is not None else todo

@@ -23,7 +23,7 @@ from lenssim.model.lens import Lens, LensError
 from lenssim.model.numerics import DEFAULT_NUMERICS, Numerics
 from lenssim.model.sensor import Sensor
 from lenssim.model.spectrum import Spectrum
-from lenssim.validate import ResourceLimitError, check_memory, check_real
+from lenssim.validate import ResourceLimitError, check_memory, check_real, listed, quoted
 
 from .paper import PAPER_CAMERA, PAPER_GRID, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM
 
@@ -52,6 +52,13 @@ def grid_count(start: float, stop: float, step: float) -> int:
 def grid_values(start: float, stop: float, step: float) -> np.ndarray:
     """``start, start + step, ...`` up to ``stop`` inclusive (to 1e-9 of a step), rounded to 10 digits."""
     return np.round(start + step * np.arange(grid_count(start, stop, step)), 10)
+
+
+def _numbers(name: str, v, allowed: str) -> tuple[float, ...]:
+    """``v`` (a list of finite numbers) as a tuple of floats; ``ValueError`` naming ``name`` and ``allowed``."""
+    if not isinstance(v, (list, tuple)):
+        raise ValueError(f"{name}={quoted(v)} is not allowed: a list of numbers ({allowed})")
+    return tuple(check_real(name, x) for x in v)
 
 
 @dataclass(frozen=True)
@@ -93,22 +100,28 @@ class SweepConfig:
                 raise ValueError(f"design parameter {name} is both fixed and gridded (or fixed twice)")
             fixed[name] = check_real(f"fixed {name}", v)
         object.__setattr__(self, "fixed", fixed)
-        object.__setattr__(self, "snr_db", tuple(float(x) for x in self.snr_db))
+        object.__setattr__(self, "snr_db", _numbers("snr_db", self.snr_db, "SNRs in dB"))
+        if not self.snr_db:
+            raise ValueError("snr_db=[] is not allowed: at least one SNR in dB")
         if self.focus is not None:
             from lenssim.focus import FOCUS_BOUNDS_UM
 
             f = dict(self.focus)
             bad = set(f) - {"criterion", "snr_db", "bounds_um", "tol_um"}
             if bad:
-                raise ValueError(f"[focus]: unknown key(s) {sorted(bad)}; allowed: criterion, snr_db, bounds_um, tol_um")
+                raise ValueError(f"[focus]: unknown key(s) {listed(sorted(bad))}; allowed: criterion, snr_db, bounds_um, tol_um")
             if "focus_shift_um" in grid or "focus_shift_um" in self.fixed:
                 raise ValueError("focus_shift_um is both gridded and optimised: keep [grid] or [focus]")
             crit = f.get("criterion", "mse_r")
-            if crit not in lens_criteria():
-                raise ValueError(f"[focus] criterion {crit!r} is not known; valid: {', '.join(lens_criteria())}")
-            object.__setattr__(self, "focus", {"criterion": crit, "snr_db": float(f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
-                          "bounds_um": [float(v) for v in f.get("bounds_um", FOCUS_BOUNDS_UM)],
-                          "tol_um": float(f.get("tol_um", 1.0))})
+            if not isinstance(crit, str) or crit not in lens_criteria():
+                raise ValueError(f"[focus] criterion {quoted(crit)} is not known; valid: "
+                                 f"{listed(lens_criteria(), near=[str(crit)])}")
+            bounds = _numbers("[focus] bounds_um", f.get("bounds_um", FOCUS_BOUNDS_UM), "[low, high] in um")
+            if len(bounds) != 2 or not bounds[0] < bounds[1]:
+                raise ValueError(f"[focus] bounds_um={quoted(list(bounds))} is not allowed: [low, high] in um, low < high")
+            object.__setattr__(self, "focus", {
+                "criterion": crit, "snr_db": check_real("[focus] snr_db", f.get("snr_db", self.snr_db[len(self.snr_db) // 2])),
+                "bounds_um": list(bounds), "tol_um": check_real("[focus] tol_um", f.get("tol_um", 1.0), 0.0, lo_open=True)})
         if self.psd_model not in PSD_MODELS:
             raise ValueError(f"psd_model={self.psd_model!r} is not allowed: one of {', '.join(PSD_MODELS)}")
 
@@ -217,7 +230,8 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
     sections = {k: raw.pop(k, {}) for k in ("lens", "sensor", "spectrum", "channels", "grid", "fixed", "numerics",
                                             "focus")}
     if raw:
-        raise ValueError(f"{where}: unknown section(s) {sorted(raw)}; allowed: {', '.join(f'[{k}]' for k in sections)}")
+        raise ValueError(f"{where}: unknown section(s) {listed(sorted(raw))}; allowed: "
+                         f"{listed((f'[{k}]' for k in sections), near=[f'[{k}]' for k in sorted(raw)])}")
     lens_kw, grid, numerics = dict(sections["lens"]), dict(sections["grid"]), dict(sections["numerics"])
     try:
         spectrum = Spectrum(**sections["spectrum"]) if sections["spectrum"] else None
@@ -237,7 +251,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             bad = set(ch) - {"camera", "illuminant", "per_channel"}
             if bad or "camera" not in ch:
                 raise ValueError(f"[channels]: give camera (and optionally illuminant, per_channel); unknown key(s) "
-                                 f"{sorted(bad)}" if bad else "[channels]: camera = NAME is missing")
+                                 f"{listed(sorted(bad))}" if bad else "[channels]: camera = NAME is missing")
             channels = channel_spectra(**ch)
         camera = Camera(paper_lens_with(lens_kw), paper_sensor_with(sensor_kw), spectrum or PAPER_SPECTRUM,
                         channels=channels)
@@ -247,7 +261,7 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
         raise ValueError(f"{where}: {exc}") from None
     kw = {}
     if "snr_db" in grid:
-        kw["snr_db"] = tuple(float(x) for x in grid.pop("snr_db"))
+        kw["snr_db"] = grid.pop("snr_db")
     for key in list(grid):
         try:
             parameter_name(key)
@@ -255,11 +269,11 @@ def load_config(path: str | os.PathLike) -> SweepConfig:
             raise ValueError(f"{where} [grid]: {exc}; or snr_db") from None
         v = grid[key]
         if not (isinstance(v, list) and len(v) == 3):
-            raise ValueError(f"{where} [grid] {key}={v!r} is not allowed: [start, stop, step]")
+            raise ValueError(f"{where} [grid] {key}={quoted(v)} is not allowed: [start, stop, step]")
     bad = set(numerics) - set(_NUMERICS_KEYS) - {"rho0", "psd_model"}
     if bad:
-        raise ValueError(f"{where} [numerics]: unknown key(s) {sorted(bad)}; allowed: "
-                         f"{sorted(set(_NUMERICS_KEYS) | {'rho0', 'psd_model'})}")
+        raise ValueError(f"{where} [numerics]: unknown key(s) {listed(sorted(bad))}; allowed: "
+                         f"{listed(sorted(set(_NUMERICS_KEYS) | {'rho0', 'psd_model'}), near=sorted(bad))}")
     for k in ("rho0", "psd_model"):
         if k in numerics:
             kw[k] = numerics.pop(k)

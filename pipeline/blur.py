@@ -119,13 +119,14 @@ def scheme_positions(length: int, scheme: WindowScheme, center: float) -> torch.
     return axis_positions(length, scheme.stride, scheme.core, center)
 
 
-def window_count(shape, scheme: WindowScheme | None = None, optical_center=None, zones=None) -> int:
+def window_count(shape, scheme: WindowScheme | None = None, optical_center=None, zones=None, region=None) -> int:
     """Number of windows over an image of ``shape`` ``(..., H, W)`` (one pass of :func:`apply_windowed`; with
-    ``zones``, a blur zoned by :class:`StrideZones`)."""
+    ``zones``, a blur zoned by :class:`StrideZones`; with ``region`` ``(r0, r1, c0, c1)``, the windows whose cores
+    touch it, as a pass over that region only)."""
     scheme = scheme or PAPER_SCHEME
     cy, cx = optical_center if optical_center is not None else frame_center(shape)
-    if zones is not None and not zones.uniform:
-        return int(_zoned_positions(shape, scheme, (cy, cx), None, zones)[0].numel())
+    if region is not None or (zones is not None and not zones.uniform):
+        return int(_zoned_positions(shape, scheme, (cy, cx), region, zones)[0].numel())
     return len(scheme_positions(shape[-2], scheme, cy)) * len(scheme_positions(shape[-1], scheme, cx))
 
 

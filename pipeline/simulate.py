@@ -193,7 +193,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
                    sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
                    restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None,
-                   blur_cache: dict | None = None, blur_zones: StrideZones | str | None = None):
+                   blur_cache: dict | None = None, blur_zones: StrideZones | str | None = None, progress_total=None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
     where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
@@ -218,6 +218,9 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
 
     ``blur_zones``: the blur's windows coarser where the PSF varies slowly (:class:`pipeline.blur.StrideZones`, or
     ``"auto"``: :func:`pipeline.blur.choose_stride_zones` for the frame; None: the scheme's stride everywhere).
+
+    ``progress(k)`` is called after each ``k`` windows blurred or restored; ``progress_total(n)`` (optional) once,
+    before any work, with the number ``n`` of windows they will add up to (a progress bar's total).
     """
     if isinstance(ideal, Photo):  # read region by region (a photo too large to keep decodes only what it needs)
         shape, peak, read, out_dtype = ideal.shape, ideal.peak, ideal.region, ideal.dtype
@@ -273,25 +276,31 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
             raise ValueError(f"the PSF at the crop {(r0, r1, c0, c1)} spans about {support} px, more than the {W} x {H} "
                              "px frame: nothing of the scene would remain resolved (give a sharper design, or a "
                              "larger photo)")
-    margins = [crop_margin(*box) for box in boxes]
-    out = [[] for _ in wells]
-    for k, (r0, r1, c0, c1) in enumerate(boxes):
-        margin = margins[k]
+    plans = []  # per box: the sub-array read, the blur region in it, the crop in it, its optical centre, the zones
+    for box, margin in zip(boxes, (crop_margin(*box) for box in boxes)):
+        r0, r1, c0, c1 = box
         R0, R1, C0, C1 = max(r0 - 2 * margin, 0), min(r1 + 2 * margin, H), max(c0 - 2 * margin, 0), min(c1 + 2 * margin, W)
-        sub = read(R0, R1, C0, C1).to(dtype)
-        oc = (centre[0] - R0, centre[1] - C0)
         br = (max(r0 - margin, R0) - R0, min(r1 + margin, R1) - R0, max(c0 - margin, C0) - C0, min(c1 + margin, C1) - C0)
+        key = blur_key + ((R0, R1, C0, C1), br)
+        cached = blur_cache is not None and (key in blur_cache or any(key == p[4] for p in plans))
+        z = zones if blur_zones != "auto" else "auto" if cached else resolve_blur_zones(  # over this crop's blur
+            "auto", psf, shape, scheme, region=(br[0] + R0, br[1] + R0, br[2] + C0, br[3] + C0))  # region only
+        plans.append(((R0, R1, C0, C1), br, (r0 - R0, r1 - R0, c0 - C0, c1 - C0), (centre[0] - R0, centre[1] - C0),
+                       key, z, not cached))
+    if progress_total is not None:
+        progress_total(_crop_windows(plans, scheme, len(wells) * len(specs), chain))
+    out = [[] for _ in wells]
+    for k, ((r0, r1, c0, c1), ((R0, R1, C0, C1), br, rr, oc, key, z, _)) in enumerate(zip(boxes, plans)):
+        sub = read(R0, R1, C0, C1).to(dtype)
         if chain is not None:
             sub = chain.scene_to_camera(sub)
-        key = blur_key + ((R0, R1, C0, C1), br)
         blurred = None if blur_cache is None else blur_cache.get(key)
         if blurred is None:
-            z = zones if blur_zones != "auto" else resolve_blur_zones(  # over this crop's blur region only
-                "auto", psf, shape, scheme, region=(br[0] + R0, br[1] + R0, br[2] + C0, br[3] + C0))
+            if isinstance(z, str):  # "auto", cached when planned and gone since: its zones chosen now
+                z = resolve_blur_zones("auto", psf, shape, scheme, region=(br[0] + R0, br[1] + R0, br[2] + C0, br[3] + C0))
             blurred = blur_windowed(sub, psf, scheme=scheme, optical_center=oc, region=br, progress=progress, zones=z)
             if blur_cache is not None:
                 blur_cache[key] = blurred
-        rr = (r0 - R0, r1 - R0, c0 - C0, c1 - C0)
         crop = lambda t: t[..., rr[0]:rr[1], rr[2]:rr[3]].to(out_dtype)  # noqa: E731
         ci = crop(sub)
         field_deg = psf.geometry.box_field_angle(shape, (r0, r1, c0, c1))
@@ -317,6 +326,41 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     return out if several else out[0]
 
 
+def _crop_windows(plans, scheme: WindowScheme, restorations: int, chain: CameraChain | None) -> int:
+    """The windows :func:`simulate_crops` will blur and restore for its ``plans`` (its ``progress`` adds up to this):
+    each box's blur region (unless its blur is cached), and ``restorations`` times (full wells x methods) its crop, in
+    the sub-array's pixels, in the camera chain's developed region, or in each of its four CFA planes
+    (:meth:`pipeline.camera_chain.CameraChain.develop`, :func:`_chain_restorer`)."""
+    n = 0
+    for (R0, R1, C0, C1), br, rr, oc, key, z, blurs in plans:
+        shape = (R1 - R0, C1 - C0)
+        if blurs:
+            n += window_count(shape, scheme, oc, zones=z, region=br)
+        if chain is None:
+            n += restorations * window_count(shape, scheme, oc, region=rr)
+            continue
+        h, w = br[1] - br[0], br[3] - br[2]
+        ocb = (oc[0] - br[0], oc[1] - br[2])
+        rb = (rr[0] - br[0], rr[1] - br[0], rr[2] - br[2], rr[3] - br[2])
+        if chain.restore_on != "mosaic":
+            n += restorations * window_count((h, w), scheme, ocb, region=rb)
+            continue
+        for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
+            ph, pw = (h - dy + 1) // 2, (w - dx + 1) // 2
+            n += restorations * window_count((ph, pw), scheme, ((ocb[0] - dy) / 2, (ocb[1] - dx) / 2),
+                                             region=_plane_region(rb, dy, dx, ph, pw))
+    return n
+
+
+def _plane_region(region, dy: int, dx: int, h: int, w: int):
+    """The rows and columns ``region`` ``(r0, r1, c0, c1)`` of a frame covers in its CFA plane of offsets ``(dy, dx)``
+    (``h`` x ``w`` plane pixels), a plane pixel of slack each side (which demosaicing reads)."""
+    if region is None:
+        return None
+    return (max(-(-(region[0] - dy) // 2) - 1, 0), min(-(-(region[1] - dy) // 2) + 1, h),
+            max(-(-(region[2] - dx) // 2) - 1, 0), min(-(-(region[3] - dx) // 2) + 1, w))
+
+
 def _with_pixel_aperture(chain: CameraChain | None, psf: PSFProvider) -> PSFProvider:
     """``psf`` integrated over the chain's pixel aperture (its sensor's ``fill_factor``), for the blur and the
     restoration alike; unchanged without one."""
@@ -336,9 +380,7 @@ def _chain_restorer(chain: CameraChain, spec, psf, e: float, var: float, scheme,
             return restore(spec, x.to(dtype), psf, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
                            optical_center=oc, region=region, progress=progress).to(x.dtype)
         dy, dx, c = plane
-        h, w = x.shape[-2:]
-        pr = None if region is None else (max(-(-(region[0] - dy) // 2) - 1, 0), min(-(-(region[1] - dy) // 2) + 1, h),
-                                          max(-(-(region[2] - dx) // 2) - 1, 0), min(-(-(region[3] - dx) // 2) + 1, w))
+        pr = _plane_region(region, dy, dx, *x.shape[-2:])
         pp = PlanePSF(psf, dy, dx, c if psf.channels > 1 else 0)
         return restore(spec, x.to(dtype), pp, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
                        optical_center=((oc[0] - dy) / 2, (oc[1] - dx) / 2), region=pr, progress=progress).to(x.dtype)
@@ -544,7 +586,8 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
 def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry) -> list[CropResult]:
     """:class:`CropResult` for boxes ``(r0, r1, c0, c1)`` cut from a full-frame :class:`FrameResult`: the restored
     images keyed by the method's name, or ``METHOD@TAG`` per restoration provider of a tagged frame
-    (:meth:`FrameResult.restored_by_method`)."""
+    (:meth:`FrameResult.restored_by_method`), and the frame's raw data under the box (``"raw"``, as
+    :func:`simulate_crops` gives it) when the frame has a camera chain's."""
     out = []
     for box in boxes:
         r0, r1, c0, c1 = box
@@ -552,6 +595,8 @@ def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: F
         ci, cs_ = cut(ideal), cut(frame.sensor)
         res = CropResult(tuple(box), geometry.box_field_angle(ideal.shape, box), {"ideal": ci, "sensor": cs_},
                          {"sensor": _score(ci, cs_)})
+        if frame.raw is not None:
+            res.images["raw"] = cut(frame.raw)
         for kind, img in frame.restored_by_method().items():
             res.images[kind] = cr = cut(img)
             res.scores[kind] = _score(ci, cr)

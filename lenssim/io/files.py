@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -463,24 +464,109 @@ def output_lock(path, *, what: str = "output"):
         fh.close()
 
 
-MAX_TOML_BYTES = 16 * 2**20
-"""The largest TOML file read (settings, tolerances, lens prescriptions are kilobytes); read no further."""
+MAX_TOML_BYTES = 2**20
+"""The largest TOML file read, in bytes (1 MiB): the project's own (lens prescriptions, sensors, sweep configs,
+tolerances, designs, the glass catalogue) are at most a few kilobytes; a larger file is refused before it is
+parsed."""
+
+MAX_TOML_DEPTH = 16
+"""The deepest nesting of tables and arrays a TOML file may have (the top level: 0; ``a = [[1]]``: 2; ``[a.b.c]``:
+3). The project's files nest at most 3 levels (a lens's ``[[surfaces]]`` > surface > an array of coefficients);
+Python's TOML reader recurses once or twice per level (a file nested 5000 deep exhausts the interpreter's stack),
+and the code that reads the tables back walks them recursively too."""
+
+_TOML_STOPS = re.compile(r"[\[\]{}\"'#]")
+"""What the nesting scan of a TOML text stops at: brackets, braces, the start of a string or a comment."""
+_TOML_BASIC = re.compile(r'(?:[^"\\\n]+|\\[^\n])*')
+"""The body of a one-line basic string (``"..."``, backslash escapes); it always matches (linear time)."""
+_TOML_ML_BASIC = re.compile(r'(?:[^"\\]+|\\.|"(?!""))*', re.DOTALL)
+"""The body of a multi-line basic string (``\"\"\"...\"\"\"``): up to the first unescaped three quotes."""
+
+
+def _toml_too_deep(text: str, limit: int) -> bool:
+    """Whether the brackets and braces of the TOML ``text`` (outside its strings and comments) nest deeper than
+    ``limit``: a linear scan, as TOML's own grammar reads strings (the four kinds, escapes, up to two quotes
+    that end a multi-line string) and comments. A string that does not end stops the scan: the TOML reader stops
+    with an error there too."""
+    depth, i, n = 0, 0, len(text)
+    while i < n:
+        m = _TOML_STOPS.search(text, i)
+        if m is None:
+            return False
+        i, c = m.start(), m.group()
+        if c in "[{":
+            depth += 1
+            if depth > limit:
+                return True
+            i += 1
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+            i += 1
+        elif c == "#":
+            i = text.find("\n", i)
+            if i < 0:
+                return False
+        elif text.startswith(c * 3, i):  # a multi-line string: it ends at three quotes (and up to two more)
+            j = _TOML_ML_BASIC.match(text, i + 3).end() if c == '"' else text.find(c * 3, i + 3)
+            if j < 0 or not text.startswith(c * 3, j):
+                return False
+            i = j + 3
+            for _ in range(2):
+                i += text.startswith(c, i)
+        elif c == '"':
+            j = _TOML_BASIC.match(text, i + 1).end()
+            if not text.startswith('"', j):
+                return False
+            i = j + 1
+        else:  # a literal string: no escapes, one line
+            j = text.find("'", i + 1)
+            if j < 0 or "\n" in text[i + 1:j]:
+                return False
+            i = j + 1
+    return False
+
+
+def _toml_depth_exceeds(table: dict, limit: int) -> bool:
+    """Whether the tables and arrays of ``table`` (a parsed TOML file) nest deeper than ``limit``, dotted keys and
+    headers (``[a.b.c]``) counted: an iterative walk."""
+    stack = [(table, 0)]
+    while stack:
+        x, d = stack.pop()
+        if d > limit:
+            return True
+        stack.extend((c, d + 1) for c in (x.values() if isinstance(x, dict) else x) if isinstance(c, (dict, list)))
+    return False
 
 
 def read_toml(path, what: str) -> dict:
-    """The TOML file ``path`` as a dict; ``what`` names it in the errors (:class:`InputFileError` for a file that
-    cannot be read, :func:`check_input_file`; ``ValueError`` for invalid TOML)."""
+    """The TOML file ``path`` as a dict; ``what`` names it in the errors: :class:`InputFileError` for a file that
+    cannot be read (:func:`check_input_file`), ``ValueError`` for one larger than :data:`MAX_TOML_BYTES`, nested
+    deeper than :data:`MAX_TOML_DEPTH` (both checked before it is parsed) or not valid TOML: one line naming the
+    file as the user gave it and what is allowed. The one reader of TOML files of the project."""
     import tomllib
 
     check_input_file(path, what)
+    name = f"{what} {_shown(path)}"
     try:
         with open(path, "rb") as fh:
             raw = fh.read(MAX_TOML_BYTES + 1)
-        if len(raw) > MAX_TOML_BYTES:
-            raise ValueError(f"{what} {str(path)!r} is larger than {MAX_TOML_BYTES // 2**20} MiB: not a settings or lens "
-                             "file (those are a few kilobytes)")
-        return tomllib.loads(raw.decode("utf-8"))
     except OSError as exc:
         raise InputFileError(describe_os_error(exc, path, what)) from None
+    if len(raw) > MAX_TOML_BYTES:
+        most = f"{MAX_TOML_BYTES // 2**20} MiB" if MAX_TOML_BYTES % 2**20 == 0 else f"{MAX_TOML_BYTES} bytes"
+        raise ValueError(f"{name} is larger than {most}: not allowed for a TOML file (the project's lens, sensor, "
+                         "config and tolerance files are a few kilobytes)")
+    too_deep = ValueError(f"{name} nests tables or arrays more than {MAX_TOML_DEPTH} levels deep: not allowed (the "
+                          "project's files nest at most 3)")
+    try:
+        text = raw.decode("utf-8")
+        if _toml_too_deep(text, MAX_TOML_DEPTH):
+            raise too_deep
+        table = tomllib.loads(text)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{what} {str(path)!r} is not valid TOML: {exc}") from None
+        raise ValueError(f"{name} is not valid TOML: {' '.join(str(exc).split())}") from None
+    except RecursionError:  # the scan above should have caught it: the same refusal
+        raise too_deep from None
+    if _toml_depth_exceeds(table, MAX_TOML_DEPTH):
+        raise too_deep
+    return table

@@ -45,6 +45,7 @@ import math
 from pathlib import Path
 
 from ..model.prescription import AIR, Prescription, PrescriptionError, PrescriptionSurface
+from ..validate import listed, quoted
 from .files import InputFileError, atomic_write_text, read_toml
 
 __all__ = ["read_prescription_toml", "write_prescription_toml", "prescription_from_dict", "prescription_toml",
@@ -73,8 +74,8 @@ def _keys(table, allowed: tuple[str, ...], where: str) -> dict:
         raise _Bad(f"{where or 'the file'} must be a table, not {_kind(table)}")
     for k in table:
         if k not in allowed:
-            raise _Bad(f"{where + ': ' if where else ''}unknown key {k!r}{'' if where else ' at the top level'}; "
-                       f"allowed: {', '.join(allowed)}")
+            raise _Bad(f"{where + ': ' if where else ''}unknown key {quoted(k)}{'' if where else ' at the top level'}; "
+                       f"allowed: {listed(allowed, near=[k])}")
     return table
 
 
@@ -84,9 +85,9 @@ def _kind(v) -> str:
 
 def _number(v, where: str, *, allow_inf: bool = False) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise _Bad(f"{where} = {v!r} is not a number")
+        raise _Bad(f"{where} = {quoted(v)} is not a number")
     if math.isnan(v) or (math.isinf(v) and not allow_inf):
-        raise _Bad(f"{where} = {v!r} is not a finite number")
+        raise _Bad(f"{where} = {quoted(v)} is not a finite number")
     return v
 
 
@@ -103,7 +104,7 @@ def _numbers(v, where: str) -> list:
 
 def _string(v, where: str) -> str:
     if not isinstance(v, str):
-        raise _Bad(f"{where} = {v!r} is not a string")
+        raise _Bad(f"{where} = {quoted(v)} is not a string")
     return v
 
 
@@ -118,7 +119,7 @@ def _surface(t, number: int) -> PrescriptionSurface:
             c = 0.0
         else:
             if isinstance(r, str):
-                raise _Bad(f"{where}: radius_mm = {r!r} is not allowed: a number or \"inf\" (flat)")
+                raise _Bad(f"{where}: radius_mm = {quoted(r)} is not allowed: a number or \"inf\" (flat)")
             r = _number(r, f"{where}: radius_mm")
             if r == 0:
                 raise _Bad(f"{where}: radius_mm = 0 is not allowed: \"inf\" for a flat surface")
@@ -138,7 +139,7 @@ def _surface(t, number: int) -> PrescriptionSurface:
     elif isinstance(mat, list) and len(mat) == 2:
         material = tuple(_numbers(mat, f"{where}: material"))
     else:
-        raise _Bad(f"{where}: material = {mat!r} is not allowed: \"air\", a glass name or a model glass [n_d, V_d]")
+        raise _Bad(f"{where}: material = {quoted(mat)} is not allowed: \"air\", a glass name or a model glass [n_d, V_d]")
     sd = t.get("semi_diameter_mm")
     return PrescriptionSurface(
         curvature_per_mm=c, thickness_mm=thickness, material=material,
@@ -156,7 +157,7 @@ def _published(t) -> dict:
               or (isinstance(v, list) and all(not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x)
                                               for x in v)))
         if not ok:
-            raise _Bad(f"published: {k} = {v!r} is not allowed: a number, a string or an array of numbers")
+            raise _Bad(f"published: {quoted(k)} = {quoted(v)} is not allowed: a number, a string or an array of numbers")
     return dict(t)
 
 
@@ -188,7 +189,7 @@ def _from_dict(d: dict) -> Prescription:
         distance = math.inf
     else:
         if isinstance(dist, str):
-            raise _Bad(f"[object] distance_mm = {dist!r} is not allowed: \"inf\" or a distance > 0 (mm)")
+            raise _Bad(f"[object] distance_mm = {quoted(dist)} is not allowed: \"inf\" or a distance > 0 (mm)")
         distance = _number(dist, "[object] distance_mm")
     fields_t = _keys(d.get("fields", {"angles_deg": [0.0]} if math.isinf(distance) else {}), _FIELDS, "[fields]")
     if len(fields_t) != 1:
@@ -211,7 +212,7 @@ def _from_dict(d: dict) -> Prescription:
         raise _Bad("[wavelengths]: primary_um is missing (one of um)")
     stop = d["stop_surface"]
     if isinstance(stop, bool) or not isinstance(stop, int):
-        raise _Bad(f"stop_surface = {stop!r} is not a surface number")
+        raise _Bad(f"stop_surface = {quoted(stop)} is not a surface number")
     extra = {}
     if "published" in d:
         extra["published"] = _published(d["published"])

@@ -9,10 +9,10 @@ an unknown key, a wrong type or a value out of range is refused in one line nami
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from pathlib import Path
 
 from ..model.sensor import Sensor
+from ..validate import listed
 from .resources import _root
 
 __all__ = ["sensor_names", "sensor_path", "load_sensor", "DEFAULT_SENSOR"]
@@ -47,18 +47,17 @@ def sensor_path(spec: str) -> Path:
 def load_sensor(spec: str) -> Sensor:
     """The sensor of ``spec`` (a preset name or a TOML file), checked; ``ValueError`` in one line naming the file and
     the key otherwise."""
+    from .files import read_toml
+
     path = sensor_path(spec)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"sensor file {str(spec)!r} is not valid TOML: {exc}") from None
+    data = read_toml(spec if path == Path(str(spec)) else path, "sensor file")
     table = data.get("sensor")
     if not isinstance(table, dict) or set(data) - {"sensor"}:
         raise ValueError(f"sensor file {str(spec)!r} must hold one [sensor] table (found: "
-                         f"{', '.join(sorted(data)) or 'nothing'})")
+                         f"{listed(sorted(data)) if data else 'nothing'})")
     bad = sorted(set(table) - set(_KEYS))
     if bad:
-        raise ValueError(f"sensor file {str(spec)!r}: unknown key(s) {', '.join(bad)}; allowed: {', '.join(_KEYS)}")
+        raise ValueError(f"sensor file {str(spec)!r}: unknown key(s) {listed(bad)}; allowed: {listed(_KEYS, near=bad)}")
     for k in ("pixel_pitch_um", "width_px", "height_px"):
         if k not in table:
             raise ValueError(f"sensor file {str(spec)!r}: {k} is missing")

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import torch
 
+from ..validate import listed, quoted
+
 __all__ = ["Parameter", "PARAMETERS", "parameter_name", "Design", "load_designs"]
 
 
@@ -53,7 +55,7 @@ def parameter_name(name: str) -> str:
         if name in p.aliases:
             return p.name
     valid = ", ".join(f"{p.name}" + (f" (alias {', '.join(p.aliases)})" if p.aliases else "") for p in PARAMETERS.values())
-    raise ValueError(f"design parameter {name!r} is not known; valid: {valid}")
+    raise ValueError(f"design parameter {quoted(name)} is not known; valid: {valid}")
 
 
 def _to_tensor(name: str, v) -> torch.Tensor:
@@ -184,15 +186,15 @@ def load_designs(path: str | Path | None = None, builtins: Mapping[str, Design] 
     raw = read_toml(path, "designs file")
     for name, t in raw.items():
         if not isinstance(t, dict):
-            raise ValueError(f"designs file {str(path)!r}: [{name}] must be a table of parameter values")
+            raise ValueError(f"designs file {str(path)!r}: [{quoted(name)}] must be a table of parameter values")
         t = dict(t)
         desc = str(t.pop("description", ""))
         bad = [k for k, v in t.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
         if bad or not t:
-            raise ValueError(f"designs file {str(path)!r}: [{name}] needs finite numeric parameter values "
-                             f"(e.g. s and Q_back){'; bad: ' + ', '.join(bad) if bad else ''}")
+            raise ValueError(f"designs file {str(path)!r}: [{quoted(name)}] needs finite numeric parameter values "
+                             f"(e.g. s and Q_back){'; bad: ' + listed(bad) if bad else ''}")
         try:
             designs[name] = Design(t, name=name, description=desc)
         except ValueError as exc:
-            raise ValueError(f"designs file {str(path)!r}: [{name}]: {exc}") from None
+            raise ValueError(f"designs file {str(path)!r}: [{quoted(name)}]: {exc}") from None
     return designs

@@ -17,6 +17,8 @@ import difflib
 import math
 from dataclasses import dataclass, field
 
+from ..validate import listed, quoted
+
 __all__ = ["ConstantGlass", "SellmeierGlass", "SchottGlass", "ModelGlass", "as_glass", "load_glasses",
            "glass_by_name", "D_LINE_UM", "F_LINE_UM", "C_LINE_UM", "CATALOGUE_SEPARATOR"]
 
@@ -240,20 +242,21 @@ FORMULAS = ("sellmeier", "schott")
 
 def _glass_from_table(name: str, t: dict):
     if not isinstance(t, dict):
-        raise ValueError(f"glass catalogue: {name!r} is not a table")
+        raise ValueError(f"glass catalogue: {quoted(name)} is not a table")
     unknown = sorted(set(t) - _TABLE_KEYS)
     if unknown:
-        raise ValueError(f"glass {name!r}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_TABLE_KEYS))}")
+        raise ValueError(f"glass {quoted(name)}: unknown key(s) {listed(unknown)}; allowed: "
+                         f"{listed(sorted(_TABLE_KEYS), near=unknown)}")
     if "n" in t:
         return ConstantGlass(t["n"])
     catalogue, description = str(t.get("catalogue", "")), str(t.get("description", ""))
     formula = t.get("formula", FORMULAS[0])
     if formula not in FORMULAS:
-        raise ValueError(f"glass {name!r}: formula {formula!r} is not one of {', '.join(FORMULAS)}")
+        raise ValueError(f"glass {quoted(name)}: formula {quoted(formula)} is not one of {', '.join(FORMULAS)}")
     needed = ("B", "C") if formula == "sellmeier" else ("A",)
     missing = [k for k in needed if k not in t]
     if missing:
-        raise ValueError(f"glass {name!r}: the {formula} formula needs {' and '.join(needed)} (missing {', '.join(missing)})")
+        raise ValueError(f"glass {quoted(name)}: the {formula} formula needs {' and '.join(needed)} (missing {', '.join(missing)})")
     if formula == "sellmeier":
         return SellmeierGlass(name, tuple(t["B"]), tuple(t["C"]), description=description, catalogue=catalogue)
     return SchottGlass(name, tuple(t["A"]), description=description, catalogue=catalogue)
@@ -310,7 +313,7 @@ def glass_by_name(name: str):
     Of two names that differ only in case, the first in the file is found. ``ValueError`` (one line, the catalogues
     searched and the closest names) otherwise."""
     if not isinstance(name, str):
-        raise ValueError(f"glass name {name!r} is not allowed: a string")
+        raise ValueError(f"glass name {quoted(name)} is not allowed: a string")
     table = _builtin_glasses()
     catalogues = _catalogues(table)
     text = name.strip()
@@ -320,7 +323,7 @@ def glass_by_name(name: str):
         prefix, _, text = (s.strip() for s in text.partition(CATALOGUE_SEPARATOR))
         by_upper = {c.upper(): c for c in catalogues}
         if prefix.upper() not in by_upper:
-            raise ValueError(f"glass {name!r}: catalogue {prefix!r} is not one of {', '.join(catalogues)}")
+            raise ValueError(f"glass {quoted(name)}: catalogue {quoted(prefix)} is not one of {', '.join(catalogues)}")
         cat = by_upper[prefix.upper()]
         candidates = [k for k, g in table.items() if getattr(g, "catalogue", "") == cat]
         searched = [cat]
@@ -330,7 +333,7 @@ def glass_by_name(name: str):
     by_upper = {k.upper(): k for k in reversed(candidates)}  # the first in the file wins
     close = difflib.get_close_matches(text.upper(), list(by_upper), n=CLOSEST_NAMES)
     closest = ", ".join(by_upper[c] for c in close) or "none"
-    raise ValueError(f"glass {name!r} is not in the catalogues searched ({', '.join(searched)}); closest: {closest}")
+    raise ValueError(f"glass {quoted(name)} is not in the catalogues searched ({', '.join(searched)}); closest: {closest}")
 
 
 def as_glass(g):

@@ -24,7 +24,7 @@ from .design import Design
 from .glass import ConstantGlass, as_glass
 from .surface import Surface
 from ..torch_utils import as_tensor
-from ..validate import warn_model
+from ..validate import listed, quoted, warn_model
 
 THIRD_ORDER_LIMIT = 0.25
 """Largest ``(1 + conic) c^2 y^2`` of a surface for which the third-order model is taken as valid (the paper's
@@ -106,12 +106,12 @@ class Lens:
                 raise LensError("give either glass or refractive_index, not both")
             n = d.pop("refractive_index")
             if isinstance(n, bool) or not isinstance(n, (int, float)):
-                raise LensError(f"refractive_index={n!r} is not allowed: a finite number > 1 (or name a glass)")
+                raise LensError(f"refractive_index={quoted(n)} is not allowed: a finite number > 1 (or name a glass)")
             d["glass"] = n  # a number: a constant glass
         allowed = {f.name for f in fields(cls)}
         bad = sorted(set(d) - allowed)
         if bad:
-            raise LensError(f"unknown lens key(s) {bad}; allowed: {sorted(allowed | {'refractive_index'})}")
+            raise LensError(f"unknown lens key(s) {listed(bad)}; allowed: {listed(sorted(allowed | {'refractive_index'}), near=bad)}")
         return cls(**d)
 
     def to_dict(self) -> dict:

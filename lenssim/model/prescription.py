@@ -19,6 +19,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+from ..validate import quoted
+
 __all__ = ["PrescriptionError", "PrescriptionSurface", "Prescription", "MAX_ASPHERE_ORDER", "AIR"]
 
 AIR = "air"
@@ -107,7 +109,7 @@ class PrescriptionSurface:
             try:
                 nd, vd = mat
             except (TypeError, ValueError):
-                raise PrescriptionError(f"{where}: material {mat!r} is not allowed: 'air', a glass name or "
+                raise PrescriptionError(f"{where}: material {quoted(mat)} is not allowed: 'air', a glass name or "
                                         "(n_d, V_d)") from None
             nd = _finite(where, "n_d", nd, "a refractive index >= 1")
             vd = _finite(where, "V_d", vd, "an Abbe number >= 0 (0: no dispersion)")

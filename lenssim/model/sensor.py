@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..validate import listed, quoted
+
 __all__ = ["Sensor"]
 
 
@@ -175,7 +177,7 @@ class Sensor:
         """Full-well capacity (electrons) at ``iso``."""
         table = dict(self.full_well_e)
         if iso not in table:
-            raise ValueError(f"iso={iso!r} is not allowed: one of {sorted(table)} (or give the full well directly)")
+            raise ValueError(f"iso={quoted(iso)} is not allowed: one of {listed(sorted(table))} (or give the full well directly)")
         return table[iso]
 
     def to_dict(self) -> dict:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..validate import listed, quoted
+
 __all__ = ["Spectrum", "channel_spectra", "channel_table", "camera_sensitivity_names", "shared_wavelengths",
            "shared_quadrature", "DEFAULT_WAVELENGTHS_PER_CHANNEL", "DEFAULT_SPECTRAL_TOL"]
 
@@ -129,9 +131,10 @@ def _camera_weights(camera: str, illuminant: str):
     import numpy as np
 
     if camera not in colour.MSDS_CAMERA_SENSITIVITIES:
-        raise ValueError(f"camera sensitivities {camera!r} are not known; choose from {', '.join(camera_sensitivity_names())}")
+        raise ValueError(f"camera sensitivities {quoted(camera)} are not known; choose from "
+                         f"{listed(camera_sensitivity_names(), near=[camera])}")
     if illuminant not in colour.SDS_ILLUMINANTS:
-        raise ValueError(f"illuminant {illuminant!r} is not known; e.g. D65, A, D50")
+        raise ValueError(f"illuminant {quoted(illuminant)} is not known; e.g. D65, A, D50")
     msds = colour.MSDS_CAMERA_SENSITIVITIES[camera]
     lam_nm = np.asarray(msds.wavelengths, dtype=np.float64)
     ill = colour.SDS_ILLUMINANTS[illuminant].copy().align(colour.SpectralShape(lam_nm[0], lam_nm[-1], lam_nm[1] - lam_nm[0]))

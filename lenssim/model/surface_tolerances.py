@@ -49,6 +49,7 @@ import torch
 from .misalignment import Misalignment
 from .prescription import Prescription
 from .tolerances import GRADES, TOLERANCE_SIGMAS, check_limits
+from ..validate import listed, quoted
 
 __all__ = ["SurfaceTolerances", "SurfacePerturbations", "SURFACE_GRADES", "THICKNESS_UM", "ELEMENT_DECENTRE_UM",
            "surface_grade", "perturbed_prescription", "lens_surfaces", "lens_elements", "copy_misalignments"]
@@ -110,7 +111,7 @@ class SurfaceTolerances:
         allowed = [f.name for f in fields(cls)]
         bad = sorted(str(k) for k in set(d) - set(allowed))
         if bad:
-            raise ValueError(f"[tolerances]: unknown key(s) {bad}; valid: grade, {', '.join(allowed)}")
+            raise ValueError(f"[tolerances]: unknown key(s) {listed(bad)}; valid: {listed(['grade', *allowed], near=bad)}")
         return cls(**{**asdict(base), **d})
 
     def to_dict(self) -> dict:
@@ -166,8 +167,8 @@ SURFACE_GRADES = {name: SurfaceTolerances(radius_pct=t.radius_front_pct, thickne
 
 def surface_grade(name: str) -> SurfaceTolerances:
     """The per-surface tolerances of a named grade; ``ValueError`` listing the grades otherwise."""
-    if name not in SURFACE_GRADES:
-        raise ValueError(f"tolerance grade {name!r} is not known; valid: {', '.join(SURFACE_GRADES)}")
+    if not isinstance(name, str) or name not in SURFACE_GRADES:
+        raise ValueError(f"tolerance grade {quoted(name)} is not known; valid: {', '.join(SURFACE_GRADES)}")
     return SURFACE_GRADES[name]
 
 

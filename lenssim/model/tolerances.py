@@ -39,6 +39,8 @@ from dataclasses import asdict, dataclass, fields
 
 import torch
 
+from ..validate import listed, quoted
+
 __all__ = ["Tolerances", "Perturbations", "GRADES", "TOLERANCE_SIGMAS", "COST_SCALE", "FIGURE_TERMS", "grade"]
 
 TOLERANCE_SIGMAS = 2.0
@@ -95,7 +97,7 @@ class Tolerances:
         allowed = [f.name for f in fields(cls)]
         bad = sorted(set(d) - set(allowed))
         if bad:
-            raise ValueError(f"[tolerances]: unknown key(s) {bad}; valid: grade, {', '.join(allowed)}")
+            raise ValueError(f"[tolerances]: unknown key(s) {listed(bad)}; valid: {listed(['grade', *allowed], near=bad)}")
         return cls(**{**asdict(base), **d})
 
     def to_dict(self) -> dict:
@@ -215,6 +217,6 @@ GRADES = {
 
 def grade(name: str) -> Tolerances:
     """The tolerances of a named grade; ``ValueError`` listing the grades otherwise."""
-    if name not in GRADES:
-        raise ValueError(f"tolerance grade {name!r} is not known; valid: {', '.join(GRADES)}")
+    if not isinstance(name, str) or name not in GRADES:
+        raise ValueError(f"tolerance grade {quoted(name)} is not known; valid: {', '.join(GRADES)}")
     return GRADES[name]

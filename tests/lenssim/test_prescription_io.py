@@ -422,5 +422,5 @@ def test_a_toml_file_past_the_size_limit_is_refused_before_it_is_parsed(tmp_path
     f = tmp_path / "big.toml"
     f.write_text("# " + "x" * 2000 + "\n")
     monkeypatch.setattr(files, "MAX_TOML_BYTES", 1024)
-    with pytest.raises(ValueError, match="larger than 0 MiB: not a settings or lens file"):
+    with pytest.raises(ValueError, match="is larger than 1024 bytes: not allowed for a TOML file"):
         read_lens(str(f))
