@@ -126,6 +126,10 @@ class _Tagged:
     def get(self, key, default=None):
         return self.lru.get((self.tag, key), default)
 
+    def __contains__(self, key) -> bool:
+        with self.lru._guard:
+            return (self.tag, key) in self.lru
+
     def __setitem__(self, key, value):
         self.lru[(self.tag, key)] = value
 

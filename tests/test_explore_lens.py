@@ -183,12 +183,15 @@ def test_bad_lens_arguments_are_refused(argv, message, capsys):
 
 
 def test_the_photo_spans_the_lens_s_field_as_simulate_takes_it(explorer):
-    """The photo's pitch puts the lens's largest field at its corners (the simulate command's default)."""
+    """The photo's pitch puts the lens's largest field at its corners plus the blur windows' core beyond them (the
+    simulate command's default, issue 43: no PSF asked for beyond the lens's field)."""
     import math as m
 
-    pitch, _ = explorer._photo_field()
+    from pipeline.blur import PAPER_SCHEME
+
+    pitch, reach = explorer._photo_field()
     H, W = explorer.photo_shape[-2:]
     scale = explorer._provider(explorer.start).base.image_scale_mm
-    corner_deg = m.degrees(m.atan(m.hypot(H - 1, W - 1) / 2 * pitch * 1e-3 / scale))
-    assert corner_deg == pytest.approx(max(read_lens("paper_singlet").fields), abs=1e-9)
+    reach_deg = m.degrees(m.atan((m.hypot(H - 1, W - 1) / 2 + PAPER_SCHEME.core) * pitch * 1e-3 / scale))
+    assert reach_deg == pytest.approx(max(read_lens("paper_singlet").fields), abs=1e-9) == reach
     assert torch.is_tensor(explorer._ideal().load())
