@@ -33,6 +33,9 @@ near the axis lost 0.004 in SSIM (over the issue's 0.001). The sums moved back b
 Added (issue 33): ``frame``, a 512 x 512 photo 280-1000 px off the axis through the speed levers (blur zones,
 restoration windows fitted to the PSF) in float64: the zones' ring edge and the sensor and restored PSNR and SSIM.
 
+Added (issue 44): ``expose``, the sensor's reading (photon noise; read noise and the ADC) for two seeds, pinned
+before the paper's exposure became the camera chain with its other stages off: it must not move.
+
 Host-independent tolerances (issue 18). The pins must hold on any x86-64 CPU and thread count, and each
 tolerance below says why it is what it is (:data:`RULES`, first match wins):
 
@@ -108,6 +111,7 @@ RULES = [
     ("pipeline*.crops", F64, "value"),
     ("pipeline*", F32_IMAGE, "stats"),
     ("frame.*", F64, "value"),
+    ("expose.*", F64, "stats"),
 ]
 
 
@@ -233,9 +237,33 @@ def _frame_pins():
             "scores": [psnr_srgb(img, noisy), psnr_srgb(img, restored), ssim_srgb(img, noisy), ssim_srgb(img, restored)]}
 
 
+def _expose_pins():
+    """The sensor's reading (:func:`pipeline.noise.expose`) as it stood before the paper's exposure became the camera
+    chain (issue 44): photon noise only (no sensor, the paper's), with read noise and a 10- or 12-bit ADC, for two
+    seeds and both working precisions. Float64 draws and IEEE rounding: the same on any host."""
+    from lenssim import Sensor
+    from pipeline.noise import expose
+
+    def sensor(**kw):
+        return Sensor(pixel_pitch_um=1.5625, width_px=64, height_px=64, **kw)
+
+    img = torch.rand(1, 3, 40, 56, generator=torch.Generator().manual_seed(8), dtype=torch.float64) * 0.9 + 0.01
+    out = {}
+    for name, s, fwc in (("ideal", None, 3200.0), ("paper", PAPER_SENSOR, 3200.0),
+                         ("read_adc10", sensor(read_noise_e=3.0, bit_depth=10), 800.0),
+                         ("read_adc12", sensor(read_noise_e=2.5, bit_depth=12), 12800.0)):
+        for dtype in (torch.float64, torch.float32):
+            x = img.to(dtype)
+            e = fwc / float(x.amax())
+            out[f"{name}_{str(dtype)[6:]}"] = [_stats(expose(x, e, s, fwc, generator=torch.Generator().manual_seed(seed)))
+                                               for seed in (4, 11)]
+    return out
+
+
 def compute_pins(tmp: Path) -> dict:
     return {"evaluate": _evaluate_pins(), "sweep": _sweep_pins(tmp), "psf": _psf_pins(), "pipeline": _pipeline_pins("origin"),
-            "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins(), "frame": _frame_pins()}
+            "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins(), "frame": _frame_pins(),
+            "expose": _expose_pins()}
 
 
 def _close(new, old, tol, path):
@@ -271,7 +299,8 @@ def pins_now(tmp_path_factory):
     return compute_pins(tmp_path_factory.mktemp("pins"))
 
 
-@pytest.mark.parametrize("part", ["evaluate", "sweep", "psf", "pipeline", "pipeline_axis", "pipeline_fitted", "frame"])
+@pytest.mark.parametrize("part", ["evaluate", "sweep", "psf", "pipeline", "pipeline_axis", "pipeline_fitted", "frame",
+                                  "expose"])
 def test_numbers_unchanged_since_the_pins(pins_now, part):
     old = json.loads(PINS.read_text())
     _compare(pins_now[part], old[part], part, part)
