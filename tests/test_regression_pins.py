@@ -184,7 +184,7 @@ def _psf_pins():
 def _pipeline_pins(anchor: str):
     from lenssim import Design, LensPSF
     from lenssim_studies.paper import PAPER_CAMERA
-    from pipeline import WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
+    from pipeline import NoiseModel, WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
     img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
@@ -192,7 +192,7 @@ def _pipeline_pins(anchor: str):
     oc = (-500.0, -700.0)  # optical centre far outside: the array sits at ~2.9 deg of field
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     blurred = blur_windowed(img, e2e, scheme=scheme, optical_center=oc)
-    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=scheme, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, noise=NoiseModel(3200.0), scheme=scheme, optical_center=oc)
     big = resolution_scene(600, 800, tile=128, spacing=256, geometry=PAPER_CAMERA.geometry)
     res = simulate_crops(big, LensPSF(PAPER_CAMERA, Design(s=-0.725, Q_back=-10.0)), [3200.0, 800.0],
                          [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme,
@@ -205,14 +205,14 @@ def _pipeline_pins(anchor: str):
 def _fitted_pins():
     from lenssim import Design, LensPSF
     from lenssim_studies.paper import PAPER_CAMERA
-    from pipeline import PAPER_SCHEME, blur_windowed, wiener_windowed
+    from pipeline import PAPER_SCHEME, NoiseModel, blur_windowed, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
     img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
     oc = (-500.0, -700.0)  # ~2.9 deg of field: the 512 px scheme's blur windows fit in 256 px
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     blurred = blur_windowed(img, e2e, scheme=PAPER_SCHEME, optical_center=oc)
-    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=PAPER_SCHEME, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, noise=NoiseModel(3200.0), scheme=PAPER_SCHEME, optical_center=oc)
     return {"blur": _stats(blurred), "wiener": _stats(restored)}
 
 
@@ -223,16 +223,16 @@ def _frame_pins():
     from lenssim_studies.paper import PAPER_CAMERA
     from pipeline import PAPER_SCHEME, blur_windowed, load_photo, psnr_srgb, ssim_srgb, wiener_windowed
     from pipeline.blur import choose_stride_zones
-    from pipeline.noise import expose, read_noise_variance
+    from pipeline.camera_chain import CameraChain
 
     img = load_photo("skimage:astronaut")[0].double()
     oc, fwc = (-200.0, -200.0), 3200.0  # 283-1007 px from the axis: both of the zones' strides
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     zones = choose_stride_zones(e2e, img.shape, PAPER_SCHEME, oc)
     blurred = blur_windowed(img, e2e, scheme=PAPER_SCHEME, optical_center=oc, zones=zones)
-    noisy = expose(blurred, fwc, PAPER_SENSOR, fwc, generator=torch.Generator().manual_seed(4))
-    restored = wiener_windowed(noisy, e2e, electrons_per_unit=fwc, read_noise_var=read_noise_variance(PAPER_SENSOR, fwc),
-                               scheme=PAPER_SCHEME, optical_center=oc)
+    chain = CameraChain(PAPER_SENSOR)  # the paper's sensor: photon noise only
+    noisy = chain.expose(blurred, fwc, fwc, generator=torch.Generator().manual_seed(4))
+    restored = wiener_windowed(noisy, e2e, noise=chain.noise_model(fwc, fwc), scheme=PAPER_SCHEME, optical_center=oc)
     return {"zone_edges_px": list(zones.edges_px),
             "scores": [psnr_srgb(img, noisy), psnr_srgb(img, restored), ssim_srgb(img, noisy), ssim_srgb(img, restored)]}
 
