@@ -31,7 +31,7 @@ from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SENSOR
 from pipeline import load_photo
 from workload import agreement_db, reference_seconds
 from pipeline.blur import blur_windowed, choose_stride_zones, window_count
-from pipeline.noise import expose, read_noise_variance
+from pipeline.camera_chain import CameraChain
 from pipeline.restoration.wiener import wiener_windowed
 from pipeline.simulate import FrameResult, score_frame, simulate_frame
 
@@ -63,10 +63,11 @@ def main() -> None:
     t_blur0 = time.perf_counter() - t0
     line(f"baseline blur ({window_count(ideal.shape)} windows)", t_blur0)
     e = FULL_WELL / float(blurred0.amax())
-    noisy0 = expose(blurred0, e, PAPER_SENSOR, FULL_WELL, generator=torch.Generator().manual_seed(0))
-    var = read_noise_variance(PAPER_SENSOR, e)
+    chain = CameraChain(PAPER_SENSOR)
+    noisy0 = chain.expose(blurred0, e, FULL_WELL, generator=torch.Generator().manual_seed(0))
+    noise = chain.noise_model(e, FULL_WELL)
     t0 = time.perf_counter()
-    restored0 = wiener_windowed(noisy0, psf, electrons_per_unit=e, read_noise_var=var, fit=False)
+    restored0 = wiener_windowed(noisy0, psf, noise=noise, fit=False)
     t_rest0 = time.perf_counter() - t0
     line("baseline restoration (512 px windows)", t_rest0)
     s0 = score_frame(ideal, FrameResult(noisy0, restored0, "wiener", e, False, {}), psf.geometry)
@@ -74,7 +75,7 @@ def main() -> None:
           f"{s0['psnr_restored_db']:.4f} dB, SSIM {s0['ssim_sensor']:.4f} -> {s0['ssim_restored']:.4f}")
 
     t0 = time.perf_counter()
-    restored1 = wiener_windowed(noisy0, psf, electrons_per_unit=e, read_noise_var=var, fit=True)
+    restored1 = wiener_windowed(noisy0, psf, noise=noise, fit=True)
     t_rest1 = time.perf_counter() - t0
     s1 = score_frame(ideal, FrameResult(noisy0, restored1, "wiener", e, False, {}), psf.geometry)
     line("lever 1: fitted restoration windows", t_rest1,

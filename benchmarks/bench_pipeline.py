@@ -37,7 +37,7 @@ import torch
 from lenssim import LensPSF, select_device
 
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from pipeline import add_poisson_noise, load_photo
+from pipeline import NoiseModel, add_poisson_noise, load_photo
 from pipeline.blur import (PAPER_SCHEME, WindowScheme, blur_windowed, box_mean, tent_weights, window_centres,
                            window_count)
 from pipeline.quality import psnr_srgb
@@ -163,7 +163,7 @@ def grid_side_by_side(ideal: torch.Tensor, size) -> None:
         blurred = blur_windowed(frame, PSF, scheme=scheme)
         e = FULL_WELL / float(blurred.amax())
         noisy = add_poisson_noise(blurred.clamp_min(0), FULL_WELL, seed=0)
-        out[anchor] = wiener_windowed(noisy, PSF, electrons_per_unit=e, scheme=scheme)
+        out[anchor] = wiener_windowed(noisy, PSF, noise=NoiseModel(e), scheme=scheme)
         times.setdefault(anchor, []).append(time.perf_counter() - t0)
     t_old, t_new = min(times["origin"]), min(times["axis"])
     n_old, n_new = window_count(frame.shape, WindowScheme(anchor="origin")), window_count(frame.shape)
@@ -253,7 +253,7 @@ def full_frame(photo, device: torch.device) -> None:
         noisy = stage("Poisson noise", rows, lambda b=blurred: add_poisson_noise(b.clamp_min(0), FULL_WELL, seed=0))
         del blurred
         restored = stage(f"adaptive Wiener ({n} windows)", rows,
-                         lambda: wiener_windowed(noisy, PSF, electrons_per_unit=e))
+                         lambda: wiener_windowed(noisy, PSF, noise=NoiseModel(e)))
         p = stage("sRGB PSNR (whole frame)", rows, lambda: (psnr_srgb(ideal.cpu(), noisy.cpu()),
                                                             psnr_srgb(ideal.cpu(), restored.cpu())))
         t_total = time.perf_counter() - t_start

@@ -410,7 +410,7 @@ def cmd_simulate(args) -> int:
             with _window_bar("blur + restore crops") as bar:
                 results = simulate_crops(ideal, psf, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                          blur_zones=args.zones,
-                                         sensor=_sensor(psf), progress=bar.update, progress_total=bar.reset, chain=chain)
+                                         sensor=chain or _sensor(psf), progress=bar.update, progress_total=bar.reset)
         report["crops"] = []
         for i, (a, r) in enumerate(zip(angles, results)):
             asked = {"requested_deg": a} if not getattr(args, "at_pixels", None) else \
@@ -506,7 +506,7 @@ def _as_built_crops(ideal, nominal, built, fwc, boxes, args, specs, scheme, came
 
     runs = {tag: simulate_crops(ideal, built, fwc, boxes, seed=args.seed, methods=specs, scheme=scheme,
                                 blur_zones=args.zones,
-                                sensor=camera.sensor, restoration_psf=prov, chain=args.chain)
+                                sensor=args.chain or camera.sensor, restoration_psf=prov)
             for tag, prov in (("nominal", nominal), ("calibrated", built))}
     results = runs["nominal"]
     for r, c in zip(results, runs["calibrated"]):
@@ -622,8 +622,8 @@ def _full_frame(ideal, psf, fwc, args, out, stage, inputs, boxes, report, scheme
     total = passes * n + window_count(ideal.shape, scheme, zones=args.zones)
     with progress_bar(total=total, unit="window", desc="blur + restore") as bar:
         frame = simulate_frame(ideal, blur, fwc, seed=args.seed, scheme=scheme, progress=bar.update, blur_zones=args.zones,
-                               checkpoint=checkpoint, sensor=_sensor(psf), method=method, restoration_psf=restorers,
-                               chain=args.chain)
+                               checkpoint=checkpoint, sensor=args.chain or _sensor(psf), method=method,
+                               restoration_psf=restorers)
     if getattr(args, "raw_out", False):
         _write_raw(stage / "sensor_raw.dng", frame.raw, args.chain, 0, 0)
     if frame.resumed:
@@ -758,11 +758,10 @@ def cmd_psnr_table(args) -> int:
             blur = nominal if lens is None else AsBuiltPSF(camera, d, lens)
             with _window_bar(f"{source} | {name}") as bar:
                 per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
-                                         sensor=camera.sensor, restoration_psf=nominal, progress=bar.update,
-                                         progress_total=bar.reset,
-                                         chain=chain, blur_zones="auto")
+                                         sensor=chain or camera.sensor, restoration_psf=nominal, progress=bar.update,
+                                         progress_total=bar.reset, blur_zones="auto")
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
-                                                                  methods=(spec,), sensor=camera.sensor, chain=chain,
+                                                                  methods=(spec,), sensor=chain or camera.sensor,
                                                                   blur_zones="auto")
             for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
@@ -780,8 +779,9 @@ def cmd_psnr_table(args) -> int:
         for ns, psf, angles, boxes in lens_jobs:
             name = lens_label(ns)
             with _window_bar(f"{source} | {name}") as bar:
-                per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,), sensor=psf.sensor,
-                                         progress=bar.update, progress_total=bar.reset, chain=chain, blur_zones="auto")
+                per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,),
+                                         sensor=chain or psf.sensor, progress=bar.update, progress_total=bar.reset,
+                                         blur_zones="auto")
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, "lens_file": ns.lens,
@@ -866,7 +866,7 @@ def cmd_fig8(args) -> int:
         else:
             png, tiles = lens_mosaic(ideal, stage, psf, lens_file.name or lens_label(args), about=_lens_sampling_words(psf),
                                      angles=angles, crop=size,
-                                     seed=args.seed, method=spec, chain=chain)
+                                     seed=args.seed, method=spec, sensor=chain)
         atomic_write_text(stage / "fig8_psnr.json", json_text({"source": source, "tiles": tiles,
                                                                **_chain_report(chain, PAPER_CAMERA.sensor)}))
     print(f"wrote {out / png.name} (+ .svg, fig8_psnr.json) from {source} in {time.perf_counter() - t0:.0f} s")

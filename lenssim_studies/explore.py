@@ -647,7 +647,7 @@ class Explorer:
             prov = self._provider(controls, shape=shown.shape)
             _stop_if(cancel)
             (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                  sensor=self.sensor_for(shown.shape), chain=chain,
+                                  sensor=chain or self.sensor_for(shown.shape),
                                   blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")
             name = r.methods[0]
             return {"box": box, "field_deg": r.field_deg,
@@ -671,13 +671,13 @@ class Explorer:
             chain = self._chain(pc)
             fw = self._full_well(pc, chain, shown.shape)
             box = self.crop_box(pc.center, shown.shape)
-            sensor = self.sensor_for(shown.shape)
+            sensor = chain or self.sensor_for(shown.shape)
             nominal = self._provider(controls, shape=shown.shape)
 
             def run(prov, method, restoration_psf=None):
                 _stop_if(cancel)
                 return simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
-                                      chain=chain, restoration_psf=restoration_psf,
+                                      restoration_psf=restoration_psf,
                                       blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")[0]
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
             ra, rb = run(nominal, method_a), run(nominal, method_b)

@@ -17,6 +17,7 @@ from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from lenssim.io.files import atomic_write
 from lenssim_studies.paper import ISO_FOR_SNR, PAPER_FIG8_ANGLES_DEG
 
+from pipeline.camera_chain import CameraChain
 from pipeline.colour_space import linear_to_srgb
 from pipeline.figures import tile_label
 from pipeline.restoration import Restoration
@@ -45,10 +46,10 @@ def figure8(ideal: torch.Tensor, out_dir, *, camera: Camera = PAPER_CAMERA,
     low_noise = isos[-1]
     well = table.full_well_for_iso
     runs = {("rms_w", low_noise): simulate_crops(ideal, LensPSF(camera, rms_w), well(low_noise), boxes, seed=seed,
-                                                 methods=(spec,), sensor=camera.sensor, chain=chain,
+                                                 methods=(spec,), sensor=chain or camera.sensor,
                                                  blur_zones=blur_zones)}
     per_iso = simulate_crops(ideal, LensPSF(camera, e2e), [well(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=camera.sensor, chain=chain, blur_zones=blur_zones)
+                             methods=(spec,), sensor=chain or camera.sensor, blur_zones=blur_zones)
     runs.update({("e2e", iso): res for iso, res in zip(isos, per_iso)})
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
     cols = [("ideal", img(("e2e", low_noise), "ideal"), None),
@@ -72,23 +73,24 @@ def chain_isos(sensor, preferred) -> tuple[int, ...]:
 
 
 def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: int = 128, seed: int = 0,
-                method="wiener", isos=None, sensor=None, chain=None, blur_zones="auto", about: str = ""
+                method="wiener", isos=None, sensor=None, blur_zones="auto", about: str = ""
                 ) -> tuple[Path, list[dict]]:
     """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
     :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
     restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
-    default the provider's), one row per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).
+    a :class:`lenssim.Sensor` or a :class:`pipeline.camera_chain.CameraChain`, default the provider's sensor), one row
+    per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).
     Writes ``lens_mosaic.png`` and ``.svg`` in ``out_dir``; returns the PNG's path and a row per restored tile.
     ``blur_zones``: as for :func:`figure8`; ``about``: words the title adds after the label (e.g. the pixel pitch)."""
     spec = Restoration.of(method)
     method = spec.name
-    sensor = psf.sensor if sensor is None else sensor
+    chain = CameraChain.of(psf.sensor if sensor is None else sensor)
     boxes = [crop_at_field_angle(ideal.shape, a, crop, psf.geometry) for a in angles]
     isos = tuple(ISO_FOR_SNR.values()) if isos is None else tuple(isos)
-    table = sensor if chain is None else chain.sensor
+    table = chain.sensor
     isos = chain_isos(table, isos)
     per_iso = simulate_crops(ideal, psf, [table.full_well_for_iso(i) for i in isos], boxes, seed=seed,  # one blur
-                             methods=(spec,), sensor=sensor, chain=chain, blur_zones=blur_zones)
+                             methods=(spec,), sensor=chain, blur_zones=blur_zones)
     runs = {(label, iso): res for iso, res in zip(isos, per_iso)}
     first = runs[(label, isos[0])]
     img = lambda key, kind: (lambda i: runs[key][i].images[kind])  # noqa: E731
@@ -97,7 +99,7 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
     cols += [(f"restored, ISO {iso}", img((label, iso), method), (label, iso)) for iso in isos]
     title = (f"{label}{', ' + about if about else ''}\nthe sensor image and its restoration ({spec.method.label}) at ISO "
              f"{', '.join(str(i) for i in isos)}; PSNR / SSIM in sRGB against the ideal image")
-    if chain is not None:
+    if isinstance(sensor, CameraChain):
         title += f"\ncamera chain: {chain.label()}"
     return _mosaic(runs, cols, first, title, method, out_dir, "lens_mosaic")
 

@@ -17,7 +17,7 @@ from .colour_space import linear_to_srgb, srgb_to_linear
 from .denoise import gentle_denoise
 from .field_map import field_psnr, plot_field_psnr
 from .io import ImageFileError, ImageInfo, read_image, write_image
-from .noise import add_poisson_noise, expose, read_out
+from .noise import NoiseModel, add_poisson_noise, expose
 from .photo import load_photo
 from .quality import psnr_map_srgb, psnr_srgb, ssim_srgb
 from .restoration import (RESTORATION_METHODS, Restoration, RestorationMethod, parse_restoration, restore,
@@ -38,6 +38,7 @@ __all__ = [
     "Restoration",
     "RestorationMethod",
     "WindowScheme",
+    "NoiseModel",
     "add_poisson_noise",
     "expose",
     "apply_windowed",
@@ -55,7 +56,6 @@ __all__ = [
     "psnr_srgb",
     "read_image",
     "parse_restoration",
-    "read_out",
     "resolution_scene",
     "restore",
     "richardson_lucy_windowed",

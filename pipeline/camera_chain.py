@@ -2,8 +2,9 @@
 processor (ISP) that develops its raw data, as named stages over ``(B, C, H, W)`` tensors.
 
 The stages (:data:`CAMERA_STAGES`, a table from name to function, like the restoration methods), in the order a
-:class:`CameraChain` runs them; a stage whose term is off is skipped (no random number drawn), so the chain of the
-paper's sensor without a colour filter array draws and returns exactly what :func:`pipeline.noise.expose` does:
+:class:`CameraChain` runs them; a stage whose term is off is skipped (no random number drawn). The paper's sensor
+exposure is this chain with every stage but the photon noise off (:meth:`CameraChain.expose`, which
+:func:`pipeline.noise.expose` calls): one forward model, not two.
 
 optics side: the pixel aperture (the sensor's ``fill_factor``) joins the lens's PSFs for the blur and the restoration
 (:class:`lenssim.optics.pixel_aperture.PixelAperturePSF`, applied by :mod:`pipeline.simulate`).
@@ -26,8 +27,13 @@ Restoration (:mod:`pipeline.restoration`) runs where the chain says (``restore_o
 (half the resolution) restored with the lens's PSFs resampled to that plane (:class:`PlanePSF`) on windows of the same
 size in the plane's pixels (so each covers four times the frame's area, and there are a quarter as many), before white balance
 and demosaicing; or on the developed RGB image (today's place), in the sensor's units (white balance undone and
-redone around it) so that the noise model (photon noise ``x / electrons_per_unit`` plus the chain's signal-independent
-variance, :meth:`CameraChain.noise_variance`) holds in every channel.
+redone around it) so that the noise description holds in every channel.
+
+The noise description (:meth:`CameraChain.noise_model`, a :class:`NoiseModel`) is derived from the stages that are on:
+per pixel, in the sensor's units (electrons / ``electrons_per_unit``), the variance
+``x / e + (PRNU x)^2 + (read^2 + dark + DSNU^2 + gain^2 / 12) / e^2`` at a signal ``x``, each term present exactly where
+its stage runs; it is what every restoration is given (tests/pipeline/test_noise_model.py checks it against the
+variance of the simulated noise by Monte Carlo).
 
 The photon transfer of the sensor side follows EMVA 1288 (release 4.0, 2021), eq. (6)-(8): mean ``mu_y = K (mu_e +
 mu_d) + black`` and variance ``sigma_y^2 = K^2 (mu_e + sigma_d^2) + 1/12`` DN^2 (``K`` = 1 / gain DN/e-,
@@ -49,8 +55,9 @@ from lenssim.registry import Registry
 from .cfa import DEMOSAIC_METHODS, demosaic, mosaic, validate_cfa
 from .checks import check_image
 
-__all__ = ["CAMERA_STAGES", "CameraStage", "CameraChain", "PlanePSF", "RESTORE_PLACES", "WHITE_BALANCE_METHODS",
-           "DEFAULT_EXPOSURE_MS", "FIXED_PATTERN_TILE_PX", "pattern_at", "fixed_pattern"]
+__all__ = ["CAMERA_STAGES", "CameraStage", "CameraChain", "NoiseModel", "PlanePSF", "RESTORE_PLACES",
+           "WHITE_BALANCE_METHODS", "DEFAULT_EXPOSURE_MS", "FIXED_PATTERN_TILE_PX", "PHOTON_NOISE_SENSOR", "pattern_at",
+           "fixed_pattern"]
 
 DEFAULT_EXPOSURE_MS = 10.0
 """Exposure time (ms) when none is given: 1/100 s. It sets only the dark electrons (``dark_current x exposure``); the
@@ -64,13 +71,21 @@ RESTORE_PLACES = ("rgb", "mosaic")
 WHITE_BALANCE_METHODS = ("illuminant", "grey_world")
 """White-balance gains from the illuminant (the sensor's known per-channel QE: a grey scene stays grey) or from the
 image's channel means (grey world)."""
+PHOTON_NOISE_SENSOR = Sensor(pixel_pitch_um=1.0, width_px=1, height_px=1, name="photon noise only")
+"""The ideal sensor (``sensor=None`` of :func:`pipeline.noise.expose`): every term off, so its chain draws photon noise
+only. Its pitch and size are placeholders: the noise stages read only the noise terms."""
 _RAW_STAGES = ("quantum_efficiency", "mosaic", "prnu", "photon_noise", "dark_current", "dsnu", "read_noise", "adc")
 _ISP_STAGES = ("black_level", "white_balance", "demosaic", "colour_correction")
 
 
 @dataclass(frozen=True)
 class CameraStage:
-    """A named stage: ``fn(x, ctx) -> x`` over ``(B, C, H, W)``, which side of the chain it is on, what it models."""
+    """A named stage: ``fn(x, ctx) -> x`` over ``(B, C, H, W)``, which side of the chain it is on, what it models.
+
+    The sensor-side stages after ``quantum_efficiency`` (which makes the chain's own float64 buffer from the image), and
+    ``black_level``, may change ``x`` in place: the chain calls them on its own buffers only (a frame's exposure keeps at
+    most two float64 frames alive). The other ISP stages return new tensors (one linear image is developed once per
+    restoration)."""
 
     name: str
     fn: Callable
@@ -154,10 +169,10 @@ def _qe_rel(sensor: Sensor, channels: int) -> tuple[float, ...]:
 # ---- sensor side: linear camera RGB (units of the image) -> electrons -> DN -------------------------------------
 @_stage("quantum_efficiency", "sensor", "expected photo-electrons: image x electrons_per_unit x QE (relative)")
 def _quantum_efficiency(x, ctx):
-    rate = x.to(torch.float64) * ctx.electrons_per_unit
+    rate = x.to(torch.float64) * ctx.electrons_per_unit  # a new buffer: the image itself is never changed
     if ctx.sensor.quantum_efficiency:
-        rate = rate * _per_site(_qe_rel(ctx.sensor, x.shape[1]), rate, ctx)
-    return rate.clamp_min_(0)
+        rate.mul_(_per_site(_qe_rel(ctx.sensor, x.shape[1]), rate, ctx))
+    return rate.clamp_min_(0)  # a blur's rounding below 0 counts as no light
 
 
 @_stage("mosaic", "sensor", "Bayer colour filter array: one channel per pixel")
@@ -168,7 +183,7 @@ def _mosaic(x, ctx):
 @_stage("prnu", "sensor", "photo-response non-uniformity: a fixed gain 1 + PRNU N(0, 1) per pixel")
 def _prnu(x, ctx):
     f = fixed_pattern(ctx.chain.fixed_pattern_seed, 1, ctx.origin, x.shape[-2:], dtype=x.dtype, device=x.device)
-    return (x * (1 + ctx.sensor.prnu_percent / 100 * f)).clamp_min_(0)
+    return x.mul_(f.mul_(ctx.sensor.prnu_percent / 100).add_(1)).clamp_min_(0)
 
 
 @_stage("photon_noise", "sensor", "photon (shot) noise: Poisson electrons")
@@ -178,33 +193,35 @@ def _photon_noise(x, ctx):
 
 @_stage("dark_current", "sensor", "dark current: Poisson electrons, dark_current_e_per_s x exposure")
 def _dark_current(x, ctx):
-    return x + torch.poisson(torch.full_like(x, ctx.chain.dark_electrons), generator=ctx.generator)
+    return x.add_(torch.poisson(torch.full_like(x, ctx.chain.dark_electrons), generator=ctx.generator))
 
 
 @_stage("dsnu", "sensor", "dark-signal non-uniformity: a fixed offset per pixel, Gaussian e- RMS")
 def _dsnu(x, ctx):
     f = fixed_pattern(ctx.chain.fixed_pattern_seed, 2, ctx.origin, x.shape[-2:], dtype=x.dtype, device=x.device)
-    return x + ctx.sensor.dsnu_e * f
+    return x.add_(f.mul_(ctx.sensor.dsnu_e))
 
 
 @_stage("read_noise", "sensor", "read noise: Gaussian e- RMS")
 def _read_noise(x, ctx):
-    return x + ctx.sensor.read_noise_e * torch.randn(x.shape, generator=ctx.generator, dtype=x.dtype, device=x.device)
+    noise = torch.randn(x.shape, generator=ctx.generator, dtype=x.dtype, device=x.device)
+    return x.add_(noise.mul_(ctx.sensor.read_noise_e))
 
 
 @_stage("adc", "sensor", "ADC: round(electrons / gain + black level), clipped to [0, white level] DN")
 def _adc(x, ctx):
     s = ctx.sensor
     gain = s.conversion_gain_e_per_dn(ctx.full_well)
-    return torch.round(x / gain + s.black_level_dn).clamp_(0, s.white_level)
+    return x.div_(gain).add_(s.black_level_dn).round_().clamp_(0, s.white_level)
 
 
 # ---- ISP side: raw data -> linear image (units of the image) -> developed linear sRGB -----------------------------
 @_stage("black_level", "isp", "DN -> electrons less the black level and the mean dark signal, in image units")
 def _black_level(x, ctx):
     s = ctx.sensor
-    e = x if s.bit_depth is None else (x - s.black_level_dn) * s.conversion_gain_e_per_dn(ctx.full_well)
-    return (e - ctx.chain.dark_electrons) / ctx.electrons_per_unit
+    if s.bit_depth is not None:
+        x.sub_(s.black_level_dn).mul_(s.conversion_gain_e_per_dn(ctx.full_well))
+    return x.sub_(ctx.chain.dark_electrons).div_(ctx.electrons_per_unit)
 
 
 @_stage("white_balance", "isp", "per-channel gains (illuminant: 1 / relative QE; or grey world)")
@@ -221,6 +238,43 @@ def _demosaic(x, ctx):
 def _colour_correction(x, ctx):
     m = torch.tensor(ctx.sensor.colour_matrix, dtype=x.dtype, device=x.device)
     return torch.einsum("ij,bjhw->bihw", m, x)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """The noise of a sensor image as a restoration assumes it, per pixel, in the sensor's units (photo-electrons /
+    ``electrons_per_unit``): at an expected signal ``x`` (>= 0) the variance is
+
+        ``x / electrons_per_unit + (prnu x)^2 + signal_independent_var``
+
+    (photon noise, the fixed gain pattern, and the sum of the signal-independent terms in squared image units).
+    :meth:`CameraChain.noise_model` derives it from the chain's stages; ``NoiseModel(e)`` alone is photon noise at ``e``
+    electrons per unit (``math.inf``: no noise)."""
+
+    electrons_per_unit: float
+    signal_independent_var: float = 0.0
+    prnu: float = 0.0
+    """RMS of each pixel's fixed gain, a fraction of the signal (the sensor's ``prnu_percent`` / 100)."""
+
+    def __post_init__(self):
+        e = self.electrons_per_unit
+        if isinstance(e, bool) or not isinstance(e, (int, float)) or math.isnan(e) or not e > 0:
+            raise ValueError(f"electrons_per_unit={e!r} is not allowed: a number > 0 (inf: no photon noise)")
+        for k in ("signal_independent_var", "prnu"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"{k}={v!r} is not allowed: a finite number >= 0")
+        object.__setattr__(self, "electrons_per_unit", float(e))
+
+    def variance(self, signal):
+        """The noise variance (squared image units) at the expected signal ``signal`` (image units; a tensor or a
+        number; below 0 counts as 0), elementwise."""
+        inv_e = 0.0 if math.isinf(self.electrons_per_unit) else 1.0 / self.electrons_per_unit
+        x = signal.clamp_min(0) if isinstance(signal, torch.Tensor) else max(float(signal), 0.0)
+        var = x * inv_e
+        if self.prnu:
+            var = var + (self.prnu * x) ** 2
+        return var + self.signal_independent_var
 
 
 @dataclass(frozen=True)
@@ -254,6 +308,20 @@ class CameraChain:
         if isinstance(s, bool) or not isinstance(s, int) or s < 0:
             raise ValueError(f"fixed_pattern_seed={s!r} is not allowed: a whole number >= 0")
 
+    @classmethod
+    def of(cls, sensor: "Sensor | CameraChain | None") -> "CameraChain":
+        """The chain a sensor sits in: a :class:`CameraChain` as it is, a :class:`lenssim.Sensor` with the chain's
+        defaults (its terms on where it sets them: the paper's sensor draws photon noise only), None: photon noise only
+        (:data:`PHOTON_NOISE_SENSOR`)."""
+        if isinstance(sensor, CameraChain):
+            return sensor
+        if sensor is None:
+            return cls(PHOTON_NOISE_SENSOR)
+        if not isinstance(sensor, Sensor):
+            raise ValueError(f"sensor is a {type(sensor).__name__}: expected a lenssim.Sensor or a "
+                             "pipeline.camera_chain.CameraChain")
+        return cls(sensor)
+
     @property
     def cfa(self) -> str | None:
         return None if self.sensor.cfa == "none" else self.sensor.cfa
@@ -280,6 +348,12 @@ class CameraChain:
               self.white_balance != "illuminant", "demosaic": self.cfa is not None,
               "colour_correction": bool(self.sensor.colour_matrix)}
         return tuple(k for k in _ISP_STAGES if on[k])
+
+    @property
+    def develops(self) -> bool:
+        """True if :meth:`develop` changes the linear image (white balance, demosaicing or colour correction), so that
+        restoration runs inside it; False: the sensor image is the linearised raw data itself (the paper's sensor)."""
+        return self.isp_stages != ("black_level",)
 
     def to_dict(self) -> dict:
         """The chain by its names (for ``metrics.json``)."""
@@ -320,20 +394,39 @@ class CameraChain:
         """Raw data of the linear camera-RGB image ``(B, C, H, W)`` (>= 0, its pixel ``(0, 0)`` at ``origin`` of the
         frame): DN ``(B, 1, H, W)`` (a CFA) or ``(B, C, H, W)``, float64, electrons without an ADC.
         ``electrons_per_unit``: photo-electrons per unit of the image in the most sensitive channel."""
-        sizes = check_image(image, "image", nonnegative=True)
-        if self.cfa is not None and sizes["C"] != 3:
-            raise ValueError(f"a colour filter array samples an RGB image; this one has {sizes['C']} channel(s)")
+        check_image(image, "image", nonnegative=True)
+        return self._capture(image, electrons_per_unit, full_well, generator, origin)
+
+    def _capture(self, image, electrons_per_unit, full_well, generator, origin) -> torch.Tensor:
+        """:meth:`capture` without the check of the image's values (a blur's rounding below 0 counts as 0)."""
+        if self.cfa is not None and image.shape[1] != 3:
+            raise ValueError(f"a colour filter array samples an RGB image; this one has {image.shape[1]} channel(s)")
         ctx = _Context(self, float(electrons_per_unit), float(full_well), tuple(origin), generator)
         x = image
         for name in self.sensor_stages:
             x = CAMERA_STAGES[name].fn(x, ctx)
         return x
 
-    def linearise(self, raw: torch.Tensor, electrons_per_unit: float, full_well: float, *, origin=(0, 0)
-                  ) -> torch.Tensor:
+    def linearise(self, raw: torch.Tensor, electrons_per_unit: float, full_well: float, *, origin=(0, 0),
+                  in_place: bool = False) -> torch.Tensor:
         """Raw data -> linear image in the sensor's units (electrons / ``electrons_per_unit``: the photon noise's
-        variance is the value over ``electrons_per_unit`` in every channel), black level and mean dark signal removed."""
-        return _black_level(raw, _Context(self, float(electrons_per_unit), float(full_well), tuple(origin)))
+        variance is the value over ``electrons_per_unit`` in every channel), black level and mean dark signal removed.
+        ``in_place``: in ``raw``'s own (floating) buffer, which is then the result."""
+        return _black_level(raw if in_place else raw.clone(),
+                            _Context(self, float(electrons_per_unit), float(full_well), tuple(origin)))
+
+    def expose(self, image: torch.Tensor, electrons_per_unit: float, full_well: float, *, generator: torch.Generator,
+               origin=(0, 0)) -> torch.Tensor:
+        """The sensor's reading of a linear camera-RGB image ``(B, C, H, W)`` in the sensor's units and the image's
+        dtype (:meth:`capture`, then :meth:`linearise` in the same buffer; the mosaic ``(B, 1, H, W)`` under a CFA): the
+        paper's exposure for its sensor (Poisson photo-electrons at ``electrons_per_unit`` per unit, back in image
+        units), each further term where the sensor has it.
+
+        The rate is formed in float64 from the image, so a float64 run draws the same counts on any CPU (a float32 rate
+        that moves by one rounding between hosts can flip a count); at most two float64 frames are alive at a time (a
+        24 MP colour frame's is 580 MB). Values below 0 (a blur's rounding) count as no light."""
+        raw = self._capture(image, electrons_per_unit, full_well, generator, origin)
+        return self.linearise(raw, electrons_per_unit, full_well, origin=origin, in_place=True).to(image.dtype)
 
     def white_balance_gains(self, units: torch.Tensor, *, origin=(0, 0), channels: int = 3) -> torch.Tensor:
         """Per-channel gains ``(C,)`` from the sensor's units to the scene's: 1 / relative QE (illuminant), or grey
@@ -394,15 +487,31 @@ class CameraChain:
             m = np.linalg.inv(np.asarray(self.sensor.colour_matrix)) @ m
         return tuple(tuple(float(v) for v in row) for row in m)
 
-    def noise_variance(self, electrons_per_unit: float, full_well: float) -> float:
-        """The signal-independent noise variance (squared image units) the restoration should assume: read noise,
-        dark electrons, DSNU and the ADC's rounding (1/12 DN^2)."""
-        s = self.sensor
-        var_e = s.read_noise_e**2 + self.dark_electrons + s.dsnu_e**2
-        gain = s.conversion_gain_e_per_dn(full_well)
-        if gain is not None:
-            var_e += gain**2 / 12
-        return var_e / electrons_per_unit**2
+    def noise_model(self, electrons_per_unit: float, full_well: float) -> NoiseModel:
+        """The noise every restoration is given (:class:`NoiseModel`), in the sensor's units (what :meth:`linearise`
+        and :meth:`expose` return), at ``electrons_per_unit`` photo-electrons per unit and the ISO's ``full_well``
+        (electrons): photon noise ``x / electrons_per_unit`` always, and, each exactly where its stage runs
+        (:attr:`sensor_stages`), PRNU ``(prnu x)^2``, read noise ``read^2``, dark current's Poisson electrons (its
+        variance, their mean), DSNU ``dsnu^2`` and the ADC's rounding ``gain^2 / 12`` (a uniform error of one DN, in
+        electrons), the electrons' terms over ``electrons_per_unit^2``.
+
+        The fixed patterns (PRNU, DSNU) count as noise: they vary from pixel to pixel of one frame as the noise does.
+        Holds below the white level (clipping is not modelled) and, for the ADC's term, where the noise before it spans
+        about half a DN or more (Widrow's quantisation theorem: the rounding error is then uniform and uncorrelated with
+        the signal; any read noise of a real sensor does this). Checked against the variance of the simulated noise by
+        Monte Carlo (tests/pipeline/test_noise_model.py)."""
+        s, on = self.sensor, self.sensor_stages
+        var_e = 0.0
+        if "read_noise" in on:
+            var_e += s.read_noise_e**2
+        if "dark_current" in on:
+            var_e += self.dark_electrons
+        if "dsnu" in on:
+            var_e += s.dsnu_e**2
+        if "adc" in on:
+            var_e += s.conversion_gain_e_per_dn(full_well) ** 2 / 12
+        e = float(electrons_per_unit)
+        return NoiseModel(e, var_e / e**2, s.prnu_percent / 100 if "prnu" in on else 0.0)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,10 @@ geometry places every window; the optical axis is at the frame centre.
 Noise scaling: the blurred image's maximum maps to the full-well capacity (paper). For crops the
 frame's blurred maximum is not computed; the ideal image's maximum stands in for it (blurring
 with a unit-sum PSF cannot raise the maximum, so the photon counts are at most those of the
-paper's scaling). Crops and frames draw their noise through one function, :func:`pipeline.noise.expose`.
+paper's scaling). Crops and frames draw their noise through one forward model, the camera chain
+(:class:`pipeline.camera_chain.CameraChain`; a :class:`lenssim.Sensor` is the chain with its defaults, the paper's sensor
+photon noise only), and every restoration is given that chain's noise description
+(:meth:`pipeline.camera_chain.CameraChain.noise_model`).
 Restoration methods come from :data:`pipeline.restoration.RESTORATION_METHODS` (a name, ``"NAME:key=value"``
 or a :class:`pipeline.restoration.Restoration`); results carry images and scores keyed by method name.
 
@@ -38,9 +41,8 @@ from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
 from .blur import (PAPER_SCHEME, ZONE_MULTIPLES, StrideZones, WindowScheme, blur_windowed, choose_stride_zones,
                    largest_window, window_count)
-from .camera_chain import CameraChain, PlanePSF
+from .camera_chain import CameraChain, NoiseModel, PlanePSF
 from .checks import check_boxes, check_full_well, check_provider, check_scene
-from .noise import expose, read_noise_variance
 from .photo import Photo
 from .quality import psnr_srgb, ssim_srgb
 from .restoration import Restoration, restore
@@ -191,25 +193,27 @@ def resolve_blur_zones(blur_zones, psf: PSFProvider, shape, scheme: WindowScheme
 
 def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, seed: int = 0,
                    scheme: WindowScheme = PAPER_SCHEME, methods=DEFAULT_METHODS, method_options: dict | None = None,
-                   sensor: Sensor, progress=None, dtype: torch.dtype = torch.float32,
-                   restoration_psf: PSFProvider | None = None, chain: CameraChain | None = None,
-                   blur_cache: dict | None = None, blur_zones: StrideZones | str | None = None, progress_total=None):
+                   sensor: Sensor | CameraChain, progress=None, dtype: torch.dtype = torch.float32,
+                   restoration_psf: PSFProvider | None = None, blur_cache: dict | None = None,
+                   blur_zones: StrideZones | str | None = None, progress_total=None):
     """Blur, noise and restore ``ideal`` (linear ``(1, C, H, W)``, or a :class:`pipeline.photo.Photo`, read only
     where the crops reach) at each box ``(r0, r1, c0, c1)``.
 
     ``full_well`` (electrons) is a number, giving a list of :class:`CropResult` (one per box), or a
     sequence of numbers (e.g. three ISOs), giving one such list per full well: the blur is computed
-    once and shared. The noise of box ``k`` comes from ``seed + k`` at every full well (``sensor``
-    adds its read noise and quantisation, none for the paper's). Each of ``methods`` (names,
+    once and shared. The noise of box ``k`` comes from ``seed + k`` at every full well. Each of ``methods`` (names,
     ``"NAME:key=value,..."`` or :class:`pipeline.restoration.Restoration`; ``method_options``
     ``{method: {option: value}}``) restores the crop, with the PSFs of ``restoration_psf`` (default ``psf``).
     ``dtype`` is the working precision (float32: ~1e-7 relative, far below the noise; float64 for reference
     runs); results come back in ``ideal``'s dtype.
 
-    ``chain`` (a :class:`pipeline.camera_chain.CameraChain`; None: the paper's model, noise by ``sensor`` as
-    :func:`pipeline.noise.expose`) runs the camera chain in place of the noise: the scene in the camera's RGB, blurred,
-    captured (CFA, noise, ADC: its ``"raw"`` image, DN), developed by the ISP (the ``"sensor"`` image) and restored
-    where the chain says; the CFA's phase and the fixed-pattern noise follow each crop's place in the frame.
+    ``sensor``: a :class:`lenssim.Sensor` (the camera chain with its defaults: :meth:`CameraChain.of`; the paper's
+    sensor draws photon noise only) or a :class:`pipeline.camera_chain.CameraChain`. The crop is exposed through the
+    chain (:meth:`CameraChain.expose`; the fixed-pattern noise follows each crop's place in the frame) and restored
+    with the chain's noise description (:meth:`CameraChain.noise_model`). A chain that develops its raw data
+    (:attr:`CameraChain.develops`: a CFA, white balance or colour correction) runs the whole camera: the scene in the
+    camera's RGB, blurred, captured (CFA, noise, ADC: its ``"raw"`` image, DN), developed by the ISP (the ``"sensor"``
+    image) and restored where the chain says; the CFA's phase follows the crop's place in the frame.
 
     ``blur_cache`` (a dict the caller keeps, e.g. an interactive explorer): the blurred region of each box is kept
     there under the blur provider, the box, the window scheme, the working precision and the chain's colour matrix
@@ -230,11 +234,12 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         read = lambda R0, R1, C0, C1: ideal[..., R0:R1, C0:C1]  # noqa: E731
     check_provider(psf)
     restoration_psf = psf if restoration_psf is None else check_provider(restoration_psf, "restoration_psf")
+    chain = CameraChain.of(sensor)
     if blur_zones is not None and not (blur_zones == "auto" or isinstance(blur_zones, StrideZones)):
         resolve_blur_zones(blur_zones, psf, shape, scheme)  # refused in one line, before any work
     zones = None if blur_zones == "auto" else resolve_blur_zones(blur_zones, psf, shape, scheme)  # "auto": per crop
     coarsest = max((zones or StrideZones((), (1,))).multiples + ((max(ZONE_MULTIPLES),) if blur_zones == "auto" else ()))
-    blur_key = (id(psf), scheme, dtype, None if chain is None else (chain.sensor.colour_matrix, chain.sensor.fill_factor),
+    blur_key = (id(psf), scheme, dtype, chain.sensor.colour_matrix, chain.sensor.fill_factor,
                 blur_zones if isinstance(blur_zones, str) else zones)
     psf, restoration_psf = _with_pixel_aperture(chain, psf), _with_pixel_aperture(chain, restoration_psf)
     specs = check_methods(methods, method_options)
@@ -243,12 +248,9 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     boxes = check_boxes(boxes, shape)
     for r in specs:  # the options against the windows, after the other arguments, before any work
         r.check(scheme)
-    if chain is not None:
-        if not isinstance(chain, CameraChain):
-            raise ValueError(f"chain is a {type(chain).__name__}: expected a pipeline.camera_chain.CameraChain")
-        if chain.cfa is not None and shape[1] != 3:
-            raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
-                             f"{shape[1]} channel(s)")
+    if chain.cfa is not None and shape[1] != 3:
+        raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
+                         f"{shape[1]} channel(s)")
     H, W = shape[-2:]
     centre = frame_center(shape)
     providers = {id(psf): psf, id(restoration_psf): restoration_psf}.values()
@@ -291,9 +293,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         progress_total(_crop_windows(plans, scheme, len(wells) * len(specs), chain))
     out = [[] for _ in wells]
     for k, ((r0, r1, c0, c1), ((R0, R1, C0, C1), br, rr, oc, key, z, _)) in enumerate(zip(boxes, plans)):
-        sub = read(R0, R1, C0, C1).to(dtype)
-        if chain is not None:
-            sub = chain.scene_to_camera(sub)
+        sub = chain.scene_to_camera(read(R0, R1, C0, C1).to(dtype))
         blurred = None if blur_cache is None else blur_cache.get(key)
         if blurred is None:
             if isinstance(z, str):  # "auto", cached when planned and gone since: its zones chosen now
@@ -307,26 +307,28 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
         for i, fwc in enumerate(wells):
             e = fwc / peak
             g = torch.Generator(device=blurred.device).manual_seed(seed + k)
-            if chain is not None:
+            if chain.develops:
                 out[i].append(_chain_crop(chain, blurred, br, rr, (R0, C0), oc, e, fwc, g, crop, ci,
                                           (r0, r1, c0, c1), field_deg, specs, restoration_psf, scheme, progress, dtype))
                 continue
+            # the sensor image is the exposure itself: restored on the sub-array, the exposed blur region in it
             noisy = blurred.clone()
             reg = (slice(br[0], br[1]), slice(br[2], br[3]))
-            noisy[..., reg[0], reg[1]] = expose(blurred[..., reg[0], reg[1]], e, sensor, fwc, generator=g)
+            noisy[..., reg[0], reg[1]] = chain.expose(blurred[..., reg[0], reg[1]], e, fwc, generator=g,
+                                                      origin=(R0 + br[0], C0 + br[2]))
             cs_ = crop(noisy)
             res = CropResult((r0, r1, c0, c1), field_deg, {"ideal": ci, "blurred": crop(blurred), "sensor": cs_},
                              {"sensor": _score(ci, cs_)})
+            noise = chain.noise_model(e, fwc)
             for spec in specs:
-                restored = crop(restore(spec, noisy, restoration_psf, electrons_per_unit=e,
-                                        read_noise_var=read_noise_variance(sensor, e), scheme=scheme,
-                                        optical_center=oc, region=rr, progress=progress))
+                restored = crop(restore(spec, noisy, restoration_psf, noise=noise, scheme=scheme, optical_center=oc,
+                                        region=rr, progress=progress))
                 res.images[spec.name], res.scores[spec.name] = restored, _score(ci, restored)
             out[i].append(res)
     return out if several else out[0]
 
 
-def _crop_windows(plans, scheme: WindowScheme, restorations: int, chain: CameraChain | None) -> int:
+def _crop_windows(plans, scheme: WindowScheme, restorations: int, chain: CameraChain) -> int:
     """The windows :func:`simulate_crops` will blur and restore for its ``plans`` (its ``progress`` adds up to this):
     each box's blur region (unless its blur is cached), and ``restorations`` times (full wells x methods) its crop, in
     the sub-array's pixels, in the camera chain's developed region, or in each of its four CFA planes
@@ -336,7 +338,7 @@ def _crop_windows(plans, scheme: WindowScheme, restorations: int, chain: CameraC
         shape = (R1 - R0, C1 - C0)
         if blurs:
             n += window_count(shape, scheme, oc, zones=z, region=br)
-        if chain is None:
+        if not chain.develops:
             n += restorations * window_count(shape, scheme, oc, region=rr)
             continue
         h, w = br[1] - br[0], br[3] - br[2]
@@ -361,28 +363,28 @@ def _plane_region(region, dy: int, dx: int, h: int, w: int):
             max(-(-(region[2] - dx) // 2) - 1, 0), min(-(-(region[3] - dx) // 2) + 1, w))
 
 
-def _with_pixel_aperture(chain: CameraChain | None, psf: PSFProvider) -> PSFProvider:
+def _with_pixel_aperture(chain: CameraChain, psf: PSFProvider) -> PSFProvider:
     """``psf`` integrated over the chain's pixel aperture (its sensor's ``fill_factor``), for the blur and the
     restoration alike; unchanged without one."""
-    if chain is None or chain.sensor.fill_factor is None:
+    if chain.sensor.fill_factor is None:
         return psf
     from lenssim.optics.pixel_aperture import PixelAperturePSF
 
     return PixelAperturePSF(psf, chain.sensor.fill_factor)
 
 
-def _chain_restorer(chain: CameraChain, spec, psf, e: float, var: float, scheme, oc, region, progress, dtype):
+def _chain_restorer(chain: CameraChain, spec, psf, noise: NoiseModel, scheme, oc, region, progress, dtype):
     """``restore(image, plane)`` for :meth:`CameraChain.develop`: ``spec`` with ``psf`` on the RGB image (its optical
     centre ``oc`` and ``region`` in the array's pixels), or on a CFA plane with :class:`PlanePSF` (the same windows in
     the plane's pixels), the plane's centre and region (a plane pixel of slack each side, which demosaicing reads)."""
     def run(x, plane):
         if plane is None:
-            return restore(spec, x.to(dtype), psf, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
-                           optical_center=oc, region=region, progress=progress).to(x.dtype)
+            return restore(spec, x.to(dtype), psf, noise=noise, scheme=scheme, optical_center=oc, region=region,
+                           progress=progress).to(x.dtype)
         dy, dx, c = plane
         pr = _plane_region(region, dy, dx, *x.shape[-2:])
         pp = PlanePSF(psf, dy, dx, c if psf.channels > 1 else 0)
-        return restore(spec, x.to(dtype), pp, electrons_per_unit=e, read_noise_var=var, scheme=scheme,
+        return restore(spec, x.to(dtype), pp, noise=noise, scheme=scheme,
                        optical_center=((oc[0] - dy) / 2, (oc[1] - dx) / 2), region=pr, progress=progress).to(x.dtype)
     return run
 
@@ -402,9 +404,9 @@ def _chain_crop(chain, blurred, br, rr, corner, oc, e, fwc, g, crop, ci, box, fi
     sensor_img = cut(chain.develop(units, gains=gains, origin=origin))
     res = CropResult(box, field_deg, {"ideal": ci, "blurred": crop(blurred), "sensor": sensor_img,
                                       "raw": raw[..., rb[0]:rb[1], rb[2]:rb[3]]}, {"sensor": _score(ci, sensor_img)})
-    var = chain.noise_variance(e, fwc)
+    noise = chain.noise_model(e, fwc)
     for spec in specs:
-        run = _chain_restorer(chain, spec, restoration_psf, e, var, scheme, ocb, rb, progress, dtype)
+        run = _chain_restorer(chain, spec, restoration_psf, noise, scheme, ocb, rb, progress, dtype)
         restored = cut(chain.develop(units, gains=gains, origin=origin, restore=run))
         res.images[spec.name], res.scores[spec.name] = restored, _score(ci, restored)
     return res
@@ -423,8 +425,9 @@ class FrameResult:
     provider}`` (:func:`simulate_frame`), in its order, all from the one :attr:`sensor` image (the first is also
     :attr:`restored`); empty for one restoration provider."""
     raw: torch.Tensor | None = None
-    """The camera chain's raw data (DN, ``(B, 1, H, W)`` under a CFA; electrons without an ADC), None without a
-    chain."""
+    """The camera chain's raw data (DN, ``(B, 1, H, W)`` under a CFA; electrons without an ADC) where the chain develops
+    it (:attr:`pipeline.camera_chain.CameraChain.develops`); None where the sensor image is the exposure itself (the
+    paper's sensor)."""
 
     def restored_images(self) -> dict:
         """The restored frames by image kind: ``{"restored": ...}``, or ``{"restored_TAG": ...}`` per tag of
@@ -461,9 +464,9 @@ def _provider_key(psf: PSFProvider):
 
 
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
-                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor,
+                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor | CameraChain,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
-                   restoration_psf: PSFProvider | dict | None = None, chain: CameraChain | None = None,
+                   restoration_psf: PSFProvider | dict | None = None,
                    blur_zones: StrideZones | str | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
     ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
@@ -486,8 +489,9 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     :class:`lenssim.AsBuiltPSF` the sampled lens's errors), so a sensor image is never taken from another lens; the
     restorations are always run again.
 
-    ``chain`` (a :class:`pipeline.camera_chain.CameraChain`) runs the camera chain as :func:`simulate_crops` does: the
-    checkpoint then holds its raw data (:attr:`FrameResult.raw`), developed again on resuming.
+    ``sensor`` (a :class:`lenssim.Sensor` or a :class:`pipeline.camera_chain.CameraChain`) as for
+    :func:`simulate_crops`: a chain that develops its raw data keeps them (:attr:`FrameResult.raw`) and its checkpoint
+    holds them, developed again on resuming.
 
     ``blur_zones``: as for :func:`simulate_crops` (the blur only; the restoration keeps the scheme's stride).
     """
@@ -495,6 +499,7 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
 
     check_scene(ideal, "ideal")
     check_provider(psf)
+    chain = CameraChain.of(sensor)
     restoration_psf = _restoration_providers(psf, restoration_psf)
     psf = _with_pixel_aperture(chain, psf)
     restoration_psf = ({t: _with_pixel_aperture(chain, p) for t, p in restoration_psf.items()}
@@ -502,14 +507,16 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
     (method,) = check_methods((method,))
     full_well = check_full_well(full_well)
     method.check(scheme)
-    if chain is not None and chain.cfa is not None and ideal.shape[1] != 3:
+    if chain.cfa is not None and ideal.shape[1] != 3:
         raise ValueError(f"the sensor's {chain.cfa} colour filter array samples an RGB image; this one has "
                          f"{ideal.shape[1]} channel(s)")
     seconds = {}
     zones = resolve_blur_zones(blur_zones, psf, ideal.shape, scheme)
     pkey = _provider_key(psf)
-    params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": sensor.to_dict(),
-              **({} if chain is None else {"chain": chain.to_dict()}),
+    # the chain by its names where it does more than the sensor's read noise and ADC (the stamps of the paper's runs,
+    # made before the chain was its one forward model, hold)
+    params = {"psf": pkey, "full_well": float(full_well), "seed": int(seed), "sensor": chain.sensor.to_dict(),
+              **({"chain": chain.to_dict()} if chain.develops or chain.sensor.chain_terms else {}),
               **({} if zones is None else {"blur_zones": zones.to_dict()}),
               "scheme": [scheme.window, scheme.stride, scheme.core, scheme.anchor, scheme.fit], "dtype": str(dtype),
               "shape": list(ideal.shape)}
@@ -544,26 +551,27 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                     except ImageFileError as exc:  # unreadable now (e.g. the disk failed): computed again
                         warnings.warn(f"{exc}; computing the sensor image again", ResumeWarning, stacklevel=2)
                         noisy = torch.empty(0)
-                    if chain is not None and tuple(noisy.shape) == _raw_shape(ideal.shape, chain):
+                    if chain.develops and tuple(noisy.shape) == _raw_shape(ideal.shape, chain):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme, zones=zones))
                         return _develop_frame(noisy.to(device=ideal.device, dtype=torch.float64), ideal, restoration_psf,
                                               method, chain, stamp["electrons_per_unit"], full_well, scheme, progress,
                                               seconds, dtype, resumed=True)
-                    if chain is None and tuple(noisy.shape) == tuple(ideal.shape):
+                    if not chain.develops and tuple(noisy.shape) == tuple(ideal.shape):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme, zones=zones))
-                        return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, restoration_psf, method, sensor,
-                                              stamp["electrons_per_unit"], scheme, progress, seconds, resumed=True)
+                        return _restore_frame(noisy.to(device=ideal.device, dtype=dtype), ideal, restoration_psf, method,
+                                              chain.noise_model(e_stamp, full_well), e_stamp, scheme, progress, seconds,
+                                              resumed=True)
     t0 = time.perf_counter()
-    scene = ideal.to(dtype) if chain is None else chain.scene_to_camera(ideal.to(dtype))
+    scene = chain.scene_to_camera(ideal.to(dtype))
     blurred = blur_windowed(scene, psf, scheme=scheme, progress=progress, zones=zones)
     del scene
     seconds["blur"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     e = full_well / float(blurred.amax())
     g = torch.Generator(device=blurred.device).manual_seed(int(seed))
-    if chain is not None:
+    if chain.develops:
         raw = chain.capture(blurred, e, full_well, generator=g)
         del blurred
         seconds["noise"] = time.perf_counter() - t0
@@ -573,14 +581,15 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                                                       "sensor_sha256": _file_sha256(sensor_path), **params}, indent=2))
         return _develop_frame(raw, ideal, restoration_psf, method, chain, e, full_well, scheme, progress, seconds,
                               dtype, resumed=False)
-    noisy = expose(blurred, e, sensor, full_well, generator=g)
+    noisy = chain.expose(blurred, e, full_well, generator=g)
     del blurred
     seconds["noise"] = time.perf_counter() - t0
     if sensor_path is not None:
         write_image(sensor_path, noisy, bits="float")
         atomic_write_text(stamp_path, json.dumps({"key": key, "electrons_per_unit": e,
                                                   "sensor_sha256": _file_sha256(sensor_path), **params}, indent=2))
-    return _restore_frame(noisy, ideal, restoration_psf, method, sensor, e, scheme, progress, seconds, resumed=False)
+    return _restore_frame(noisy, ideal, restoration_psf, method, chain.noise_model(e, full_well), e, scheme, progress,
+                          seconds, resumed=False)
 
 
 def crops_from_frame(ideal: torch.Tensor, frame: FrameResult, boxes, geometry: FieldGeometry) -> list[CropResult]:
@@ -621,14 +630,13 @@ def _restoration_providers(psf: PSFProvider, restoration_psf) -> PSFProvider | d
     return out
 
 
-def _restore_frame(noisy, ideal, psf, method, sensor, e, scheme, progress, seconds, resumed) -> FrameResult:
-    """Restore the one noisy frame with ``psf`` (a provider, or ``{tag: provider}``: each in turn)."""
+def _restore_frame(noisy, ideal, psf, method, noise: NoiseModel, e, scheme, progress, seconds, resumed) -> FrameResult:
+    """Restore the one noisy frame with ``psf`` (a provider, or ``{tag: provider}``: each in turn), assuming ``noise``."""
     t0 = time.perf_counter()
     several = isinstance(psf, dict)
     restored = {}
     for tag, prov in (psf.items() if several else [("", psf)]):
-        restored[tag] = restore(method, noisy, prov, electrons_per_unit=e, read_noise_var=read_noise_variance(sensor, e),
-                                scheme=scheme, progress=progress).to(ideal.dtype)
+        restored[tag] = restore(method, noisy, prov, noise=noise, scheme=scheme, progress=progress).to(ideal.dtype)
     seconds["restore"] = time.perf_counter() - t0
     first = next(iter(restored.values()))
     return FrameResult(noisy.to(ideal.dtype), first, method.name, e, resumed, seconds,
@@ -649,11 +657,11 @@ def _develop_frame(raw, ideal, psf, method, chain: CameraChain, e, full_well, sc
     sensor_img = chain.develop(units, gains=gains).to(ideal.dtype)
     seconds["develop"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    var = chain.noise_variance(e, full_well)
+    noise = chain.noise_model(e, full_well)
     several = isinstance(psf, dict)
     restored = {}
     for tag, prov in (psf.items() if several else [("", psf)]):
-        run = _chain_restorer(chain, method, prov, e, var, scheme, None, None, progress, dtype)
+        run = _chain_restorer(chain, method, prov, noise, scheme, None, None, progress, dtype)
         restored[tag] = chain.develop(units, gains=gains, restore=run).to(ideal.dtype)
     seconds["restore"] = time.perf_counter() - t0
     first = next(iter(restored.values()))

@@ -13,7 +13,7 @@ import lenssim
 import pipeline
 from lenssim import Design, LensPSF, check_shape, evaluate, otf_quarter_spectrum, psf, psf_at, spectral_coefficients
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from pipeline import WindowScheme, add_poisson_noise, blur_windowed, wiener_windowed
+from pipeline import NoiseModel, WindowScheme, add_poisson_noise, blur_windowed, wiener_windowed
 from lenssim_studies.paper import PAPER_RHO0
 
 E2E = PAPER_DESIGNS["end_to_end_paper"]
@@ -66,7 +66,7 @@ def test_image_pipeline_follows_device_and_dtype(device_dtype):
     b = blur_windowed(img, psf_, **kw)
     assert b.device.type == dev.type and b.dtype == dt
     _close(b, blur_windowed(img64, psf_, **kw), dt)
-    r = wiener_windowed(b, psf_, electrons_per_unit=3200.0, **kw)
+    r = wiener_windowed(b, psf_, noise=NoiseModel(3200.0), **kw)
     assert r.device.type == dev.type and r.dtype == dt and torch.isfinite(r).all()
     n = add_poisson_noise(b.clamp_min(0), 3200.0, seed=1)
     assert n.device.type == dev.type and n.dtype == dt
@@ -103,7 +103,7 @@ def test_mirror_groups_on_the_device_match_every_window_s_own_psf(device_dtype):
 
 @pytest.mark.parametrize("fn, bad, match", [
     (lambda x: blur_windowed(x, LensPSF(PAPER_CAMERA, E2E)), torch.zeros(8, 8), r"image has shape \(8, 8\)"),
-    (lambda x: wiener_windowed(x, LensPSF(PAPER_CAMERA, E2E), electrons_per_unit=1.0), torch.zeros(1, 8, 8),
+    (lambda x: wiener_windowed(x, LensPSF(PAPER_CAMERA, E2E), noise=NoiseModel(1.0)), torch.zeros(1, 8, 8),
      r"observed has shape \(1, 8, 8\)"),
     (lambda x: psf(PAPER_CAMERA, x, 64), torch.zeros(2, 5), r"expected a floating tensor of shape \(\*, K, 4\)"),
     (lambda x: blur_windowed(x, LensPSF(PAPER_CAMERA, E2E)), torch.zeros(1, 1, 8, 8, dtype=torch.int64),

@@ -33,6 +33,9 @@ near the axis lost 0.004 in SSIM (over the issue's 0.001). The sums moved back b
 Added (issue 33): ``frame``, a 512 x 512 photo 280-1000 px off the axis through the speed levers (blur zones,
 restoration windows fitted to the PSF) in float64: the zones' ring edge and the sensor and restored PSNR and SSIM.
 
+Added (issue 44): ``expose``, the sensor's reading (photon noise; read noise and the ADC) for two seeds, pinned
+before the paper's exposure became the camera chain with its other stages off: it must not move.
+
 Host-independent tolerances (issue 18). The pins must hold on any x86-64 CPU and thread count, and each
 tolerance below says why it is what it is (:data:`RULES`, first match wins):
 
@@ -108,6 +111,7 @@ RULES = [
     ("pipeline*.crops", F64, "value"),
     ("pipeline*", F32_IMAGE, "stats"),
     ("frame.*", F64, "value"),
+    ("expose.*", F64, "stats"),
 ]
 
 
@@ -180,7 +184,7 @@ def _psf_pins():
 def _pipeline_pins(anchor: str):
     from lenssim import Design, LensPSF
     from lenssim_studies.paper import PAPER_CAMERA
-    from pipeline import WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
+    from pipeline import NoiseModel, WindowScheme, blur_windowed, resolution_scene, simulate_crops, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
     img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
@@ -188,7 +192,7 @@ def _pipeline_pins(anchor: str):
     oc = (-500.0, -700.0)  # optical centre far outside: the array sits at ~2.9 deg of field
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     blurred = blur_windowed(img, e2e, scheme=scheme, optical_center=oc)
-    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=scheme, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, noise=NoiseModel(3200.0), scheme=scheme, optical_center=oc)
     big = resolution_scene(600, 800, tile=128, spacing=256, geometry=PAPER_CAMERA.geometry)
     res = simulate_crops(big, LensPSF(PAPER_CAMERA, Design(s=-0.725, Q_back=-10.0)), [3200.0, 800.0],
                          [(100, 164, 200, 264), (400, 464, 600, 664)], seed=5, scheme=scheme,
@@ -201,14 +205,14 @@ def _pipeline_pins(anchor: str):
 def _fitted_pins():
     from lenssim import Design, LensPSF
     from lenssim_studies.paper import PAPER_CAMERA
-    from pipeline import PAPER_SCHEME, blur_windowed, wiener_windowed
+    from pipeline import PAPER_SCHEME, NoiseModel, blur_windowed, wiener_windowed
 
     g = torch.Generator().manual_seed(3)
     img = torch.rand(1, 3, 96, 128, generator=g, dtype=torch.float32) * 0.8 + 0.1
     oc = (-500.0, -700.0)  # ~2.9 deg of field: the 512 px scheme's blur windows fit in 256 px
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     blurred = blur_windowed(img, e2e, scheme=PAPER_SCHEME, optical_center=oc)
-    restored = wiener_windowed(blurred, e2e, electrons_per_unit=3200.0, scheme=PAPER_SCHEME, optical_center=oc)
+    restored = wiener_windowed(blurred, e2e, noise=NoiseModel(3200.0), scheme=PAPER_SCHEME, optical_center=oc)
     return {"blur": _stats(blurred), "wiener": _stats(restored)}
 
 
@@ -219,23 +223,47 @@ def _frame_pins():
     from lenssim_studies.paper import PAPER_CAMERA
     from pipeline import PAPER_SCHEME, blur_windowed, load_photo, psnr_srgb, ssim_srgb, wiener_windowed
     from pipeline.blur import choose_stride_zones
-    from pipeline.noise import expose, read_noise_variance
+    from pipeline.camera_chain import CameraChain
 
     img = load_photo("skimage:astronaut")[0].double()
     oc, fwc = (-200.0, -200.0), 3200.0  # 283-1007 px from the axis: both of the zones' strides
     e2e = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
     zones = choose_stride_zones(e2e, img.shape, PAPER_SCHEME, oc)
     blurred = blur_windowed(img, e2e, scheme=PAPER_SCHEME, optical_center=oc, zones=zones)
-    noisy = expose(blurred, fwc, PAPER_SENSOR, fwc, generator=torch.Generator().manual_seed(4))
-    restored = wiener_windowed(noisy, e2e, electrons_per_unit=fwc, read_noise_var=read_noise_variance(PAPER_SENSOR, fwc),
-                               scheme=PAPER_SCHEME, optical_center=oc)
+    chain = CameraChain(PAPER_SENSOR)  # the paper's sensor: photon noise only
+    noisy = chain.expose(blurred, fwc, fwc, generator=torch.Generator().manual_seed(4))
+    restored = wiener_windowed(noisy, e2e, noise=chain.noise_model(fwc, fwc), scheme=PAPER_SCHEME, optical_center=oc)
     return {"zone_edges_px": list(zones.edges_px),
             "scores": [psnr_srgb(img, noisy), psnr_srgb(img, restored), ssim_srgb(img, noisy), ssim_srgb(img, restored)]}
 
 
+def _expose_pins():
+    """The sensor's reading (:func:`pipeline.noise.expose`) as it stood before the paper's exposure became the camera
+    chain (issue 44): photon noise only (no sensor, the paper's), with read noise and a 10- or 12-bit ADC, for two
+    seeds and both working precisions. Float64 draws and IEEE rounding: the same on any host."""
+    from lenssim import Sensor
+    from pipeline.noise import expose
+
+    def sensor(**kw):
+        return Sensor(pixel_pitch_um=1.5625, width_px=64, height_px=64, **kw)
+
+    img = torch.rand(1, 3, 40, 56, generator=torch.Generator().manual_seed(8), dtype=torch.float64) * 0.9 + 0.01
+    out = {}
+    for name, s, fwc in (("ideal", None, 3200.0), ("paper", PAPER_SENSOR, 3200.0),
+                         ("read_adc10", sensor(read_noise_e=3.0, bit_depth=10), 800.0),
+                         ("read_adc12", sensor(read_noise_e=2.5, bit_depth=12), 12800.0)):
+        for dtype in (torch.float64, torch.float32):
+            x = img.to(dtype)
+            e = fwc / float(x.amax())
+            out[f"{name}_{str(dtype)[6:]}"] = [_stats(expose(x, e, s, fwc, generator=torch.Generator().manual_seed(seed)))
+                                               for seed in (4, 11)]
+    return out
+
+
 def compute_pins(tmp: Path) -> dict:
     return {"evaluate": _evaluate_pins(), "sweep": _sweep_pins(tmp), "psf": _psf_pins(), "pipeline": _pipeline_pins("origin"),
-            "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins(), "frame": _frame_pins()}
+            "pipeline_axis": _pipeline_pins("axis"), "pipeline_fitted": _fitted_pins(), "frame": _frame_pins(),
+            "expose": _expose_pins()}
 
 
 def _close(new, old, tol, path):
@@ -271,7 +299,8 @@ def pins_now(tmp_path_factory):
     return compute_pins(tmp_path_factory.mktemp("pins"))
 
 
-@pytest.mark.parametrize("part", ["evaluate", "sweep", "psf", "pipeline", "pipeline_axis", "pipeline_fitted", "frame"])
+@pytest.mark.parametrize("part", ["evaluate", "sweep", "psf", "pipeline", "pipeline_axis", "pipeline_fitted", "frame",
+                                  "expose"])
 def test_numbers_unchanged_since_the_pins(pins_now, part):
     old = json.loads(PINS.read_text())
     _compare(pins_now[part], old[part], part, part)

@@ -1,9 +1,9 @@
 """Restoration methods, as a registry: name -> how it restores, its label, its options and its margin.
 
 A method is ``fn(observed, psf, *, <what it uses>, **options) -> restored`` (linear ``(B, C, H, W)``): it
-declares in its signature only the keyword arguments it uses, from ``electrons_per_unit`` (photo-electrons
-per unit of the linear image; ``inf``: no photon noise), ``read_noise_var`` (squared image units),
-``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
+declares in its signature only the keyword arguments it uses, from ``noise`` (the sensor image's noise, a
+:class:`pipeline.camera_chain.NoiseModel`: the camera chain's own description of it,
+:meth:`pipeline.camera_chain.CameraChain.noise_model`, so no method keeps a second noise formula), ``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
 ``progress``, and the dispatcher passes it just those (as colour-science's ``filter_kwargs``). Its
 ``options`` are its own settings with their defaults; ``margin(scheme)`` says how far (px) beyond the
 ``region`` it reads the observed image (the windowed methods: half a window and a core).
@@ -25,10 +25,12 @@ import torch
 
 from lenssim.registry import Registry, import_plugins
 
+from ..camera_chain import NoiseModel
+
 __all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
            "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin"]
 
-COMMON_ARGUMENTS = ("electrons_per_unit", "read_noise_var", "scheme", "optical_center", "region", "progress")
+COMMON_ARGUMENTS = ("noise", "scheme", "optical_center", "region", "progress")
 """What a restoration may ask for besides the image and the PSF provider."""
 
 
@@ -163,17 +165,20 @@ def parse_restoration(spec: str) -> Restoration:
     return Restoration(name.strip(), options)
 
 
-def restore(method, observed: torch.Tensor, psf, *, electrons_per_unit: float, read_noise_var: float = 0.0,
-            options: dict | None = None, **common) -> torch.Tensor:
+def restore(method, observed: torch.Tensor, psf, *, noise, options: dict | None = None, **common) -> torch.Tensor:
     """Restore ``observed`` ``(B, C, H, W)`` with ``method`` (a name, ``"NAME:key=value,..."`` or a
-    :class:`Restoration`; ``options`` adds settings), passing the method only the common arguments it declares."""
+    :class:`Restoration`; ``options`` adds settings), passing the method only the common arguments it declares;
+    ``noise``: the image's noise (:class:`pipeline.camera_chain.NoiseModel`)."""
     spec = Restoration.of(method)
     if options:
         spec = Restoration(spec.name, {**spec.options, **options})
     bad = set(common) - set(COMMON_ARGUMENTS)
     if bad:
         raise TypeError(f"restore() got unexpected argument(s) {sorted(bad)}")
-    given = {"electrons_per_unit": electrons_per_unit, "read_noise_var": read_noise_var, **common}
+    if not isinstance(noise, NoiseModel):
+        raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel (a camera "
+                         "chain's noise_model(), or NoiseModel(electrons_per_unit) for photon noise alone)")
+    given = {"noise": noise, **common}
     m = spec.method
     return m.fn(observed, psf, **{k: v for k, v in given.items() if k in m.accepts()}, **spec.options)
 

@@ -21,7 +21,7 @@ A delta PSF with no regularisation restores the image exactly:
 
 >>> import math, torch
 >>> from lenssim import FieldGeometry, FunctionPSF
->>> from pipeline import WindowScheme
+>>> from pipeline import NoiseModel, WindowScheme
 >>> from pipeline.restoration import restore
 >>> def delta(x_mm, y_mm, n):
 ...     p = torch.zeros(len(x_mm), n, n, dtype=torch.float64)
@@ -29,7 +29,7 @@ A delta PSF with no regularisation restores the image exactly:
 ...     return p
 >>> x = torch.rand(1, 1, 64, 64, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
 >>> psf = FunctionPSF(delta, FieldGeometry(focal_length_mm=25.0, pixel_pitch_um=1.5625))
->>> y = restore("tikhonov:weight=0", x, psf, electrons_per_unit=math.inf, scheme=WindowScheme(64, 16, 32))
+>>> y = restore("tikhonov:weight=0", x, psf, noise=NoiseModel(math.inf), scheme=WindowScheme(64, 16, 32))
 >>> bool(torch.allclose(y, x, atol=1e-12))
 True
 """

@@ -5,19 +5,22 @@ blended linearly) and for every channel:
 
 * ``mu`` and ``var_y``: mean and variance of the observed image over the central ``stats`` x ``stats``
   pixels of the window (the local statistics);
-* noise variance, signal dependent (Poisson): ``sigma_n^2 = mu / e + read_var``, where ``e`` is the
-  number of electrons per unit of the linear image (``full_well / peak`` in the simulation);
+* noise variance at that mean, ``sigma_n^2 = noise.variance(mu)``: the camera chain's noise description
+  (:class:`pipeline.camera_chain.NoiseModel`), for the paper's sensor the Poisson ``mu / e`` with ``e`` the number of
+  electrons per unit of the linear image (``full_well / peak`` in the simulation), plus each further term of the
+  sensor (read noise, dark current, DSNU, ADC rounding, PRNU) where it is on;
 * signal variance of the *unblurred* image: ``sigma_x^2 = max(var_y - sigma_n^2, floor) / <|H|^2 P>``
   (blur scales the variance of a signal with spectrum ``P`` by the mean of ``|H|^2 P``);
 * Wiener filter with the paper's image model ``P`` (``rho0^|r|``, unit variance, the same spectrum
   as :func:`lenssim.image_psd`) scaled by ``sigma_x^2``:
   ``G = conj(H) sigma_x^2 P / (|H|^2 sigma_x^2 P + sigma_n^2)`` applied to ``y - mu``, then ``+ mu``.
 
-With no blur (``H = 1``) and no noise (``e = inf``) this is the identity.
+With no blur (``H = 1``) and no noise (``NoiseModel(math.inf)``) this is the identity.
 
 Option ``local="pixel"`` (``wiener:local=pixel``): a per-pixel adaptive signal variance. Local variance maps over
 ``pixel_stats`` x ``pixel_stats`` px boxes (kornia ``box_blur`` over each window's core and its halo) give each pixel's
-signal variance relative to the window's, ``r = max(var_y(p) - sigma_n^2(p), floor) / max(mean over the core, floor)``;
+signal variance relative to the window's, ``r = max(var_y(p) - sigma_n^2(p), floor) / max(mean over the core, floor)``
+(``sigma_n^2(p)``: the noise description at the box's mean);
 the window is restored with a bank of filters at ``sigma_x^2 * WIENER_PIXEL_LEVELS`` and each pixel takes the two
 nearest in ``log r`` (linearly; clamped to the bank's ends). ``local="window"`` (the default): the paper's filter.
 
@@ -30,15 +33,12 @@ References
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from lenssim import PSFProvider, image_psd
 
-from lenssim.validate import check_real
-
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
+from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, register
 
@@ -71,24 +71,22 @@ WIENER_RHO0 = 0.97
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
 
 
-def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_unit: float,
-                    read_noise_var: float = 0.0, rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
+def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
+                    rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
                     pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None) -> torch.Tensor:
-    """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with Poisson noise.
+    """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with the noise ``noise``
+    describes (:class:`pipeline.camera_chain.NoiseModel`: a camera chain's ``noise_model()``, or
+    ``NoiseModel(electrons_per_unit)`` for photon noise alone, ``math.inf``: none).
 
-    ``electrons_per_unit`` may be ``math.inf`` (no photon noise); ``read_noise_var`` is the read
-    noise variance in squared image units. ``fit`` (default ``scheme.fit``): each window's transform sized to the
-    local PSF's support plus the core as the blur's are (:func:`pipeline.blur.fitted_windows`), but at least
-    :data:`WIENER_FIT_LEAST_PX`, its statistics still over the central ``stats`` px (docs/performance.md); off where
-    ``stats`` is over that size. Returns the same shape.
+    ``fit`` (default ``scheme.fit``): each window's transform sized to the local PSF's support plus the core as the
+    blur's are (:func:`pipeline.blur.fitted_windows`), but at least :data:`WIENER_FIT_LEAST_PX`, its statistics still
+    over the central ``stats`` px (docs/performance.md); off where ``stats`` is over that size. Returns the same shape.
     """
     check_image(observed, "observed")
-    if not (isinstance(electrons_per_unit, (int, float)) and not isinstance(electrons_per_unit, bool)
-            and electrons_per_unit > 0 and not math.isnan(electrons_per_unit)):
-        raise ValueError(f"electrons_per_unit={electrons_per_unit!r} is not allowed: a number > 0 (inf: no noise)")
-    check_real("read_noise_var", read_noise_var, 0.0)
+    if not isinstance(noise, NoiseModel):
+        raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
     if not (isinstance(stats, int) and 2 <= stats <= scheme.window):
         raise ValueError(f"stats={stats!r} is not allowed: an integer in [2, window={scheme.window}]")
     if local not in WIENER_LOCAL:
@@ -100,7 +98,6 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
     fit = scheme.fit if fit is None else fit
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
-    inv_e = 0.0 if math.isinf(electrons_per_unit) else 1.0 / electrons_per_unit
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
     grids = {}
 
@@ -124,18 +121,18 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
-        noise = mu.clamp_min(0) * inv_e + read_noise_var
+        var_n = noise.variance(mu)
         HP = (H.real.square() + H.imag.square()) * P
         # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
         gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
-        return mu, noise, HP, (var_y - noise).clamp_min(floor) / gain, P
+        return mu, var_n, HP, (var_y - var_n).clamp_min(floor) / gain, P
 
     def restore(patches, otf):
         H = otf
         win = patches.shape[-1]
-        mu, noise, HP, sx, P = window_terms(patches, H)
-        # G = conj(H) sx P / (|H|^2 sx P + noise) = conj(H) P / (|H|^2 P + noise / sx), built in place
-        G = HP + noise / sx
+        mu, var_n, HP, sx, P = window_terms(patches, H)
+        # G = conj(H) sx P / (|H|^2 sx P + var_n) = conj(H) P / (|H|^2 P + var_n / sx), built in place
+        G = HP + var_n / sx
         torch.div(P, G.clamp_min_(tiny), out=G)
         out = torch.fft.rfft2(patches)
         dc = mu[..., 0, 0] * (win * win)  # the local mean's DC term: filter y - mu, then add mu back
@@ -156,7 +153,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         H = otf
         win = patches.shape[-1]
         half = win // 2
-        mu, noise, HP, sx, P = window_terms(patches, H)
+        mu, var_n, HP, sx, P = window_terms(patches, H)
         # the per-pixel signal variance relative to the window's, over the core (box filter over core + halo)
         h = pixel_stats // 2
         lo, hi = half - core // 2 - h, half + core // 2 + h
@@ -165,7 +162,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         m = box_blur(torch.cat([region, region * region], dim=1), pixel_stats, border_type="reflect")
         m = m[..., h:-h, h:-h].reshape(k, B, 2 * C, core, core)
         m1, m2 = m[:, :, :C], m[:, :, C:]
-        local_sx = (m2 - m1.square() - (m1.clamp_min(0) * inv_e + read_noise_var)).clamp_min(floor)
+        local_sx = (m2 - m1.square() - noise.variance(m1)).clamp_min(floor)
         ratio = local_sx / local_sx.mean(dim=(-2, -1), keepdim=True)
         t = ratio.to(torch.float64).log().clamp(float(levels[0]), float(levels[-1]))
         spec = torch.fft.rfft2(patches)
@@ -174,7 +171,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         spec.mul_(H.conj().resolve_conj())
         out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
         for j, level in enumerate(WIENER_PIXEL_LEVELS):
-            G = torch.div(P, (HP + noise / (sx * level)).clamp_min_(tiny))
+            G = torch.div(P, (HP + var_n / (sx * level)).clamp_min_(tiny))
             r_j = core_irfft2(spec * G, win, core)
             # tent in log variance around level j: 1 at it, 0 at its neighbours (the ends extend flat)
             wj = torch.ones_like(t)
@@ -193,10 +190,9 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
                           fit=fit, least_fit=WIENER_FIT_LEAST_PX)
 
 
-def _wiener(observed, psf, *, electrons_per_unit, read_noise_var=0.0, scheme, optical_center=None, region=None,
+def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,
             progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window"):
-    return wiener_windowed(observed, psf, electrons_per_unit=electrons_per_unit, read_noise_var=read_noise_var,
-                           stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
+    return wiener_windowed(observed, psf, noise=noise, stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
                            progress=progress, local=local)
 
 

@@ -392,8 +392,8 @@ def test_the_crops_progress_total_is_the_windows_counted(case):
               methods=("wiener:stats=16",))
     imx = load_sensor("sony_imx477")
     kw.update({"paper noise, two ISOs, two methods": dict(full_well=[800.0, 3200.0], methods=("wiener:stats=16", "tikhonov")),
-               "zones": dict(blur_zones="auto"), "chain, RGB": dict(chain=CameraChain(imx)),
-               "chain, mosaic": dict(chain=CameraChain(imx, restore_on="mosaic"), methods=("richardson_lucy:iterations=2",)),
+               "zones": dict(blur_zones="auto"), "chain, RGB": dict(sensor=CameraChain(imx)),
+               "chain, mosaic": dict(sensor=CameraChain(imx, restore_on="mosaic"), methods=("richardson_lucy:iterations=2",)),
                "blur cached": dict(blur_cache={})}[case])
     fw = kw.pop("full_well")
     psf = _varying_disc()

@@ -16,7 +16,7 @@ from lenssim import Camera, Design, LensError, LensPSF, Numerics, evaluate, nois
 from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.io.files import json_text
 from lenssim.validate import ModelValidityWarning, NumericalError
-from pipeline import (add_poisson_noise, blur_windowed, crop_at_field_angle, gentle_denoise, richardson_lucy_windowed,
+from pipeline import (NoiseModel, add_poisson_noise, blur_windowed, crop_at_field_angle, gentle_denoise, richardson_lucy_windowed,
                       simulate_crops, wiener_windowed)
 from pipeline.blur import WindowScheme
 import dataclasses
@@ -99,7 +99,7 @@ def test_a_non_finite_pixel_is_refused_by_every_image_function(fn, bad):
     img = torch.rand(1, 3, 40, 40, dtype=torch.float32, generator=torch.Generator().manual_seed(0)) + 0.1
     img[0, 1, 7, 9] = float(bad)
     call = {"blur": lambda: blur_windowed(img, PSF, scheme=SCHEME),
-            "wiener": lambda: wiener_windowed(img, PSF, electrons_per_unit=100.0, scheme=SCHEME),
+            "wiener": lambda: wiener_windowed(img, PSF, noise=NoiseModel(100.0), scheme=SCHEME),
             "rl": lambda: richardson_lucy_windowed(img, PSF, iterations=2, scheme=SCHEME),
             "denoise": lambda: gentle_denoise(img, 0.5),
             "noise": lambda: add_poisson_noise(img, 800.0, seed=0),
@@ -113,8 +113,9 @@ def test_a_non_finite_pixel_is_refused_by_every_image_function(fn, bad):
     (lambda x: simulate_crops(-x, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), "negative values"),
     (lambda x: simulate_crops(x * 0, PSF, 800.0, [(0, 16, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), "black"),
     (lambda x: blur_windowed((x * 255).to(torch.uint8), PSF, scheme=SCHEME), "dtype torch.uint8"),
-    (lambda x: wiener_windowed(x, PSF, electrons_per_unit=100.0, read_noise_var=-1.0, scheme=SCHEME), "read_noise_var"),
-    (lambda x: wiener_windowed(x, PSF, electrons_per_unit=math.nan, scheme=SCHEME), "electrons_per_unit"),
+    (lambda x: wiener_windowed(x, PSF, noise=NoiseModel(100.0, -1.0), scheme=SCHEME), "signal_independent_var=-1.0"),
+    (lambda x: wiener_windowed(x, PSF, noise=NoiseModel(math.nan), scheme=SCHEME), "electrons_per_unit=nan"),
+    (lambda x: wiener_windowed(x, PSF, noise=100.0, scheme=SCHEME), "noise is a float: expected a pipeline"),
     (lambda x: simulate_crops(x, PSF, 800.0, [(0, 99, 0, 16)], scheme=SCHEME, sensor=PAPER_SENSOR), r"box \(0, 99, 0, 16\)"),
 ])
 def test_nonsense_images_and_settings_are_refused(fn, match):

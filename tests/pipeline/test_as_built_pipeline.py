@@ -13,7 +13,7 @@ from lenssim import AsBuiltPSF, Camera, Design, LensPSF, image_psd
 from lenssim.model.tolerances import GRADES, Tolerances
 from lenssim.tolerancing import as_built_criteria
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
-from pipeline import WindowScheme, blur_windowed, wiener_windowed
+from pipeline import NoiseModel, WindowScheme, blur_windowed, wiener_windowed
 from pipeline.noise import expose
 
 DESIGN = Design(s=-0.775, Q_back=-2.4)
@@ -68,7 +68,7 @@ def test_the_windowed_wiener_with_the_nominal_psf_costs_what_mse_r_nominal_predi
     inner = (slice(None), slice(None), slice(96, -96), slice(96, -96))
     measured = {}
     for name, prov in (("mse_r", built), ("mse_r_nominal", nominal)):
-        xr = wiener_windowed(obs, prov, electrons_per_unit=e, scheme=scheme, optical_center=oc)
+        xr = wiener_windowed(obs, prov, noise=NoiseModel(e), scheme=scheme, optical_center=oc)
         measured[name] = float(((xr - x)[inner] ** 2).mean()) / var
     pred = {k: float(r[k][i, 0]) for k in measured}
     # the adaptive filter estimates its signal variance locally and its window is finite: within 20% of the

@@ -226,13 +226,13 @@ def test_crops_through_the_chain_restore_and_keep_their_raw_data(place):
     chain = CameraChain(s, restore_on=place)
     scheme = WindowScheme(64, 16, 32)
     boxes = [(64, 160, 70, 166), (101, 197, 33, 129)]  # an odd corner: the CFA's phase there
-    res = simulate_crops(img, psf, 12800.0, boxes, sensor=s, scheme=scheme, chain=chain, seed=2, methods=("wiener:stats=32",))
+    res = simulate_crops(img, psf, 12800.0, boxes, sensor=chain, scheme=scheme, seed=2, methods=("wiener:stats=32",))
     for r in res:
         assert r.scores["wiener"]["psnr_db"] > r.scores["sensor"]["psnr_db"] + 2
         assert r.images["raw"].shape == (1, 1, 96, 96)
         raw = r.images["raw"]
         assert torch.equal(raw, raw.round()) and 0 <= raw.min() and raw.max() <= 4095
-    again = simulate_crops(img, psf, 12800.0, boxes, sensor=s, scheme=scheme, chain=chain, seed=2, methods=("wiener:stats=32",))
+    again = simulate_crops(img, psf, 12800.0, boxes, sensor=chain, scheme=scheme, seed=2, methods=("wiener:stats=32",))
     assert all(a.scores == b.scores for a, b in zip(res, again))
 
 
@@ -242,10 +242,10 @@ def test_a_frame_through_the_chain_equals_its_crops_source_and_resumes(tmp_path)
     s = replace(PAPER_SENSOR, cfa="RGGB", read_noise_e=2.0, bit_depth=12, dark_current_e_per_s=50.0)
     chain = CameraChain(s)
     scheme = WindowScheme(64, 16, 32)
-    a = simulate_frame(img, psf, 3200.0, sensor=s, scheme=scheme, chain=chain, checkpoint=tmp_path / "ck",
+    a = simulate_frame(img, psf, 3200.0, sensor=chain, scheme=scheme, checkpoint=tmp_path / "ck",
                        method="wiener:stats=32")
     assert a.raw.shape == (1, 1, 256, 320) and not a.resumed
-    b = simulate_frame(img, psf, 3200.0, sensor=s, scheme=scheme, chain=chain, checkpoint=tmp_path / "ck",
+    b = simulate_frame(img, psf, 3200.0, sensor=chain, scheme=scheme, checkpoint=tmp_path / "ck",
                        method="wiener:stats=32")
     assert b.resumed and torch.equal(a.raw.float(), b.raw.float())
     assert torch.allclose(a.sensor, b.sensor, atol=1e-6) and torch.allclose(a.restored, b.restored, atol=1e-5)
@@ -253,7 +253,7 @@ def test_a_frame_through_the_chain_equals_its_crops_source_and_resumes(tmp_path)
 
     assert psnr_srgb(img, a.restored) > psnr_srgb(img, a.sensor) + 2
     with pytest.raises(ValueError, match="colour filter array samples an RGB image; this one has 1"):
-        simulate_frame(img[:, :1], psf, 3200.0, sensor=s, scheme=scheme, chain=chain, method="wiener:stats=32")
+        simulate_frame(img[:, :1], psf, 3200.0, sensor=chain, scheme=scheme, method="wiener:stats=32")
 
 
 @pytest.mark.parametrize("fill", [1.0, 0.5])

@@ -20,7 +20,7 @@ from lenssim import LensPSF
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_SENSOR
 from pipeline import load_photo
 from pipeline.blur import PAPER_SCHEME, blur_windowed, choose_stride_zones, window_count
-from pipeline.noise import expose, read_noise_variance
+from pipeline.camera_chain import CameraChain
 from pipeline.quality import psnr_srgb, ssim_srgb
 from pipeline.restoration.wiener import wiener_windowed
 
@@ -48,9 +48,9 @@ def test_the_zoned_blur_is_the_paper_stride_s_within_70_db(frame):
 def test_fitted_restoration_windows_keep_psnr_within_0_02_db_and_ssim_within_0_001(frame):
     img, psf, zones = frame
     blurred = blur_windowed(img, psf, optical_center=OFF_AXIS, zones=zones)
-    noisy = expose(blurred, FULL_WELL, PAPER_SENSOR, FULL_WELL, generator=torch.Generator().manual_seed(4))
-    kw = dict(electrons_per_unit=FULL_WELL, read_noise_var=read_noise_variance(PAPER_SENSOR, FULL_WELL),
-              scheme=PAPER_SCHEME, optical_center=OFF_AXIS)
+    chain = CameraChain(PAPER_SENSOR)
+    noisy = chain.expose(blurred, FULL_WELL, FULL_WELL, generator=torch.Generator().manual_seed(4))
+    kw = dict(noise=chain.noise_model(FULL_WELL, FULL_WELL), scheme=PAPER_SCHEME, optical_center=OFF_AXIS)
     fitted = wiener_windowed(noisy, psf, **kw)
     paper = wiener_windowed(noisy, psf, fit=False, **kw)
     assert not torch.equal(fitted, paper)  # a different transform size: the lever is in play

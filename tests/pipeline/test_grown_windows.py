@@ -9,6 +9,7 @@ from lenssim import Design, FunctionPSF, LensPSF
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_SENSOR
 from pipeline.blur import (FIT_MARGIN_PX, MAX_WINDOW_PX, WindowScheme, _extents, blur_exact, blur_windowed,
                            grown_window, largest_window, scheme_positions, window_sizes)
+from pipeline.noise import NoiseModel
 from pipeline.restoration import richardson_lucy_windowed, wiener_windowed
 from pipeline.restoration.tikhonov import tikhonov_windowed
 from pipeline.simulate import simulate_crops
@@ -70,7 +71,7 @@ def test_grown_windows_equal_a_scheme_of_that_window(name):
     run = {
         "blur": lambda s: blur_windowed(img, DISC, scheme=WindowScheme(s.window, 16, 32, fit=False)),
         "blur_fit": lambda s: blur_windowed(img, DISC, scheme=s),
-        "wiener": lambda s: wiener_windowed(img, DISC, electrons_per_unit=1e4, scheme=s),
+        "wiener": lambda s: wiener_windowed(img, DISC, noise=NoiseModel(1e4), scheme=s),
         "tikhonov": lambda s: tikhonov_windowed(img, DISC, weight=1e-3, scheme=s),
         "richardson_lucy": lambda s: richardson_lucy_windowed(img, DISC, iterations=3, scheme=s),
     }[name]
@@ -118,7 +119,7 @@ def test_a_crop_reads_as_far_as_its_grown_windows(monkeypatch):
     img = texture(720, 720)
     box = (330, 390, 330, 390)
     blurred = blur_windowed(img, DISC, scheme=SMALL)
-    whole = wiener_windowed(blurred, DISC, electrons_per_unit=1e9 / float(img.amax()), scheme=SMALL)[..., 330:390, 330:390]
+    whole = wiener_windowed(blurred, DISC, noise=NoiseModel(1e9 / float(img.amax())), scheme=SMALL)[..., 330:390, 330:390]
 
     def crop_error():
         res = simulate_crops(img, DISC, 1e9, [box], scheme=SMALL, methods=("wiener",), sensor=PAPER_SENSOR,

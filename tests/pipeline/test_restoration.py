@@ -6,7 +6,7 @@ import torch
 from lenssim import Design, FunctionPSF, LensPSF
 
 from lenssim_studies.paper import PAPER_CAMERA
-from pipeline import add_poisson_noise
+from pipeline import NoiseModel, add_poisson_noise
 from pipeline.blur import WindowScheme, blur_windowed
 from pipeline.quality import psnr_srgb, ssim_srgb
 from pipeline.restoration import (COMMON_ARGUMENTS, RESTORATION_METHODS, Restoration, RestorationMethod, parse_restoration,
@@ -34,7 +34,7 @@ def delta(rows, cols, n):
 
 def test_wiener_without_blur_or_noise_is_the_identity():
     x = scene()
-    out = wiener_windowed(x, FunctionPSF(delta, PAPER_CAMERA.geometry), electrons_per_unit=math.inf, scheme=SCHEME)
+    out = wiener_windowed(x, FunctionPSF(delta, PAPER_CAMERA.geometry), noise=NoiseModel(math.inf), scheme=SCHEME)
     torch.testing.assert_close(out, x, rtol=0, atol=1e-9)
 
 
@@ -45,14 +45,14 @@ def test_wiener_beats_the_sensor_image_with_a_known_psf():
     fwc = 3200.0
     noisy = add_poisson_noise(y, fwc, seed=3)
     e = fwc / float(y.amax())
-    r = wiener_windowed(noisy, E2E, electrons_per_unit=e, scheme=SCHEME, optical_center=center)
+    r = wiener_windowed(noisy, E2E, noise=NoiseModel(e), scheme=SCHEME, optical_center=center)
     crop = (32, 160, 32, 160)
     p_sensor, p_restored = psnr_srgb(x, noisy, crop), psnr_srgb(x, r, crop)
     print(f"PSNR sensor {p_sensor:.2f} dB, restored {p_restored:.2f} dB")
     assert p_restored > p_sensor + 1.0
     assert ssim_srgb(x, r, crop) > ssim_srgb(x, noisy, crop)
     # noise-free: the restoration recovers much more
-    r0 = wiener_windowed(y, E2E, electrons_per_unit=1e9, scheme=SCHEME, optical_center=center)
+    r0 = wiener_windowed(y, E2E, noise=NoiseModel(1e9), scheme=SCHEME, optical_center=center)
     assert psnr_srgb(x, r0, crop) > p_restored
 
 
@@ -107,13 +107,13 @@ def test_wiener_in_float32_matches_float64():
     y = blur_windowed(x, E2E, scheme=SCHEME, optical_center=center)
     noisy = add_poisson_noise(y, 3200.0, seed=3)
     e = 3200.0 / float(y.amax())
-    kw = dict(electrons_per_unit=e, scheme=SCHEME, optical_center=center)
+    kw = dict(noise=NoiseModel(e), scheme=SCHEME, optical_center=center)
     r64 = wiener_windowed(noisy, E2E, **kw)
     r32 = wiener_windowed(noisy.float(), E2E, **kw)
     assert r32.dtype == torch.float32
     assert float((r32.double() - r64).abs().max()) < 5e-6  # measured 4.5e-7; the noise is ~1e-2 per pixel
     # no noise at all with blur: the inverse-filter limit stays finite where |H| = 0
-    assert torch.isfinite(wiener_windowed(y.float(), E2E, electrons_per_unit=math.inf, scheme=SCHEME,
+    assert torch.isfinite(wiener_windowed(y.float(), E2E, noise=NoiseModel(math.inf), scheme=SCHEME,
                                           optical_center=center)).all()
 
 
@@ -156,7 +156,7 @@ def test_every_registered_method_lowers_the_error_of_a_blurred_noisy_image(name)
     y = blur_windowed(x, E2E, scheme=SCHEME, optical_center=center)
     noisy = add_poisson_noise(y, 3200.0, seed=3)
     e = 3200.0 / float(y.amax())
-    out = restore(name, noisy, E2E, electrons_per_unit=e, scheme=SCHEME, optical_center=center)
+    out = restore(name, noisy, E2E, noise=NoiseModel(e), scheme=SCHEME, optical_center=center)
     crop = (32, 160, 32, 160)
     assert out.shape == x.shape and bool(torch.isfinite(out).all())
     assert psnr_srgb(x, out, crop) > psnr_srgb(x, noisy, crop) + 0.3
@@ -177,7 +177,7 @@ def test_restoration_specs_and_the_dispatcher_check_what_they_are_given():
     with pytest.raises(ValueError, match="restoration method 'tv' is not known; valid: wiener"):
         validate_method("tv")
     with pytest.raises(ValueError, match="takes no option"):
-        restore("wiener", x, ident, electrons_per_unit=1e3, options={"iterations": 3}, scheme=SCHEME)
+        restore("wiener", x, ident, noise=NoiseModel(1e3), options={"iterations": 3}, scheme=SCHEME)
     assert parse_restoration("richardson_lucy:iterations=5").options == {"iterations": 5}
     assert parse_restoration(" tikhonov : weight = 1e-3 ").options == {"weight": 1e-3}
     for bad, msg in (("richardson_lucy:iterations=2.5", "int"), ("tikhonov:weight=nan", "finite"),
@@ -186,7 +186,7 @@ def test_restoration_specs_and_the_dispatcher_check_what_they_are_given():
             parse_restoration(bad)
     # the Wiener filter and Richardson-Lucy are the identity for a delta PSF without noise; Tikhonov with weight 0
     for spec in ("wiener", "richardson_lucy", "tikhonov:weight=0"):
-        torch.testing.assert_close(restore(spec, x, ident, electrons_per_unit=math.inf, scheme=SCHEME), x, rtol=0,
+        torch.testing.assert_close(restore(spec, x, ident, noise=NoiseModel(math.inf), scheme=SCHEME), x, rtol=0,
                                    atol=1e-6)
 
 
@@ -201,7 +201,7 @@ def test_a_method_gets_only_the_arguments_it_declares():
     assert m.accepts() == ("scheme",)
     RESTORATION_METHODS["probe"] = m
     try:
-        restore("probe:level=2", torch.ones(1, 1, 8, 8), E2E, electrons_per_unit=5.0, read_noise_var=0.1, scheme=SCHEME,
+        restore("probe:level=2", torch.ones(1, 1, 8, 8), E2E, noise=NoiseModel(5.0, 0.1), scheme=SCHEME,
                 region=(0, 8, 0, 8))
     finally:
         del RESTORATION_METHODS["probe"]
@@ -239,7 +239,7 @@ def test_per_pixel_wiener_with_one_level_is_the_paper_s_filter(monkeypatch):
     x = scene()
     center = (96 + 700, 96 + 900)
     y = add_poisson_noise(blur_windowed(x, E2E, scheme=SCHEME, optical_center=center), 3200.0, seed=3)
-    kw = dict(electrons_per_unit=3200.0, scheme=SCHEME, optical_center=center)
+    kw = dict(noise=NoiseModel(3200.0), scheme=SCHEME, optical_center=center)
     paper = wiener_windowed(y, E2E, **kw)
     monkeypatch.setattr(wmod, "WIENER_PIXEL_LEVELS", (1.0,))
     torch.testing.assert_close(wiener_windowed(y, E2E, local="pixel", **kw), paper, rtol=0, atol=1e-12)
@@ -256,7 +256,7 @@ def test_per_pixel_wiener_adapts_to_flat_and_busy_regions():
     y = blur_windowed(x, E2E, scheme=SCHEME, optical_center=center)
     for fwc in (800.0, 3200.0):
         noisy = add_poisson_noise(y, fwc, seed=4)
-        kw = dict(electrons_per_unit=fwc / float(y.amax()), scheme=SCHEME, optical_center=center)
+        kw = dict(noise=NoiseModel(fwc / float(y.amax())), scheme=SCHEME, optical_center=center)
         crop = (32, 160, 32, 160)
         window = psnr_srgb(x, wiener_windowed(noisy, E2E, **kw), crop)
         pixel = psnr_srgb(x, wiener_windowed(noisy, E2E, local="pixel", **kw), crop)
@@ -268,4 +268,4 @@ def test_per_pixel_wiener_options_are_checked():
     with pytest.raises(ValueError, match="local='tile' is not allowed: one of window, pixel"):
         parse_restoration("wiener:local=tile")
     with pytest.raises(ValueError, match="pixel_stats=4 is not allowed"):
-        wiener_windowed(scene(), E2E, electrons_per_unit=100.0, scheme=SCHEME, local="pixel", pixel_stats=4)
+        wiener_windowed(scene(), E2E, noise=NoiseModel(100.0), scheme=SCHEME, local="pixel", pixel_stats=4)
