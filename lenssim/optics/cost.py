@@ -42,8 +42,8 @@ DEFAULT_COST_POINTS = DEFAULT_NUMERICS.cost_points
 
 
 def sphere_slope(r_mm, k):
-    """Slope ``dz/dr`` of a sphere of curvature ``k`` (1/mm) at radius ``r`` (mm)."""
-    return k * r_mm / torch.sqrt(1 - k**2 * r_mm**2)
+    """Slope ``dz/dr`` of a sphere of curvature ``k`` (1/mm) at radius ``r`` (mm): the conic's with conic 0."""
+    return conic_slope(r_mm, k, 0.0)
 
 
 def _radii(y, n, like):

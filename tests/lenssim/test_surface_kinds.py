@@ -162,7 +162,7 @@ def test_the_conic_and_even_asphere_sags_are_their_formulas(name):
 
 # -- Qbfs --------------------------------------------------------------------------------------------------------------
 def _forbes_q(x):
-    """The first five Qbfs polynomials as Forbes printed them (Opt. Express 15, 5218 (2007), Eq. A.1)."""
+    """The first five Qbfs polynomials as Forbes printed them (Opt. Express 15, 5218 (2007))."""
     return [1 + 0 * x, (13 - 16 * x) / math.sqrt(19), math.sqrt(2 / 95) * (29 - 4 * x * (25 - 19 * x)),
             math.sqrt(2 / 2545) * (207 - 4 * x * (315 - x * (577 - 320 * x))),
             (7737 - 16 * x * (4653 - 2 * x * (7381 - 8 * x * (1168 - 509 * x)))) / (3 * math.sqrt(131831))]

@@ -1,7 +1,6 @@
 """Forbes's Q-type asphere ``Qbfs``: a best-fit sphere and an orthogonal departure from it.
 
-Sag (G. W. Forbes, "Shape specification for axially symmetric optical surfaces", Opt. Express 15, 5218 (2007),
-Eq. 2.2)::
+Sag (G. W. Forbes, "Shape specification for axially symmetric optical surfaces", Opt. Express 15, 5218 (2007))::
 
     z = c r^2 / (1 + sqrt(1 - c^2 r^2)) + u^2 (1 - u^2) / sqrt(1 - c^2 r^2) * sum_m a_m Q_m(u^2),   u = r / r_n
 
@@ -10,7 +9,7 @@ Eq. 2.2)::
 a_1, ...`` (mm). To first order the bracket is the departure along the sphere's normal, and Forbes's ``Q_m`` make
 the slopes of its terms orthonormal: the mean square of the departure's slope ``d/du`` over the aperture, weighted
 by ``1 / sqrt(1 - u^2)``, is ``sum a_m^2`` (mm^2 per unit ``u``): the coefficients measure slope departure, the
-quantity the industrial asphere cost prices. ``Q_m`` by Forbes's recurrence (Appendix A)::
+quantity the industrial asphere cost prices. ``Q_m`` by Forbes's recurrence (his appendix)::
 
     P_0 = 2,  P_1 = 6 - 8x,  P_m = (2 - 4x) P_{m-1} - P_{m-2}
     f_0 = 2,  g_0 = -1/2,  h_{m-2} = -m (m - 1) / (2 f_{m-2}),  g_{m-1} = -(1 + g_{m-2} h_{m-2}) / f_{m-1},
