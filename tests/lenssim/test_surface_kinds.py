@@ -105,6 +105,27 @@ def test_rays_meet_the_surface_on_its_sag_with_its_normal(name):
 
 
 @pytest.mark.parametrize("name", list(EXAMPLES))
+def test_the_intersection_takes_tensor_numbers_batched_and_differentiable(name):
+    """A surface whose curvature is a tensor: autograd through the intersection (Newton's steps included) gives the
+    central difference of the distance, and a batch of curvatures ``(2, 1)`` traces each as it traces alone."""
+    s = EXAMPLES[name]
+    kind = s.surface_kind
+    g = torch.Generator().manual_seed(2)
+    P = torch.cat([(torch.rand(50, 2, generator=g, dtype=D) - 0.5) * 14, torch.full((50, 1), -3.0, dtype=D)], -1)
+    d = torch.tensor([0.0, 0.1, 1.0], dtype=D).expand(50, 3)
+    d = d / torch.linalg.norm(d, dim=-1, keepdim=True)
+    every = torch.ones(50, dtype=torch.bool)
+    t_of = lambda c: kind.intersect(replace(s, curvature_per_mm=c), P, d, every)[2]  # noqa: E731
+    c = torch.tensor(s.curvature_per_mm, dtype=D, requires_grad=True)
+    (grad,) = torch.autograd.grad(t_of(c).sum(), c)
+    h = 1e-7
+    fd = float(t_of(s.curvature_per_mm + h).sum() - t_of(s.curvature_per_mm - h).sum()) / (2 * h)
+    assert float(grad) == pytest.approx(fd, rel=1e-7)
+    batch = t_of(torch.tensor([[s.curvature_per_mm], [0.9 * s.curvature_per_mm]], dtype=D))
+    assert batch.shape == (2, 50) and torch.equal(batch[1], t_of(0.9 * s.curvature_per_mm))
+
+
+@pytest.mark.parametrize("name", list(EXAMPLES))
 def test_the_paraxial_curvature_and_seidel_r4_term_are_the_sag_s_expansion(name):
     """A polynomial in ``r^2`` fitted to the sag near the vertex (numpy least squares on r < 0.3 mm): its ``r^2``
     coefficient is ``c / 2`` and its ``r^4`` coefficient ``(1 + k) c^3 / 8 + A4`` of the kind's Seidel terms."""
