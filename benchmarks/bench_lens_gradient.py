@@ -3,7 +3,12 @@ second for the Cooke triplet with 6 free parameters (third-order wavefront, its 
 against the paper singlet's end-to-end autograd gradient (lenssim.design_opt.DifferentiableCriterion at its 15 field
 angles) run side by side in the same process.
 
-    python benchmarks/bench_lens_gradient.py [--starts 4] [--steps 10] [--repeats 3]
+    python benchmarks/bench_lens_gradient.py [--starts 4] [--steps 10] [--repeats 3] [--exact-steps 8] [--dense 3]
+
+Then the real-ray route (``tradeoff --optimise --wavefront exact``, :class:`lenssim.lens_design_opt.LensExactCriterion`)
+on the same lens: one gradient timed beside the third-order one, and an unconstrained descent over 4 free parameters
+(E1 and E2 bendings, S7's conic, the focus) from the file's design, its end point checked against a dense grid about
+it (``--dense`` points per parameter over +-1 typical step, every combination): no grid point may be lower.
 
 Prints one line per measurement and a JSON summary on the last line.
 """
@@ -18,7 +23,7 @@ import torch
 
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
 from lenssim.io.prescription_file import read_lens
-from lenssim.lens_design_opt import LensThirdOrderCriterion
+from lenssim.lens_design_opt import LensExactCriterion, LensThirdOrderCriterion
 from lenssim.model.lens_parameters import parameter_values, parse_parameter
 from lenssim.model.numerics import FAST_NUMERICS
 from lenssim.optics.sequential import SequentialLens
@@ -52,6 +57,8 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=4)
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--exact-steps", type=int, default=8, help="steps of the real-ray descent (0: skip it)")
+    ap.add_argument("--dense", type=int, default=3, help="grid points per parameter about the real-ray optimum")
     args = ap.parse_args()
     torch.set_num_threads(torch.get_num_threads())
     p = read_lens("cooke_triplet")
@@ -97,9 +104,57 @@ def main() -> None:
           f"{wall:.1f} s: {steps / wall:.3f} steps/s")
     for r in results:
         print("  ", r)
+    exact = _exact_route(p, pitch, args) if args.exact_steps > 0 else {}
     print(json.dumps({"baseline_gradient_s": t_base, "cooke_gradient_s": t_grad, "ratio": t_grad / t_base,
                       "steps": steps, "evaluations": evals, "wall_s": wall, "steps_per_s": steps / wall,
-                      "threads": torch.get_num_threads(), "results": results}))
+                      "threads": torch.get_num_threads(), "results": results, "exact": exact}))
+
+
+EXACT_PARAMETERS = ("E1.bending", "E2.bending", "S7.conic", "focus_um")
+EXACT_SCALE = (0.05, 0.05, 0.125, 10.0)
+"""The real-ray descent's free parameters and their typical steps (bendings, conic, um of focus)."""
+
+
+def _exact_route(p, pitch: float, args) -> dict:
+    """One gradient of each route on the same parameters, side by side; an unconstrained real-ray descent and the
+    dense grid about its end point."""
+    import itertools
+
+    pars = [parse_parameter(p, n, aspherize=(7,)) for n in EXACT_PARAMETERS]
+    kw = dict(rho0=PAPER_RHO0, pitch_um=pitch, angles_deg=p.fields, scale=list(EXACT_SCALE), hold=("efl",),
+              numerics=FAST_NUMERICS)
+    x0 = torch.tensor([v if v == v else 0.0 for v in parameter_values(p, pars).values()], dtype=torch.float64)
+    third, exact = LensThirdOrderCriterion(p, pars, 27.6, "mse_r", **kw), LensExactCriterion(p, pars, 27.6, "mse_r", **kw)
+    t3 = _time(_gradient(third, x0), args.repeats)
+    te = _time(_gradient(exact, x0), args.repeats)
+    print(f"4 parameters ({', '.join(EXACT_PARAMETERS)}), {len(p.fields)} angles, {len(p.wavelengths_um)} "
+          f"wavelengths: one gradient third order {t3:.3f} s (FFT sizes {third.sizes}), real rays {te:.3f} s "
+          f"(FFT sizes {exact.sizes}): {te / t3:.2f}x")
+    t = time.perf_counter()
+    r = optimise_on_iso_cost(exact, x0, None, steps=args.exact_steps, cost_points=FAST_NUMERICS.cost_points)
+    t_desc = time.perf_counter() - t
+    print(f"real-ray descent, unconstrained, from the file's design: {r.iterations} steps, {r.evaluations} "
+          f"evaluations in {t_desc:.1f} s, stopped: {r.stopped}; mse_r {float(exact(x0)):.6g} -> {r.value:.6g} at "
+          + ", ".join(f"{k} = {v:.5g}" for k, v in r.design.items()))
+    best = torch.tensor([r.design[n] for n in exact.names], dtype=torch.float64)
+    offsets = torch.linspace(-1, 1, args.dense, dtype=torch.float64)
+    scale = torch.tensor(EXACT_SCALE, dtype=torch.float64)
+    t = time.perf_counter()
+    values = []
+    with torch.no_grad():
+        for o in itertools.product(offsets.tolist(), repeat=len(EXACT_PARAMETERS)):
+            if any(o):
+                try:
+                    values.append(float(exact(best + torch.tensor(o, dtype=torch.float64) * scale)))
+                except ValueError:
+                    pass
+    lowest = min(values)
+    print(f"dense grid about it ({args.dense}^{len(EXACT_PARAMETERS)} - 1 = {len(values)} valid points, +-1 typical "
+          f"step, {time.perf_counter() - t:.0f} s): lowest {lowest:.6g}, the descent's {r.value:.6g}: "
+          + ("no grid point is lower" if lowest >= r.value else f"a grid point is lower by {r.value - lowest:.3g}"))
+    return {"third_order_gradient_s": t3, "exact_gradient_s": te, "ratio": te / t3, "descent_steps": r.iterations,
+            "descent_s": t_desc, "start_value": float(exact(x0)), "value": r.value, "design": r.design,
+            "stopped": r.stopped, "grid_points": len(values), "grid_lowest": lowest}
 
 
 if __name__ == "__main__":

@@ -20,7 +20,11 @@ Like with like:
   the same aiming, not a different trace. To compare like with like its system aperture is set to "float by stop
   size" with the stop's paraxial diameter (Optiland's own paraxial marginal-ray height at the stop, x 2), which makes
   its real aimers target ``(Px, Py)`` times that radius; the "stop radius, real-aim target" rows show how far
-  Optiland's default target is from that. The script uses Optiland's "robust" aimer (the "iterative" aimer's Newton
+  Optiland's default target is from that. A lens whose file says ``[aperture] stop_size = "real"`` (the stop sized
+  by the real axial ray, :data:`lenssim.model.prescription.STOP_SIZES`) is compared with Optiland's own EPD aperture
+  and real aiming, which is that convention (``tests/data/lenses/cooke_stop_inside.toml``, stop inside the lens:
+  the two conventions differ by 2.7% of the RMS OPD at 20 deg, and each agrees with Optiland's to ~1e-6;
+  ``tests/lenssim/test_stop_inside.py`` holds the figures). The script uses Optiland's "robust" aimer (the "iterative" aimer's Newton
   polish, tolerance 1e-9 mm at the stop), which returns NaN for a ray that cannot reach its stop point instead of
   aborting the batch: "iterative" fails on the double Gauss at 12.41 deg, where 24 rim rays miss a surface (ours too
   finds them untraceable, even through the surfaces extended beyond their semi-diameters). ``--aim paraxial``: both sides aim through the paraxial entrance pupil
@@ -46,8 +50,8 @@ things are accounted for, neither an error of either trace (one is a default of 
   for the double Gauss at 12.41 deg), which changes the OPD by up to 2.4e-3 waves per sample (RMS 2e-5 relative);
   recomputed with Optiland's radius ours agrees to ~3e-9 waves. The "reference sphere radius" rows show it.
 
-Ours come from :func:`lenssim.optics.lens_report.lens_report` (what ``lenssim inspect LENS --json`` prints) for real
-aiming, and from :meth:`SequentialLens.wavefront` with ``aim="paraxial"`` for paraxial aiming.
+Ours come from :meth:`SequentialLens.wavefront` on the same grid (``lenssim inspect`` reports the same figures, on a
+pupil grid it refines until the OPD is sampled for its Strehl ratio and MTF).
 
 A misaligned lens (``--misaligned``, :func:`misaligned_case`): the Cooke triplet with its second element decentred
 0.05 mm in y and tilted 0.1 deg about x (an element tilt, pivot at surface 3's vertex) and its stop decentred (0.05,
@@ -122,7 +126,8 @@ def _optiland():
 
 def build_optic(p, seq, aim: str, LenssimGlass, asphere_tol_mm: float = 1e-12):
     """The Optiland :class:`Optic` of prescription ``p`` (see the module docstring). ``aim``: "real" (iterative
-    aiming, aperture = the stop's paraxial diameter) or "paraxial" (paraxial aiming, aperture = the EPD)."""
+    aiming, aperture = the stop's paraxial diameter, or the EPD if the lens's stop size is "real") or "paraxial"
+    (paraxial aiming, aperture = the EPD)."""
     import optiland.backend as be
     from optiland.optic import Optic
     from optiland.physical_apertures import RadialAperture
@@ -150,7 +155,9 @@ def build_optic(p, seq, aim: str, LenssimGlass, asphere_tol_mm: float = 1e-12):
         op.fields.add(y=f)
     for w in p.wavelengths_um:
         op.wavelengths.add(value=w, is_primary=abs(w - p.primary_wavelength_um) < 1e-12)
-    if aim == "real":
+    if aim == "real" and p.stop_size == "real":  # Optiland's own convention: the real axial ray's height at the stop
+        op.ray_tracer.set_aiming("robust", max_iter=50, tol=1e-9)
+    elif aim == "real":
         y_marg, _ = op.paraxial.marginal_ray()
         r_stop = abs(float(be.to_numpy(y_marg[k + 1]).ravel()[0]))  # Optiland's own paraxial stop radius
         op.surfaces[k + 1].aperture = RadialAperture(r_max=r_stop)
@@ -184,20 +191,9 @@ def paraxial_ours(seq) -> dict:
 def fields_ours(seq, fields, px, py, aim: str) -> list[dict]:
     import torch
 
-    from lenssim.optics.lens_report import lens_report
-
     out = []
-    one = torch.zeros(1, dtype=torch.float64)
-    if aim == "real":
-        rep = lens_report(seq, fields)  # what `lenssim inspect LENS --json` reports
-        for i, f in enumerate(fields):
-            out.append({"RMS OPD (waves)": rep["rms_opd_waves"][i], "PV OPD (waves)": rep["pv_opd_waves"][i],
-                        "RMS spot (um)": rep["rms_spot_um"][i], "vignetted (%)": 100 * rep["vignetted_fraction"][i],
-                        "chief ray image y (mm)": rep["chief_ray_image_height_mm"][i],
-                        "reference sphere radius (mm)": seq.wavefront(f, one, one).reference_radius_mm})
-        return out
     for f in fields:
-        w = seq.wavefront(f, torch.as_tensor(px), torch.as_tensor(py), aim="paraxial")
+        w = seq.wavefront(f, torch.as_tensor(px), torch.as_tensor(py), aim=aim)
         out.append({"RMS OPD (waves)": w.rms_waves(), "PV OPD (waves)": w.pv_waves(),
                     "RMS spot (um)": w.rms_spot_mm() * 1e3, "vignetted (%)": 100 * w.vignetted_fraction,
                     "chief ray image y (mm)": float(w.chief_mm[1]), "reference sphere radius (mm)": w.reference_radius_mm})
@@ -239,7 +235,8 @@ def _num(v: float) -> str:
     return f"{v:.10g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.6e}"
 
 
-def compare_lens(name: str, aim: str, grid: int, rows: list, timings: dict, asphere_tol_mm: float = 1e-12) -> None:
+def compare_lens(name: str, aim: str, grid: int, rows: list, timings: dict, asphere_tol_mm: float = 1e-12,
+                 stop_size: str | None = None) -> None:
     from optiland.rays.ray_aiming.initialization import RealReferenceStrategy
 
     from lenssim.io.prescription_file import read_lens
@@ -247,6 +244,10 @@ def compare_lens(name: str, aim: str, grid: int, rows: list, timings: dict, asph
 
     LenssimGlass, FixedPoints = _optiland()
     p = read_lens(name)
+    if stop_size is not None:
+        from dataclasses import replace
+
+        p = replace(p, stop_size=stop_size)
     seq = SequentialLens(p)
     px, py = pupil_grid(grid)
     px, py = px.numpy(), py.numpy()
@@ -266,8 +267,8 @@ def compare_lens(name: str, aim: str, grid: int, rows: list, timings: dict, asph
 
     for q in par_o:
         rows.append((name, q, "-", par_o[q], par_x[q]))
-    rows.append((name, "stop radius, real-aim target (mm) [ours: paraxial; Optiland default: real marginal ray]", "-",
-                 seq.paraxial().stop_radius_mm, r_native))
+    rows.append((name, f"stop radius, real-aim target (mm) [ours: {p.stop_size}; Optiland default: real marginal ray]",
+                 "-", seq.aimed_stop_radius_mm(), r_native))
     for f, a, b in zip(p.fields, fo, fx):
         for q in a:
             rows.append((name, q, f"{f:g} deg", a[q], b[q]))
@@ -386,6 +387,8 @@ def main(argv=None) -> int:
     ap.add_argument("--asphere-tol", type=float, default=1e-12, metavar="MM",
                     help="Optiland's Newton tolerance on an even asphere's sag residual (mm); its surface factory's "
                          "default is 1e-6, which leaves near-axis intersections ~3e-7 mm off (see the docstring)")
+    ap.add_argument("--stop-size", choices=("paraxial", "real"), default=None,
+                    help="how the entrance pupil sizes the stop the real rays are aimed at (default: the lens file's)")
     ap.add_argument("--misaligned", action="store_true",
                     help="compare the misaligned Cooke triplet instead (element 2 decentred and tilted, the stop "
                          "decentred and tilted; see misaligned_case)")
@@ -402,7 +405,7 @@ def main(argv=None) -> int:
         for name in ([] if args.misaligned else args.lens):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeprecationWarning)
-                compare_lens(name, aim, args.grid, rows, timings, args.asphere_tol)
+                compare_lens(name, aim, args.grid, rows, timings, args.asphere_tol, args.stop_size)
         if args.misaligned:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DeprecationWarning)

@@ -18,6 +18,11 @@ The cost ``C_a`` (:func:`lenssim.optics.cost.prescription_costs`, summed over th
 differentiated by central differences likewise. :func:`lenssim.design_opt.optimise_on_iso_cost` then runs the
 paper's iso-cost projected gradient descent on it, unchanged. The PSF's scale (the working F-number) must not move
 with ``x``: a design that changes it is refused (hold the focal length: ``hold=("efl",)``).
+
+:class:`LensExactCriterion` is the same chain on the real rays' wavefront (``tradeoff --optimise --wavefront exact``):
+the first part is a real-ray trace and a degree-8 fit per field angle and wavelength (tenths of a second a design),
+its Jacobian by central differences of whole traces (autograd through the aiming and the trace itself is not yet
+there: a prescription's numbers are Python floats).
 """
 
 from __future__ import annotations
@@ -30,12 +35,13 @@ from .design_opt import DifferentiableCriterion
 from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .model.prescription import Prescription
 from .optics.cost import prescription_costs
+from .optics.exact_wavefront import EXACT_TERMS, lens_exact_coefficients
 from .optics.lens_solves import solve_design
 from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
 from .optics.sequential import SequentialLens
 from .sequential_third_order import third_order_camera
 
-__all__ = ["LensThirdOrderCriterion", "FD_STEP", "F_NUMBER_TOLERANCE"]
+__all__ = ["LensThirdOrderCriterion", "LensExactCriterion", "GRADIENT_CRITERIA", "FD_STEP", "F_NUMBER_TOLERANCE"]
 
 FD_STEP = 1e-4
 """Central-difference step of the paraxial part's Jacobian, in each parameter's typical step."""
@@ -78,7 +84,7 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
                  pitch_um: float, angles_deg, scale, hold=(), image: str = "file", psd_model: str = "discrete",
                  numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64):
         parameters = tuple(parameters)
-        check_third_order_parameters(parameters)
+        self._check_parameters(parameters)
         if image not in ("file", "paraxial"):
             raise ValueError(f"image plane {image!r} is not allowed with the gradient route: file or paraxial (best "
                              "focus is a search, without a gradient)")
@@ -93,7 +99,8 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
             raise ValueError(f"scale must hold one typical step > 0 per free parameter ({len(parameters)})")
         self.steps = (self.scale * FD_STEP).tolist()
         self.f_number = seq.paraxial().working_f_number
-        if len(self.camera.spectrum) == 1:  # one wavelength: the paper's four terms exactly (no lateral colour)
+        if self.terms is SEIDEL_TERMS and len(self.camera.spectrum) == 1:  # one wavelength: the paper's four terms
+            # exactly (no lateral colour)
             self.terms = SEIDEL_TERMS[:4]
 
     def lens_at(self, x) -> SequentialLens:
@@ -102,12 +109,20 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
         q, shift = solve_design(self.prescription, values, hold=self.hold, image=self.image)
         return SequentialLens(q, image_shift_mm=shift)
 
-    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
+    def _check_parameters(self, parameters) -> None:
+        check_third_order_parameters(parameters)
+
+    def _checked_lens(self, x: torch.Tensor) -> SequentialLens:
+        """The lens at ``x``; a ``ValueError`` if it moves the working F-number (the PSF's scale)."""
         seq = self.lens_at(x)
         n = seq.paraxial().working_f_number
         if not math.isclose(n, self.f_number, rel_tol=F_NUMBER_TOLERANCE):
             raise ValueError(f"the design {self.design(x)} changes the working F-number ({self.f_number:.6g} -> "
                              f"{n:.6g}), the PSF's scale: hold the focal length (hold efl)")
+        return seq
+
+    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        seq = self._checked_lens(x)
         c = third_order_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)
         return c[..., :len(self.terms)]
 
@@ -125,3 +140,25 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
         """``C_a`` at ``x`` (the sum over the aspheric surfaces of their RMS slope departure over ``points`` radii),
         differentiable (central differences)."""
         return _Paraxial.apply(x.to(torch.float64), lambda v: self._cost(v, int(points)), self.steps)
+
+
+class LensExactCriterion(LensThirdOrderCriterion):
+    """:class:`LensThirdOrderCriterion` on the real rays' wavefront: ``x -> coefficients`` is the real-ray OPD of the
+    lens at ``x`` projected on :data:`lenssim.optics.exact_wavefront.EXACT_TERMS` (degree 8,
+    :func:`lenssim.optics.exact_wavefront.lens_exact_coefficients`: rays aimed at the stop, the pupil the full disc,
+    the PSF about the primary wavelength's chief ray), its Jacobian by central differences of whole real-ray traces
+    (:data:`FD_STEP`), the rest (pupil -> PSF -> OTF -> criterion) by autograd, as the third-order route. Any free
+    parameter of the lens may move (no third-order restriction); the working F-number must not."""
+
+    terms = EXACT_TERMS
+
+    def _check_parameters(self, parameters) -> None:
+        pass
+
+    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        seq = self._checked_lens(x)
+        return lens_exact_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)
+
+
+GRADIENT_CRITERIA = {"third_order": LensThirdOrderCriterion, "exact": LensExactCriterion}
+"""The gradient route's criterion per wavefront model (``tradeoff --optimise --wavefront``)."""

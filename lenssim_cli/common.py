@@ -10,7 +10,7 @@ from lenssim.torch_utils import DEVICE_CHOICES
 from lenssim.validate import listed, quoted
 
 __all__ = ["add_design_arguments", "design_from_args", "designs", "table", "add_device_argument",
-           "add_camera_arguments", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args",
+           "add_camera_arguments", "resolve_wavefront", "camera_from_args", "add_tolerance_arguments", "tolerances_from_args",
            "check_arguments"]
 
 
@@ -46,6 +46,7 @@ def check_arguments(args) -> None:
         if getattr(args, name, None) is not None and not colour and getattr(args, "command", "") != "study":
             raise ValueError(f"{flag} applies to a colour --spectrum (e.g. \"Nikon 5100 (NPL)\"); --spectrum paper "
                              "has one wavelength")
+    resolve_wavefront(args)
     seed = getattr(args, "seed", None)
     if isinstance(seed, int) and not 0 <= seed <= MAX_SEED:
         raise ValueError(f"--seed {seed} is not allowed: a whole number from 0 to {MAX_SEED} (2**62)")
@@ -161,9 +162,26 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wavelengths-per-channel", type=int, metavar="N",
                    help="wavelengths sampled per colour channel, each channel its own (default: the 5 nm table "
                         "integrated with a few wavelengths shared by the channels, Numerics.spectral_tol)")
-    p.add_argument("--wavefront", choices=("third_order", "exact"), default="third_order",
-                   help="the paper's third-order (Seidel) wavefront, or the exact one (the OPD of a ray trace) "
-                        "(one-wavelength spectrum only)")
+    p.add_argument("--wavefront", choices=("third_order", "exact"), default=None,
+                   help="the paper's singlet: its third-order (Seidel) wavefront (default), or the exact one (the OPD "
+                        "of a ray trace; one-wavelength spectrum only); --lens LENS: always exact (real rays)")
+    p.set_defaults(wavefront_of_camera=True)  # resolve_wavefront applies to this flag, not tradeoff's own
+
+
+def resolve_wavefront(args) -> None:
+    """``args.wavefront`` made explicit before any work: with ``--lens`` the real rays' wavefront (``exact``), which
+    is what a lens file is evaluated with (``--wavefront third_order`` is refused: it would be ignored); without it
+    the paper's third order unless ``--wavefront exact`` was given."""
+    if not getattr(args, "wavefront_of_camera", False):
+        return
+    if getattr(args, "lens", None) is not None:
+        if args.wavefront == "third_order":
+            raise ValueError("--wavefront third_order with --lens: a lens file is evaluated with its real rays' "
+                             "wavefront (exact) here; the third-order route of a lens is `lenssim tradeoff --lens LENS "
+                             "--wavefront third_order`")
+        args.wavefront = "exact"
+    elif args.wavefront is None:
+        args.wavefront = "third_order"
 
 
 def camera_from_args(args):

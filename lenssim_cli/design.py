@@ -107,9 +107,6 @@ def cmd_tradeoff(args) -> int:
     if not (1 if args.optimise else 2) <= levels <= (100 if args.optimise else 1000):
         raise ValueError(f"--levels {levels} is not allowed: " + ("1 to 100 cost levels with --optimise"
                                                                    if args.optimise else "2 to 1000 cost levels"))
-    if args.optimise and args.wavefront != "third_order":
-        raise ValueError("--optimise runs on the third-order wavefront: add --wavefront third_order (the gradient "
-                         "through real-ray wavefronts is not available)")
     snr = tuple(args.snr)
     p = read_lens(args.lens)
     SequentialLens(p).check_aperture()
@@ -239,7 +236,7 @@ def register(sub) -> None:
     t.add_argument("--optimise", metavar="CRITERION",
                    help="instead of a grid: iso-cost projected gradient descent of CRITERION (mse_r, mse_s, strehl, "
                         "mtf50; at the first --snr) at each cost level and unconstrained, from several starts, for "
-                        "any number of --vary LO:HI ranges (the bounds); needs --wavefront third_order")
+                        "any number of --vary LO:HI ranges (the bounds); on the --wavefront given (exact: real rays, slower)")
     t.add_argument("--starts", type=int, default=4, help="--optimise: starts per level, the file's design and random "
                                                          "ones in the bounds (default 4)")
     t.add_argument("--seed", type=int, default=0, help="--optimise: the random starts' seed; --robust: the Monte "
@@ -287,19 +284,19 @@ def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, lev
         bounds.append((name, min(values), max(values)))
     run = LensGradientRun(p, str(args.lens), tuple(bounds), args.optimise, snr, PAPER_RHO0, pitch, numerics,
                           hold=hold, image=args.image, aspherize=aspherize, levels=levels, starts=args.starts,
-                          seed=args.seed, steps=args.steps)
+                          seed=args.seed, steps=args.steps, wavefront=args.wavefront)
     out = check_output_dir(args.out)
     select_device(args.device)
     t0 = time.perf_counter()
     with output_lock(out):  # one run at a time writes this folder; a second run resumes the descents
         out.mkdir(parents=True, exist_ok=True)
         print(f"{levels + 1} descents x {run.starts} starts of {p.name or args.lens} ({', '.join(run.names)}; "
-              f"{args.optimise} at {snr[0]:g} dB, third order)", file=sys.stderr)
+              f"{args.optimise} at {snr[0]:g} dB, {args.wavefront.replace('_', ' ')} wavefront)", file=sys.stderr)
         ds = run_lens_gradient(run, out / "gradient.nc", show_progress=not args.quiet)
         res = gradient_json(run, ds)
         res["scores"] = score_optima(run, res)  # every criterion at each optimum
         res |= {"lens": p.name or str(args.lens), "snr_db": list(snr), "hold": list(hold), "pixel_pitch_um": pitch,
-                "sampling": "point", "wavefront": "third_order", "angles_deg": list(p.fields)}
+                "sampling": "point", "wavefront": args.wavefront, "angles_deg": list(p.fields)}
         res["design_files"] = write_gradient_designs(run, res, out / "designs")
         atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Gradient trade-off of {p.name or args.lens}: {args.optimise} over {', '.join(run.names)}"
@@ -313,7 +310,7 @@ def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, lev
                 f"each), {n_conv} converged (tangential gradient below tolerance, or no step of 1e-3 typical steps "
                 f"lowers the value), the others stopped by --steps {run.steps} or an invalid start. SNR "
                 f"{snr[0]:g} dB; pixels {pitch:.4g} um (point samples); holds: {', '.join(hold) or 'none'}; "
-                f"third-order wavefront at {len(p.fields)} field angles.")
+                f"{'real-ray' if args.wavefront == 'exact' else 'third-order'} wavefront at {len(p.fields)} field angles.")
         u = res["unconstrained"][args.optimise]
         rows = [[("unconstrained" if lv is None else f"{lv:.4g}"), f"{o['value']:.5g}", f"{o['cost']:.4g}",
                  ", ".join(f"{k} = {v:.6g}" for k, v in o["design"].items())]

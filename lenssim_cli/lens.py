@@ -136,8 +136,6 @@ def check_lens_arguments(args):
     if given:
         raise ValueError(f"{', '.join(given)} describe(s) the paper's singlet; --lens {lens} brings its own surfaces "
                          "and glasses: leave them out")
-    if getattr(args, "wavefront", "third_order") not in (None, "third_order"):
-        raise ValueError("--wavefront applies to the paper's singlet; --lens always uses the real rays' wavefront")
     pitch = getattr(args, "pixel_pitch", None)
     if pitch is not None and not (math.isfinite(pitch) and pitch > 0):
         raise ValueError(f"--pixel-pitch {pitch:g} is not allowed: a pixel pitch in um, > 0")

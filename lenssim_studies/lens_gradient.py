@@ -66,6 +66,7 @@ class LensGradientRun:
     starts: int = 4
     seed: int = 0
     steps: int = 30
+    wavefront: str = "third_order"
 
     def __post_init__(self):
         from lenssim.criteria import validate_criterion
@@ -85,7 +86,7 @@ class LensGradientRun:
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ValueError(f"{k} {v!r} is not allowed: {lo} to {hi}")
-        self.problem()  # the parameters, the solves, the third-order route: refused here, before any work
+        self.problem()  # the parameters, the solves, the wavefront route: refused here, before any work
 
     def parameter(self, name: str) -> LensParameter:
         return parse_parameter(self.prescription, name, aspherize=self.aspherize)
@@ -107,10 +108,12 @@ class LensGradientRun:
         return torch.tensor([b[2] for b in self.bounds], dtype=torch.float64)
 
     def problem(self):
-        """A fresh :class:`lenssim.lens_design_opt.LensThirdOrderCriterion` of this run."""
-        from lenssim.lens_design_opt import LensThirdOrderCriterion
+        """A fresh criterion of this run's wavefront model (:data:`lenssim.lens_design_opt.GRADIENT_CRITERIA`)."""
+        from lenssim.lens_design_opt import GRADIENT_CRITERIA
 
-        return LensThirdOrderCriterion(self.prescription, self.parameters, self.snr_db[0], self.criterion,
+        if self.wavefront not in GRADIENT_CRITERIA:
+            raise ValueError(f"wavefront {self.wavefront!r} is not allowed: one of {', '.join(GRADIENT_CRITERIA)}")
+        return GRADIENT_CRITERIA[self.wavefront](self.prescription, self.parameters, self.snr_db[0], self.criterion,
                                        rho0=self.rho0, pitch_um=self.pitch_um, angles_deg=self.prescription.fields,
                                        scale=(self.hi - self.lo) / TYPICAL_STEPS, hold=self.hold, image=self.image,
                                        numerics=self.numerics)
@@ -135,7 +138,7 @@ class LensGradientRun:
                 "criterion": self.criterion, "snr_db": list(self.snr_db), "rho0": self.rho0,
                 "pitch_um": self.pitch_um, "numerics": self.numerics.to_dict(), "hold": list(self.hold),
                 "image": self.image, "aspherize": list(self.aspherize), "levels": self.levels,
-                "starts": self.starts, "seed": self.seed, "steps": self.steps, "wavefront": "third_order",
+                "starts": self.starts, "seed": self.seed, "steps": self.steps, "wavefront": self.wavefront,
                 "lenssim_version": __version__}
 
     def digest(self) -> str:
@@ -303,14 +306,17 @@ def gradient_json(run: LensGradientRun, ds: xr.Dataset) -> dict:
 
 
 def score_optima(run: LensGradientRun, res: dict) -> list[dict | None]:
-    """Every criterion (third order, each SNR of the run) at each level's optimum and then the unconstrained one:
-    ``{"rms_w", "mse_s": [...], "mse_r": [...], "strehl", "mtf50", "cost"}`` (None where no start succeeded), with
-    the FFT sizes :func:`lenssim.sequential_third_order.evaluate_third_order` chooses, as the grid route and
-    ``evaluate`` score. Each optimum's ``value`` in ``res`` becomes that score (the descent's own, on the FFT sizes
-    it fixed at its start, differs by about 1e-5: kept as ``descent_value``)."""
+    """Every criterion (the run's wavefront model, each SNR of the run) at each level's optimum and then the
+    unconstrained one: ``{"rms_w", "mse_s": [...], "mse_r": [...], "strehl", "mtf50", "cost"}`` (None where no start
+    succeeded), as the grid route and ``evaluate`` score: third order with the FFT sizes
+    :func:`lenssim.sequential_third_order.evaluate_third_order` chooses; exact by
+    :func:`lenssim.sequential_metrics.evaluate_sequential` (the real-ray PSF tables, point samples, at the file's
+    angles). Each optimum's ``value`` in ``res`` becomes that score (the descent's own, on the FFT sizes it fixed at
+    its start and, for exact, on the degree-8 fit of the OPD over the full pupil, is kept as ``descent_value``)."""
+    from lenssim.sequential_metrics import evaluate_sequential
     from lenssim.sequential_third_order import evaluate_third_order
 
-    from .lens_tradeoff import TRADEOFF_CRITERIA
+    from .lens_tradeoff import TRADEOFF_CRITERIA, sequential_provider
 
     f = run.problem()
     out = []
@@ -319,9 +325,15 @@ def score_optima(run: LensGradientRun, res: dict) -> list[dict | None]:
             out.append(None)
             continue
         seq = f.lens_at(torch.tensor([o["design"][n] for n in run.names], dtype=torch.float64))
-        r = evaluate_third_order(seq, run.snr_db, pitch_um=run.pitch_um, rho0=run.rho0,
-                                 angles_deg=run.prescription.fields, numerics=run.numerics,
-                                 criteria=TRADEOFF_CRITERIA + ("cost",))
+        if run.wavefront == "exact":
+            psf = sequential_provider(seq.prescription, seq, pitch_um=run.pitch_um, sampling="point",
+                                      max_field_deg=max(run.prescription.fields), numerics=run.numerics)
+            r = evaluate_sequential(psf, run.snr_db, rho0=run.rho0, numerics=run.numerics,
+                                    angles_deg=run.prescription.fields, criteria=TRADEOFF_CRITERIA + ("cost",))
+        else:
+            r = evaluate_third_order(seq, run.snr_db, pitch_um=run.pitch_um, rho0=run.rho0,
+                                     angles_deg=run.prescription.fields, numerics=run.numerics,
+                                     criteria=TRADEOFF_CRITERIA + ("cost",))
         sc = {k: torch.as_tensor(r[k], dtype=torch.float64).tolist() for k in TRADEOFF_CRITERIA + ("cost",)}
         out.append(sc)
         v = sc[run.criterion]
@@ -374,7 +386,8 @@ def gradient_figure(run: LensGradientRun, res: dict, out_dir: Path, title: str) 
     label = f"{run.criterion} at {run.snr_db[0]:g} dB" if crit.per_snr else run.criterion
     ax.set_xlabel("asphere cost C_a (RMS slope departure)")
     ax.set_ylabel(label if crit.units.startswith("1") else f"{label} ({crit.units})")
-    ax.set_title(("lower" if crit.sign > 0 else "higher") + " is better; third-order wavefront", fontsize=8)
+    ax.set_title(("lower" if crit.sign > 0 else "higher") + " is better; "
+                 + ("real-ray" if run.wavefront == "exact" else "third-order") + " wavefront", fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=9)

@@ -10,6 +10,7 @@ file order (the object is surface 0, the image plane lies ``thickness_mm`` of th
 
     [aperture]
     entrance_pupil_diameter_mm = 29.2
+    stop_size = "paraxial"                 # optional: or "real" (lenssim.model.prescription.STOP_SIZES)
 
     [object]
     distance_mm = "inf"                    # or a distance > 0 (mm) before surface 1
@@ -47,7 +48,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..model.prescription import AIR, Prescription, PrescriptionError, PrescriptionSurface
+from ..model.prescription import AIR, STOP_SIZES, Prescription, PrescriptionError, PrescriptionSurface
 from ..model.surface_kinds import SURFACE_KINDS
 from ..validate import listed, quoted
 from .files import InputFileError, atomic_write_text, read_toml
@@ -59,7 +60,7 @@ _WHAT = "lens prescription file"
 
 _TOP = ("name", "source", "notes", "stop_surface", "f_number_given", "aperture", "object", "fields", "wavelengths",
         "published", "surfaces")
-_APERTURE = ("entrance_pupil_diameter_mm",)
+_APERTURE = ("entrance_pupil_diameter_mm", "stop_size")
 _OBJECT = ("distance_mm",)
 _FIELDS = ("angles_deg", "heights_mm")
 _WAVELENGTHS = ("um", "primary_um")
@@ -194,6 +195,9 @@ def _from_dict(d: dict) -> Prescription:
     if "entrance_pupil_diameter_mm" not in aperture:
         raise _Bad("[aperture]: entrance_pupil_diameter_mm is missing")
     epd = _number(aperture["entrance_pupil_diameter_mm"], "[aperture] entrance_pupil_diameter_mm")
+    stop_size = aperture.get("stop_size", STOP_SIZES[0])
+    if stop_size not in STOP_SIZES:
+        raise _Bad(f"[aperture] stop_size = {quoted(stop_size)} is not allowed: one of {', '.join(STOP_SIZES)}")
     obj = _keys(d.get("object", {}), _OBJECT, "[object]")
     dist = obj.get("distance_mm", "inf")
     if _infinite(dist):
@@ -232,7 +236,7 @@ def _from_dict(d: dict) -> Prescription:
     return Prescription(surfaces=surfs, stop_surface=stop, entrance_pupil_diameter_mm=epd, fields=fields,
                         wavelengths_um=lams, primary_wavelength_um=primary, object_distance_mm=distance,
                         name=_string(d.get("name", ""), "name"), source=_string(d.get("source", ""), "source"),
-                        notes=_string(d.get("notes", ""), "notes"), extra=extra)
+                        notes=_string(d.get("notes", ""), "notes"), stop_size=stop_size, extra=extra)
 
 
 def read_prescription_toml(path) -> Prescription:

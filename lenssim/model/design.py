@@ -35,14 +35,18 @@ class Parameter:
     default: float = 0.0
     aliases: tuple[str, ...] = ()
     step: float = 1.0
+    lens_name: str = ""
+    """The same number as a free parameter of the singlet's prescription (:meth:`lenssim.model.lens.Lens.prescription`,
+    :mod:`lenssim.model.lens_parameters`): one lens, two names; accepted as an alias."""
 
 
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
-    Parameter("s", "shape factor (c1 + c2) / (c1 - c2)", step=0.025),
-    Parameter("Q_back", "conic constant of the back surface", aliases=("Q",), step=0.1),
-    Parameter("Q_front", "conic constant of the front surface (an asphere only when given)", step=0.1),
+    Parameter("s", "shape factor (c1 + c2) / (c1 - c2)", step=0.025, lens_name="E1.bending"),
+    Parameter("Q_back", "conic constant of the back surface", aliases=("Q",), step=0.1, lens_name="S2.conic"),
+    Parameter("Q_front", "conic constant of the front surface (an asphere only when given)", step=0.1,
+              lens_name="S1.conic"),
     Parameter("focus_shift_um", "image plane behind the paraxial focus at the lens's reference wavelength",
-              unit="um", step=5.0),
+              unit="um", step=5.0, lens_name="focus_um"),
 )}
 """The registry of design parameters, in their canonical order."""
 
@@ -52,9 +56,10 @@ def parameter_name(name: str) -> str:
     if name in PARAMETERS:
         return name
     for p in PARAMETERS.values():
-        if name in p.aliases:
+        if name in p.aliases or name == p.lens_name:
             return p.name
-    valid = ", ".join(f"{p.name}" + (f" (alias {', '.join(p.aliases)})" if p.aliases else "") for p in PARAMETERS.values())
+    valid = ", ".join(f"{p.name}" + (f" (alias {', '.join(p.aliases + (p.lens_name,))})" if p.aliases or p.lens_name
+                                     else "") for p in PARAMETERS.values())
     raise ValueError(f"design parameter {quoted(name)} is not known; valid: {valid}")
 
 

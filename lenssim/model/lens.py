@@ -165,6 +165,29 @@ class Lens:
         """The aperture stop is at the lens: its first surface (zero thickness)."""
         return 0
 
+    def prescription(self, design: Design, wavelengths_um, *, name: str = ""):
+        """The singlet at one ``design`` as a :class:`lenssim.model.prescription.Prescription` (the one lens model
+        every ``--lens`` route reads): two surfaces 0 mm apart, the stop at surface 1, the entrance pupil ``2 y``,
+        the semi-diameters ``y``, the image plane at ``t`` plus the design's focus shift, the glass (a constant one as
+        the model glass ``(n, 0)``), the field angles, ``wavelengths_um`` (the first the primary). Its free parameters
+        ``E1.bending``, ``S2.conic``, ``S1.conic`` are the design's ``s``, ``Q_back``, ``Q_front``
+        (:attr:`lenssim.model.design.Parameter.lens_name`); its ``focus_um`` moves the image plane from where the
+        design's ``focus_shift_um`` put it (the same number about the prescription of a design without a shift)."""
+        from .prescription import Prescription, PrescriptionSurface
+
+        if design.shape.numel() != 1:
+            raise ValueError(f"a prescription is one lens: the design holds {design.shape.numel()} designs")
+        c1, c2 = (float(c) for c in self.curvatures(design["s"].double()))
+        material = self.glass.name if getattr(self.glass, "dispersive", False) else (self.refractive_index, 0.0)
+        y = self.pupil_radius_mm
+        front = PrescriptionSurface(c1, 0.0, material, conic=float(design["Q_front"]), semi_diameter_mm=y,
+                                    comment="front" + (" (conic Q_front)" if "Q_front" in design else ""))
+        back = PrescriptionSurface(c2, self.image_distance_mm + float(design["focus_shift_um"]) * 1e-3, "air",
+                                   conic=float(design["Q_back"]), semi_diameter_mm=y, comment="back (conic Q_back)")
+        lams = tuple(float(w) for w in wavelengths_um)
+        return Prescription((front, back), 1, 2 * y, fields=self.field_angles_deg, wavelengths_um=lams,
+                            primary_wavelength_um=lams[0], name=name or design.name)
+
     def seidel_sums(self, design: Design, alpha, wavelength_um: float | None = None) -> torch.Tensor:
         """``(S_I, S_II, S_III, S_IV)`` (mm) by the thin lens's closed forms (Welford ch. 8): the fast path of the
         :class:`lenssim.optics.optical_system.OpticalSystem` protocol, equal to the general surface-by-surface sums

@@ -37,7 +37,8 @@ from ..model.camera import Camera
 from ..model.design import Design
 from .raytrace import opd
 
-__all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "pupil_quadrature", "opd_rms_waves"]
+__all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "pupil_quadrature", "opd_rms_waves",
+           "fit_exact_terms", "lens_exact_coefficients"]
 
 EXACT_TERMS = tuple(Term(f"E{a}{b}", a, b) for a in range(5) for b in range(9) if 0 < 2 * a + b <= 8)
 """Pupil monomials ``rho^2a rho_r^b`` up to degree 8 (no piston)."""
@@ -86,15 +87,49 @@ def exact_wavefront_fit(camera: Camera, design: Design, alpha_deg: float, wavele
     lens = camera.lens
     lam = camera.spectrum.wavelengths_um[0] if wavelength_um is None else wavelength_um
     rr, rt, wt, W, Q = _opd_waves(camera, design, alpha_deg, lam)
-    basis = pupil_monomials(rr, rt, EXACT_TERMS).T  # (P, T)
-    sw = wt.sqrt()
-    c = torch.linalg.lstsq(basis * sw[:, None], (W * sw)[:, None]).solution[:, 0]
-    residual = float(torch.sqrt((((W - basis @ c) ** 2) * wt).sum()))
+    c, residual = fit_exact_terms(rr, rt, wt, W)
     t_img = lens.image_distance_mm + float(design["focus_shift_um"]) * 1e-3
     eps_chief = float(Q[1]) - t_img * math.tan(math.radians(alpha_deg))  # mm, along the field's direction
     tilt = next(i for i, t in enumerate(EXACT_TERMS) if (t.a, t.b) == (0, 1))
     c[tilt] += -(lens.pupil_radius_mm / t_img) * eps_chief / (lam * 1e-3)
     return c, residual
+
+
+def fit_exact_terms(rr: torch.Tensor, rt: torch.Tensor, wt: torch.Tensor, W: torch.Tensor):
+    """``(coefficients (T,), residual)``: the OPD ``W`` (waves) at pupil points ``(rr, rt)`` with area weights ``wt``
+    (:func:`pupil_quadrature`) projected on :data:`EXACT_TERMS` (area-weighted least squares); ``residual`` is the
+    RMS (waves) of ``W`` minus the projection. The one fit of both lens routes."""
+    basis = pupil_monomials(rr, rt, EXACT_TERMS).T  # (P, T)
+    sw = wt.sqrt()
+    c = torch.linalg.lstsq(basis * sw[:, None], (W * sw)[:, None]).solution[:, 0]
+    return c, float(torch.sqrt((((W - basis @ c) ** 2) * wt).sum()))
+
+
+def lens_exact_coefficients(seq, angles_deg, wavelengths_um) -> torch.Tensor:
+    """Coefficients of :data:`EXACT_TERMS` (waves at each wavelength) of the real-ray OPD of the sequential lens
+    ``seq`` (:class:`lenssim.optics.sequential.SequentialLens`, object at infinity), ``(A, K, T)`` float64, at field
+    angles ``angles_deg`` (deg) and ``wavelengths_um``: rays aimed at the stop (its radius as the prescription's
+    ``stop_size`` says) at the points of :func:`pupil_quadrature` (``rho_r`` along the field, toward the image point),
+    the surfaces extended beyond their semi-diameters (the pupil is the full disc, as in the third-order route), the
+    OPD referred to the sphere about the primary wavelength's real chief ray on the image plane (so the PSFs sit about
+    the chief ray, the lateral colour kept as a tilt). Raises ``ValueError`` where a ray cannot be traced."""
+    rr, rt, wt = pupil_quadrature()
+    lam0 = seq.primary_wavelength_um
+    zero = torch.zeros(1, dtype=torch.float64)
+    rows = []
+    for a in angles_deg:
+        a = float(a)
+        y0 = float(seq.wavefront(a, zero, zero, lam0).chief_mm[1])
+        toward = -1.0 if y0 < 0 else 1.0  # rho_r points from the axis to the image point
+        per = []
+        for lam in wavelengths_um:
+            w = seq.wavefront(a, rt, toward * rr, float(lam), reference_mm=(0.0, y0), vignette=False)
+            if not bool(torch.isfinite(w.opd_waves).all()):
+                raise ValueError(f"field {a:g} deg, {float(lam):g} um: some rays of the pupil cannot be traced (a "
+                                 "surface missed or a total internal reflection): no exact wavefront")
+            per.append(fit_exact_terms(rr, rt, wt, w.opd_waves)[0])
+        rows.append(torch.stack(per))
+    return torch.stack(rows)
 
 
 def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: float,

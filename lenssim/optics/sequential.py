@@ -517,6 +517,23 @@ class SequentialLens:
         P = O.expand_as(d)
         return P, d, torch.zeros_like(x)
 
+    def aimed_stop_radius_mm(self, wavelength_um: float | None = None) -> float:
+        """The stop radius (mm) the real aiming fills at ``wavelength_um`` (default the primary), as the prescription's
+        ``stop_size`` says (:data:`lenssim.model.prescription.STOP_SIZES`): the paraxial marginal ray's height at the
+        stop, or the height there of the real axial ray through the paraxial entrance pupil's rim (in the stop's own
+        frame if it is misaligned)."""
+        lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
+        par = self.paraxial(lam)
+        if self.prescription.stop_size == "paraxial":
+            return par.stop_radius_mm
+        one = torch.ones(1, dtype=torch.float64)
+        P, d, o = self.aim(0.0, 0 * one, one, lam, method="paraxial")
+        b = self.trace(P, d, lam, upto=self.prescription.stop_index, opl_start=o, vignette=False)
+        if not bool(b.valid.all()):
+            raise RayTraceError(f"the axial ray through the entrance pupil's rim ({lam:g} um) does not reach the stop "
+                                f"(surface {self.prescription.stop_surface}): the stop cannot be sized by real rays")
+        return float(self._to_local(self.prescription.stop_index, b.points)[0, :2].norm())
+
     def aim(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
             method: str = "real"):
         """Rays of ``field`` (deg or mm) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
@@ -548,7 +565,8 @@ class SequentialLens:
         if method == "paraxial":
             return self._beam(field, x, y, lam, z_start)
         k = p.stop_index
-        target = torch.stack([px, py], dim=-1) * par.stop_radius_mm
+        stop_r = self.aimed_stop_radius_mm(lam)
+        target = torch.stack([px, py], dim=-1) * stop_r
 
         def at_stop(xv, yv):
             P, d, o = self._beam(field, xv, yv, lam, z_start)
@@ -559,7 +577,7 @@ class SequentialLens:
         for _ in range(AIM_ITERATIONS):
             s0, ok = at_stop(x, y)
             r = s0 - target
-            if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * par.stop_radius_mm) | ~ok).all()):
+            if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok).all()):
                 break
             sx, okx = at_stop(x + h, y)
             sy, oky = at_stop(x, y + h)
@@ -573,7 +591,7 @@ class SequentialLens:
             y = y - torch.where(good, dy, torch.zeros_like(dy))
         else:
             s0, ok = at_stop(x, y)
-            bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * par.stop_radius_mm)
+            bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * stop_r)
             if bool(bad.any()):
                 # tolerated, and not traced: a point beyond the unit disc (a table's margin for interpolation), or a
                 # ray that would not pass the lens where the search stopped (grazing a rim it is vignetted by)
@@ -677,12 +695,12 @@ class SequentialLens:
         t = torch.linspace(0, 2 * math.pi, AXIAL_RIM_RAYS + 1, dtype=torch.float64)[:-1]
         px, py = torch.cos(t), torch.sin(t)
         sd = p.surfaces[k].semi_diameter_mm
-        par = self.paraxial()
-        if sd is not None and par.stop_radius_mm > sd * (1 + APERTURE_SLACK):  # at the primary wavelength, as the
+        stop_r = self.aimed_stop_radius_mm()
+        if sd is not None and stop_r > sd * (1 + APERTURE_SLACK):  # at the primary wavelength, as the
             lam = self.primary_wavelength_um  # optical-design programs size the stop from the entrance pupil
             raise PrescriptionError(f"surface {k + 1} (the stop): the entrance-pupil diameter "
                                     f"{p.entrance_pupil_diameter_mm:g} mm needs a stop radius of "
-                                    f"{par.stop_radius_mm:.4g} mm at {lam:g} um, larger than its semi-diameter "
+                                    f"{stop_r:.4g} mm at {lam:g} um ({p.stop_size} stop size), larger than its semi-diameter "
                                     f"{sd:g} mm")
         for lam in p.wavelengths_um:
             field = 0.0

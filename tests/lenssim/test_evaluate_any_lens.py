@@ -45,7 +45,7 @@ def test_evaluate_any_lens_prints_a_table(capsys):
     (["--design", "end_to_end_paper"], "--design describe"),
     (["--s", "-0.7"], "--s describe"),
     (["--best-focus", "mse_r"], "with --lens use --refocus best"),
-    (["--wavefront", "exact"], "--wavefront applies to the paper's singlet"),
+    (["--wavefront", "third_order"], "--wavefront third_order with --lens"),
     (["--pixel-pitch", "-1"], "--pixel-pitch -1 is not allowed"),
     (["--pixel-pitch", "10", "--sampling", "point"], "sampling 'point' is not allowed"),
 ])

@@ -23,13 +23,35 @@ MODEL = (N_GLASS, 0.0)  # a model glass without dispersion
 def _paper_singlet(s=-0.775, q=-2.4):
     lens = PAPER_CAMERA.lens
     d = Design(s=s, Q_back=q).to(torch.float64)
-    s1, s2 = lens.surfaces(d)
-    surfs = (S(float(s1.curvature), 0.0, (lens.refractive_index, 0.0)),
-             S(float(s2.curvature), lens.image_distance_mm, "air", conic=float(s2.conic)))
     lam = PAPER_CAMERA.spectrum.wavelengths_um[0]
-    p = Prescription(surfs, 1, 2 * lens.pupil_radius_mm, fields=lens.field_angles_deg, wavelengths_um=(lam,),
-                     primary_wavelength_um=lam)
-    return SequentialLens(p), lens, d, lam
+    return SequentialLens(lens.prescription(d, (lam,))), lens, d, lam
+
+
+def test_the_singlets_named_design_is_its_shipped_prescription():
+    """One lens, two names: ``Lens.prescription`` of the paper's end-to-end design is
+    ``configs/lenses/paper_singlet.toml`` (transcribed from the paper independently), and the prescription's free
+    parameters read back the design's values under their lens names."""
+    from dataclasses import replace
+
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.model.design import PARAMETERS
+    from lenssim.model.lens_parameters import parameter_values, parse_parameter
+
+    d = Design(s=-0.775, Q_back=-2.4, Q_front=0.3, focus_shift_um=12.0)
+    p = PAPER_CAMERA.lens.prescription(d, (0.5,))
+    shipped = read_lens("paper_singlet")
+    made = PAPER_CAMERA.lens.prescription(Design(s=-0.775, Q_back=-2.4), (0.5,))
+    strip = lambda q: replace(q, surfaces=tuple(replace(x, comment="") for x in q.surfaces), name="", source="",  # noqa: E731
+                              notes="", extra={})
+    assert strip(made) == strip(shipped)
+    shape = [par for par in PARAMETERS.values() if par.lens_name != "focus_um"]
+    values = parameter_values(p, [parse_parameter(p, par.lens_name) for par in shape])
+    assert values == pytest.approx({par.lens_name: float(d[par.name]) for par in shape}, rel=1e-12)
+    # the focus shift is in the image distance (focus_um moves the image plane from there)
+    assert (p.image_z_mm - made.image_z_mm) * 1e3 == pytest.approx(12.0, rel=1e-9)
+    assert float(Design(**{"E1.bending": 0.5, "S2.conic": -1.0})["Q_back"]) == -1.0
+    with pytest.raises(ValueError, match="one lens"):
+        PAPER_CAMERA.lens.prescription(Design(s=torch.tensor([0.1, 0.2])), (0.5,))
 
 
 @pytest.mark.parametrize("alpha", [0.0, 7.0, 14.0])

@@ -70,7 +70,7 @@ def test_a_finer_pixel_pitch_blurs_more_pixels(lens_file, tmp_path):
     (["--design", "end_to_end_paper"], "--design describe"),
     (["--s", "0.5"], "--s describe"),
     (["--glass", "N-BK7"], "--glass describe"),
-    (["--wavefront", "exact"], "--wavefront applies to the paper"),
+    (["--wavefront", "third_order"], "--wavefront third_order with --lens"),
     (["--pixel-pitch", "0"], "--pixel-pitch 0 is not allowed"),
 ])
 def test_paper_flags_beside_any_lens_are_refused_in_one_line(lens_file, tmp_path, capsys, extra, match):
