@@ -50,7 +50,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..model.prescription import AIR, Prescription, PrescriptionError, PrescriptionSurface
+from ..model.prescription import AIR, STOP_SIZES, Prescription, PrescriptionError, PrescriptionSurface
 from ..model.surface_kinds import SURFACE_KINDS, ZemaxParmError
 from .files import InputFileError, atomic_write_text, check_input_file, describe_os_error
 
@@ -536,8 +536,11 @@ def prescription_zmx(prescription: Prescription) -> str:
     """The ``.zmx`` text of ``prescription`` (what :func:`write_zmx` writes): lens unit mm, the entrance-pupil diameter,
     fields on the ``y`` axis, every wavelength at weight 1. Names and comments are written on one line (control
     characters as spaces). :class:`PrescriptionError` for what a ``.zmx`` file cannot hold: a surface kind without a
-    Zemax type, a glass name with a space."""
+    Zemax type, a glass name with a space, a stop sized by real rays (the reader knows no ray-aiming keyword)."""
     p = prescription
+    if p.stop_size != STOP_SIZES[0]:
+        raise PrescriptionError(f"stop_size {p.stop_size!r} cannot be written to a .zmx file (it is read as "
+                                f"{STOP_SIZES[0]!r}): write the lens as TOML")
     lines = ["MODE SEQ", f"NAME {_one_line(p.name)}", "UNIT MM", f"ENPD {p.entrance_pupil_diameter_mm!r}",
              f"FTYP {0 if p.object_at_infinity else 1} 0 {len(p.fields)} {len(p.wavelengths_um)} 0 0 0",
              "XFLN" + " 0" * len(p.fields), "YFLN " + " ".join(repr(f) for f in p.fields)]

@@ -165,6 +165,9 @@ def test_the_shipped_lenses_read_back_equal_from_zmx(tmp_path):
         write_zmx(p, tmp_path / f"{name}.zmx")
         q = read_zmx(tmp_path / f"{name}.zmx")
         assert q == replace(p, source=q.source, notes=q.notes), name
+    with pytest.raises(PrescriptionError, match="^stop_size 'real' cannot be written to a .zmx file"):
+        write_zmx(replace(p, stop_size="real"), tmp_path / "real.zmx")  # the reader would take it as paraxial
+    assert not (tmp_path / "real.zmx").exists()
 
 
 # -- the standard surface and the even asphere against their formulas ------------------------------------------------
