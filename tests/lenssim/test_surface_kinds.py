@@ -24,7 +24,7 @@ from lenssim.io.prescription_file import prescription_toml, read_lens, prescript
 from lenssim.io.zemax import prescription_zmx, read_zmx, write_zmx
 from lenssim.model.prescription import Prescription, PrescriptionError, PrescriptionSurface
 from lenssim.model.surface_kinds import SURFACE_KINDS
-from lenssim.model.surface_kinds.qbfs import qbfs_polynomials
+from lenssim.model.surface_kinds.qbfs import QBFS_MAX_TERMS, qbfs_polynomials
 from lenssim.optics.cost import prescription_costs
 from lenssim.optics.sequential import SequentialLens, pupil_grid
 
@@ -235,6 +235,16 @@ def test_qbfs_coefficients_measure_the_slope_departure_from_the_best_fit_sphere(
         one = replace(s, curvature_per_mm=0.0, aspheric_coefficients=(0.0,) * m + (1e-3,))
         assert _chebyshev_mean_square_slope(lambda r: _sag(one, torch.tensor(np.abs(r))).numpy(), rn) == \
             pytest.approx(1e-6, rel=1e-9)
+
+
+def test_all_qbfs_terms_have_orthonormal_slopes():
+    """The Gram matrix of the slopes ``d/du [u^2 (1 - u^2) Q_m(u^2)]`` of every term a surface may have, by
+    Gauss-Chebyshev quadrature (exact for these polynomials), is the identity: the recurrence holds to the last."""
+    n = 200
+    u = torch.cos((2 * torch.arange(1, n + 1, dtype=D) - 1) * math.pi / (2 * n))
+    x = u * u
+    slopes = torch.stack([2 * u * ((1 - 2 * x) * q + x * (1 - x) * dq) for q, dq in qbfs_polynomials(x, QBFS_MAX_TERMS)])
+    torch.testing.assert_close(slopes @ slopes.T / n, torch.eye(QBFS_MAX_TERMS, dtype=D), rtol=0, atol=1e-13)
 
 
 def _qbfs_as_even_asphere(rn: float, a) -> tuple[float, tuple[float, ...]]:
