@@ -64,7 +64,8 @@ def cmd_inspect(args) -> int:
     print(f"{p.name or args.lens}" + (f"  ({p.source})" if p.source else ""))
     rows = [[str(i + 1) + (" (stop)" if i == p.stop_index else ""), f"{s.radius_mm:.6g}", f"{s.thickness_mm:.6g}",
              s.material if isinstance(s.material, str) else f"n_d {s.material[0]:g}, V_d {s.material[1]:g}",
-             f"{s.conic:g}", " ".join(f"{a:.4g}" for a in s.aspheric_coefficients) or "-",
+             f"{s.conic:g}", (f"{s.kind}: " if s.kind else "") + " ".join(f"{a:.4g}" for a in s.aspheric_coefficients)
+             or "-",
              "-" if s.semi_diameter_mm is None else f"{s.semi_diameter_mm:g}"] for i, s in enumerate(p.surfaces)]
     print(table(rows, ["surface", "radius mm", "thickness mm", "material after", "conic", "A4.. (mm^1-2k)",
                        "semi-diam mm"]))

@@ -135,3 +135,68 @@ def test_walkthrough_an_optical_system():
     d = Design(s=torch.tensor([-0.775, 0.3], dtype=D), Q_back=torch.tensor([-2.4, -6.0], dtype=D))
     torch.testing.assert_close(wavefront_coefficients(general, d, wavelength_um=0.5),
                                wavefront_coefficients(PAPER_LENS, d, wavelength_um=0.5), rtol=1e-12, atol=1e-12)
+
+
+def test_walkthrough_a_surface_kind(tmp_path, capsys):
+    """One file in lenssim/model/surface_kinds/ that registers a SurfaceKind, and its test: Forbes's Qbfs asphere
+    (qbfs.py) was added exactly so. The package finds it; a TOML lens names it (``kind = "qbfs"`` with its own key);
+    the real rays, the paraxial data, the Seidel sums, the asphere cost and ``lenssim inspect`` take the lens; a
+    ``.zmx`` file refuses it in one line; the generic checks of every kind (tests/lenssim/test_surface_kinds.py,
+    ``EXAMPLES``) run on it."""
+    import importlib.util
+    import pkgutil
+    from pathlib import Path
+
+    import lenssim.model.surface_kinds as package
+    from lenssim.io.prescription_file import read_lens
+    from lenssim.io.zemax import write_zmx
+    from lenssim.model.prescription import PrescriptionError
+    from lenssim.model.surface_kinds import SURFACE_KINDS
+    from lenssim.optics.cost import prescription_costs
+    from lenssim.optics.sequential import SequentialLens, pupil_grid
+    from lenssim_cli.main import main
+
+    assert "qbfs" in {m.name for m in pkgutil.iter_modules(package.__path__)} and "qbfs" in SURFACE_KINDS
+    tests = Path(__file__).parent / "lenssim" / "test_surface_kinds.py"
+    spec = importlib.util.spec_from_file_location("surface_kind_tests", tests)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert "qbfs" in module.EXAMPLES  # the generic checks cover it
+    docs = (Path(__file__).parents[1] / "docs" / "architecture.md").read_text()
+    walkthrough = docs[docs.index("**Add a surface kind**"):]
+    snippet = walkthrough[walkthrough.index("```python") + 9:walkthrough.index("```", walkthrough.index("```python") + 9)]
+    source = {line.split("#")[0].strip() for line in (Path(package.__file__).parent / "qbfs.py").read_text().splitlines()}
+    for line in filter(None, (raw.split("#")[0].strip() for raw in snippet.splitlines())):
+        assert line in source, line  # the docs show the file as it is
+    lens = tmp_path / "qbfs_singlet.toml"
+    lens.write_text("""name = "plano-convex, Qbfs back"
+stop_surface = 1
+[aperture]
+entrance_pupil_diameter_mm = 16.0
+[fields]
+angles_deg = [0.0, 5.0]
+[[surfaces]]
+radius_mm = 50.0
+thickness_mm = 6.0
+material = [1.5168, 64.17]
+semi_diameter_mm = 10.0
+[[surfaces]]
+kind = "qbfs"
+radius_mm = "inf"
+normalization_radius_mm = 10.0
+aspheric_coefficients = [0.002, -0.0015, 0.0008]
+thickness_mm = 92.0
+semi_diameter_mm = 10.0
+""")
+    p = read_lens(str(lens))
+    s2 = p.surfaces[1]
+    assert s2.surface_kind.name == "qbfs" and s2.paraxial_curvature_per_mm != 0  # a flat best-fit sphere, curved vertex
+    seq = SequentialLens(p)
+    px, py = pupil_grid(16)
+    w = seq.wavefront(5.0, px, py)
+    assert 0 < w.rms_waves() < 10 and w.vignetted_fraction == 0.0
+    assert torch.isfinite(seq.seidel_surfaces(5.0)).all()
+    assert list(prescription_costs(p)) == [2]
+    assert main(["inspect", str(lens)]) == 0 and "qbfs: 0.002 -0.0015 0.0008" in capsys.readouterr().out
+    with pytest.raises(PrescriptionError, match="surface 2: a qbfs surface .* cannot be written to a .zmx file"):
+        write_zmx(p, tmp_path / "qbfs_singlet.zmx")

@@ -33,6 +33,9 @@ file order (the object is surface 0, the image plane lies ``thickness_mm`` of th
     aspheric_coefficients = []             # optional: [A4, A6, ... A16] of r^4, r^6, ... (mm^-3, mm^-5, ...)
     semi_diameter_mm = 14.7                # optional: the clear semi-aperture
     comment = "L1 front"                   # optional
+    kind = "standard"                      # optional: a surface kind (lenssim.model.surface_kinds); its own keys
+                                           # beside these, e.g. kind = "qbfs" with normalization_radius_mm = 14.7
+                                           # and aspheric_coefficients = [a0, a1, ...] (mm)
 
 ``f_number_given`` (top level) is the F-number a Zemax file gave its aperture as (kept in ``extra``). A key that is
 not one of these is refused in one line naming it and the allowed ones. :func:`write_prescription_toml` writes a file
@@ -46,6 +49,7 @@ import math
 from pathlib import Path
 
 from ..model.prescription import AIR, STOP_SIZES, Prescription, PrescriptionError, PrescriptionSurface
+from ..model.surface_kinds import SURFACE_KINDS
 from ..validate import listed, quoted
 from .files import InputFileError, atomic_write_text, read_toml
 
@@ -61,7 +65,7 @@ _OBJECT = ("distance_mm",)
 _FIELDS = ("angles_deg", "heights_mm")
 _WAVELENGTHS = ("um", "primary_um")
 _SURFACE = ("radius_mm", "curvature_per_mm", "thickness_mm", "material", "conic", "aspheric_coefficients",
-            "semi_diameter_mm", "comment")
+            "semi_diameter_mm", "comment", "kind")
 _EXTRA = ("published", "f_number_given")
 """The keys of ``Prescription.extra`` this format holds."""
 
@@ -111,7 +115,13 @@ def _string(v, where: str) -> str:
 
 def _surface(t, number: int) -> PrescriptionSurface:
     where = f"surface {number}"
-    _keys(t, _SURFACE, where)
+    if not isinstance(t, dict):
+        _keys(t, _SURFACE, where)  # not a table: refused
+    kind = _string(t.get("kind", "standard"), f"{where}: kind")
+    if kind not in SURFACE_KINDS:
+        raise _Bad(f"{where}: kind {quoted(kind)} is not known; valid: {listed(SURFACE_KINDS, near=[kind])}")
+    own = SURFACE_KINDS[kind].shape_parameters
+    _keys(t, _SURFACE + own, where)
     if "radius_mm" in t and "curvature_per_mm" in t:
         raise _Bad(f"{where}: give radius_mm or curvature_per_mm, not both")
     if "radius_mm" in t:
@@ -147,7 +157,8 @@ def _surface(t, number: int) -> PrescriptionSurface:
         conic=_number(t.get("conic", 0.0), f"{where}: conic"),
         aspheric_coefficients=tuple(_numbers(t.get("aspheric_coefficients", []), f"{where}: aspheric_coefficients")),
         semi_diameter_mm=None if sd is None else _number(sd, f"{where}: semi_diameter_mm"),
-        comment=_string(t.get("comment", ""), f"{where}: comment"))
+        comment=_string(t.get("comment", ""), f"{where}: comment"), kind=kind,
+        shape_parameters={k: _number(t[k], f"{where}: {k}") for k in own if k in t})
 
 
 def _published(t) -> dict:

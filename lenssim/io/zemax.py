@@ -21,9 +21,10 @@ Read:
   the y axis are refused);
 * the wavelengths (micrometres): ``WAVM n value weight`` or ``WAVL v1 v2 ...``, ``PWAV`` (primary, 1-based);
 * ``NAME`` (the lens name);
-* ``SURF n`` blocks numbered 0, 1, 2, ...: ``TYPE STANDARD`` or ``TYPE EVENASPH``, ``CURV`` (1/lens unit, the first
-  number), ``CONI``, ``PARM k v`` (even asphere: ``PARM 1``, the ``r^2`` term, must be 0; ``PARM 2 .. 8`` are
-  ``A4 .. A16``), ``DISZ`` (thickness; ``INFINITY``, or 1e10 lens units and more, for the object distance of surface
+* ``SURF n`` blocks numbered 0, 1, 2, ...: ``TYPE`` (a surface kind's ``zemax_type``,
+  :mod:`lenssim.model.surface_kinds`: ``STANDARD`` or ``EVENASPH``), ``CURV`` (1/lens unit, the first number),
+  ``CONI``, ``PARM k v`` (read by the kind: for ``EVENASPH`` ``PARM 1``, the ``r^2`` term, must be 0 and ``PARM 2 ..
+  8`` are ``A4 .. A16``), ``DISZ`` (thickness; ``INFINITY``, or 1e10 lens units and more, for the object distance of surface
   0), ``GLAS NAME ...`` (the glass name kept as written; ``___BLANK`` is a model glass ``(n_d, V_d)`` from the 3rd and
   4th numbers after the name; no ``GLAS`` is air), ``DIAM`` (semi-diameter; 0: none), ``CLAP`` (a circular aperture:
   its radius replaces ``DIAM``), ``STOP``, ``COMM`` (comment).
@@ -31,8 +32,11 @@ Read:
 Surface 0 is the object (its ``DISZ`` the object distance), the last ``SURF`` is the image plane, the ones between
 are the prescription's surfaces 1..N (the image distance is the ``DISZ`` of surface N).
 
+:func:`write_zmx` writes a prescription as such a file (lens unit mm, the aperture as ``ENPD``), read back equal;
+a surface kind without a ``.zmx`` type (``qbfs``) is refused in one line.
+
 Refused (one line each): a non-sequential file (``MODE NSC``, non-sequential objects), surface types other than the
-two (coordinate breaks, gratings, odd aspheres, ...), mirrors, tilted or decentred surfaces and apertures, annular,
+kinds' (coordinate breaks, gratings, odd aspheres, ...), mirrors, tilted or decentred surfaces and apertures, annular,
 rectangular or elliptical apertures and obscurations, a curved image surface, an object in glass, negative or
 non-finite values, telecentric object space, afocal image space. Keywords that do not change the traced lens (``VERS``,
 ``MODE SEQ``, ``NOTE``, ``PFIL``, ``GCAT``, tolerances, pickups, drawing and coating settings, ...) and keywords this
@@ -46,10 +50,11 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..model.prescription import AIR, Prescription, PrescriptionError, PrescriptionSurface
-from .files import InputFileError, check_input_file, describe_os_error
+from ..model.prescription import AIR, STOP_SIZES, Prescription, PrescriptionError, PrescriptionSurface
+from ..model.surface_kinds import SURFACE_KINDS, ZemaxParmError
+from .files import InputFileError, atomic_write_text, check_input_file, describe_os_error
 
-__all__ = ["read_zmx", "MAX_ZMX_BYTES"]
+__all__ = ["read_zmx", "write_zmx", "prescription_zmx", "MAX_ZMX_BYTES"]
 
 MAX_ZMX_BYTES = 16 * 2**20
 """Largest ``.zmx`` file read (16 MiB; a lens file is a few tens of kilobytes)."""
@@ -283,8 +288,9 @@ class _Reader:
                 raise _Fail(f"{kind}: diffraction gratings are not supported")
             if kind in ("NONSEQCO",):
                 raise _Fail(f"{kind}: non-sequential components are not supported (sequential lenses only)")
-            if kind not in ("STANDARD", "EVENASPH"):
-                raise _Fail(f"surface type {tokens[1]!r} is not supported: STANDARD or EVENASPH")
+            types = [k.zemax_type for k in SURFACE_KINDS.values() if k.zemax_type]
+            if kind not in types:
+                raise _Fail(f"surface type {tokens[1]!r} is not supported: {' or '.join(types)}")
             cur.kind = kind
         elif kw == "CURV":
             cur.curvature = _number(_arg(tokens, 1, "CURV"), "curvature") / self.scale
@@ -351,18 +357,13 @@ class _Reader:
             raise _Fail(f"has {len(surfs)} SURF block{'s' if len(surfs) > 1 else ''}: an object surface, at least one "
                         "lens surface and an image surface are needed (a truncated file?)")
         obj, image, lens = surfs[0], surfs[-1], surfs[1:-1]
+        kinds = {k.zemax_type: k for k in SURFACE_KINDS.values() if k.zemax_type}
+        shapes = []
         for s in surfs:
-            if s.kind == "EVENASPH":
-                if s.parms.get(1, 0.0) != 0:
-                    raise _Fail(f"{s.at('PARM 1')}: PARM 1 = {s.parms[1]:g} (the r^2 term of the even asphere) is not "
-                                "supported: it must be 0 (the curvature gives the r^2 term)")
-                extra = sorted(k for k, v in s.parms.items() if (k < 1 or k > 8) and v != 0)
-                if extra:
-                    raise _Fail(f"{s.at(f'PARM {extra[0]}')}: PARM {extra[0]} is not an even-asphere coefficient "
-                                "(PARM 2..8: A4..A16)")
-            elif any(v != 0 for v in s.parms.values()):
-                k = next(k for k, v in s.parms.items() if v != 0)
-                raise _Fail(f"{s.at(f'PARM {k}')}: PARM {k} = {s.parms[k]:g} on a {s.kind} surface is not supported")
+            try:
+                shapes.append(kinds[s.kind].from_zmx(s.parms, self.scale))
+            except ZemaxParmError as exc:
+                raise _Fail(f"{s.at(f'PARM {exc.parm}')}: {exc}") from None
         if image.material != AIR:
             raise _Fail(f"{image.at('GLAS')}: GLAS: the last SURF (the image plane) has a glass after it: the file is cut short "
                         "or its image surface is missing")
@@ -400,10 +401,8 @@ class _Reader:
         lams, primary = self._wavelengths()
         surfaces = tuple(PrescriptionSurface(
             curvature_per_mm=s.curvature, thickness_mm=s.thickness or 0.0, material=s.material, conic=s.conic,
-            aspheric_coefficients=tuple(s.parms.get(k, 0.0) * self.scale ** (1 - 2 * k) for k in range(2, 9))
-            if s.kind == "EVENASPH" else (),
             semi_diameter_mm=s.clear_aperture if s.clear_aperture is not None else s.semi_diameter,
-            comment=s.comment) for s in lens)
+            comment=s.comment, **shape) for s, shape in zip(lens, shapes[1:-1]))
         extra = {}
         if self.epd is not None:
             epd = self.epd * self.scale
@@ -517,7 +516,7 @@ def _paraxial_focal_length(surfaces, wavelength_um: float) -> float:
     n, y, nu = 1.0, 1.0, 0.0
     for i, s in enumerate(surfaces, start=1):
         n2 = index(i, s.material)
-        nu -= y * s.curvature_per_mm * (n2 - n)
+        nu -= y * s.paraxial_curvature_per_mm * (n2 - n)
         n = n2
         if i < len(surfaces):
             y += s.thickness_mm * nu / n
@@ -527,6 +526,54 @@ def _paraxial_focal_length(surfaces, wavelength_um: float) -> float:
     if not efl > 0:
         raise _Fail(f"FNUM: the paraxial focal length {efl:g} mm is not positive: give the entrance-pupil diameter (ENPD)")
     return efl
+
+
+def _one_line(text: str) -> str:
+    return "".join(ch if ch.isprintable() else " " for ch in text)
+
+
+def prescription_zmx(prescription: Prescription) -> str:
+    """The ``.zmx`` text of ``prescription`` (what :func:`write_zmx` writes): lens unit mm, the entrance-pupil diameter,
+    fields on the ``y`` axis, every wavelength at weight 1. Names and comments are written on one line (control
+    characters as spaces). :class:`PrescriptionError` for what a ``.zmx`` file cannot hold: a surface kind without a
+    Zemax type, a glass name with a space, a stop sized by real rays (the reader knows no ray-aiming keyword)."""
+    p = prescription
+    if p.stop_size != STOP_SIZES[0]:
+        raise PrescriptionError(f"stop_size {p.stop_size!r} cannot be written to a .zmx file (it is read as "
+                                f"{STOP_SIZES[0]!r}): write the lens as TOML")
+    lines = ["MODE SEQ", f"NAME {_one_line(p.name)}", "UNIT MM", f"ENPD {p.entrance_pupil_diameter_mm!r}",
+             f"FTYP {0 if p.object_at_infinity else 1} 0 {len(p.fields)} {len(p.wavelengths_um)} 0 0 0",
+             "XFLN" + " 0" * len(p.fields), "YFLN " + " ".join(repr(f) for f in p.fields)]
+    lines += [f"WAVM {i} {w!r} 1" for i, w in enumerate(p.wavelengths_um, start=1)]
+    primary = min(range(len(p.wavelengths_um)), key=lambda i: abs(p.wavelengths_um[i] - p.primary_wavelength_um))
+    lines += [f"PWAV {primary + 1}", "SURF 0", "  TYPE STANDARD", "  CURV 0",
+              "  DISZ " + ("INFINITY" if p.object_at_infinity else repr(p.object_distance_mm))]
+    for i, s in enumerate(p.surfaces, start=1):
+        kind = s.surface_kind
+        if kind.zemax_type is None:
+            raise PrescriptionError(f"surface {i}: a {kind.name} surface ({kind.label}) cannot be written to a .zmx "
+                                    "file: its Zemax surface type and parameters are not known to this tool; write "
+                                    "the lens as TOML")
+        lines += [f"SURF {i}"] + ["  " + line for line in kind.zmx_lines(s)]
+        lines += ["  STOP"] if i == p.stop_surface else []
+        lines.append(f"  DISZ {s.thickness_mm!r}")
+        if isinstance(s.material, tuple):
+            lines.append(f"  GLAS ___BLANK 1 0 {s.material[0]!r} {s.material[1]!r} 0 0 0 0 0 0")
+        elif not s.is_air:
+            if len(s.material.split()) != 1:
+                raise PrescriptionError(f"surface {i}: glass name {s.material!r} cannot be written to a .zmx file "
+                                        "(a name without spaces)")
+            lines.append(f"  GLAS {s.material}")
+        lines += [f"  DIAM {s.semi_diameter_mm!r}"] if s.semi_diameter_mm is not None else []
+        lines += [f"  COMM {_one_line(s.comment)}"] if s.comment else []
+    lines += [f"SURF {len(p.surfaces) + 1}", "  TYPE STANDARD", "  CURV 0", "  DISZ 0"]
+    return "\n".join(lines) + "\n"
+
+
+def write_zmx(prescription: Prescription, path) -> Path:
+    """Write ``prescription`` to the Zemax file ``path`` atomically (:func:`prescription_zmx`; read back equal by
+    :func:`read_zmx`, its name, comments and extras aside); returns the path."""
+    return atomic_write_text(path, prescription_zmx(prescription))
 
 
 def read_zmx(path) -> Prescription:

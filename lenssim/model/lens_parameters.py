@@ -13,7 +13,7 @@ name               unit      what moves
 ``S5.conic``       1         surface 5's conic constant (any standard surface has one)
 ``S5.A4`` .. A16   mm^(1-k)  the even asphere's coefficient of ``r^k``; only on a surface that is an even asphere in the
                              file, unless the surface is made one (``aspherize``: every coefficient up to the named one
-                             starting at 0)
+                             starting at 0); not on another kind's surface (a ``qbfs``'s coefficients are not ``A4..``)
 ``S2.thickness``   mm        the thickness after surface 2 (a centre thickness or an air gap; after the last surface:
                              the image distance)
 ``E1.bending``     1         element 1's bending: its shape factor ``(c_first + c_last) / (c_first - c_last)`` (the
@@ -35,6 +35,7 @@ import re
 from dataclasses import dataclass, replace
 
 from .prescription import Prescription
+from .surface_kinds.standard import Standard
 from .surface_tolerances import lens_elements
 
 __all__ = ["LensParameter", "lens_parameters", "parse_parameter", "apply_parameters", "parameter_values",
@@ -74,7 +75,7 @@ def lens_parameters(p: Prescription, *, aspherize=()) -> dict[str, LensParameter
         out[f"S{k}.curvature"] = LensParameter(f"S{k}.curvature", "curvature", i, "1/mm", f"curvature of surface {k}")
         out[f"S{k}.radius"] = LensParameter(f"S{k}.radius", "radius", i, "mm", f"radius of surface {k}")
         out[f"S{k}.conic"] = LensParameter(f"S{k}.conic", "conic", i, "1", f"conic constant of surface {k}")
-        if s.is_aspheric or k in make:
+        if isinstance(s.surface_kind, Standard) and (s.is_aspheric or k in make):  # the even-asphere family
             for j, order in enumerate(ASPHERIC_ORDERS):
                 out[f"S{k}.A{order}"] = LensParameter(f"S{k}.A{order}", f"A{order}", i, f"mm^{1 - order}",
                                                       f"even-asphere coefficient of r^{order} of surface {k}")

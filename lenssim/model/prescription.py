@@ -4,10 +4,12 @@ A centred, rotationally symmetric system of refracting surfaces, numbered as in 
 the refracting surfaces (and flat dummies such as a stop) are 1..N, the image plane is N + 1 and lies
 ``surfaces[-1].thickness_mm`` behind the last surface (the prescription's own image distance).
 
-Each surface: curvature (1/mm; 0 flat), conic constant, even-asphere coefficients ``A4, A6, ... A16`` of
-``r^4 ... r^16`` (mm^(1-2k); the sag is ``c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + A4 r^4 + A6 r^6 + ...``), the
-thickness after it (mm), the material after it (``"air"``, a catalogue glass name, or a model glass ``(n_d, V_d)``)
-and its clear semi-diameter (mm; None: unlimited, the beam decides). One surface is the aperture stop.
+Each surface: its kind (:mod:`lenssim.model.surface_kinds`: ``""`` the standard family, a sphere or conic and, with
+coefficients, an even asphere ``c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + A4 r^4 + ... + A16 r^16``; or another
+registered kind, e.g. ``"qbfs"``), curvature (1/mm; 0 flat), conic constant, aspheric coefficients (their meaning is
+the kind's: ``A4, A6, ...`` in mm^(1-2k) for the even asphere), the kind's own shape parameters, the thickness after
+it (mm), the material after it (``"air"``, a catalogue glass name, or a model glass ``(n_d, V_d)``) and its clear
+semi-diameter (mm; None: unlimited, the beam decides). One surface is the aperture stop.
 The object is at infinity (field angles, degrees) or at a finite distance (``object_distance_mm`` before surface 1;
 fields are then object heights, mm). The aperture is the entrance-pupil diameter (mm).
 
@@ -20,15 +22,14 @@ import math
 from dataclasses import dataclass, field, replace
 
 from ..validate import quoted
+from .surface_kinds import SURFACE_KINDS, finite_number
+from .surface_kinds.even_asphere import EVEN_ASPHERE, MAX_ASPHERE_ORDER
+from .surface_kinds.standard import STANDARD
 
 __all__ = ["PrescriptionError", "PrescriptionSurface", "Prescription", "MAX_ASPHERE_ORDER", "AIR", "STOP_SIZES"]
 
 AIR = "air"
 """The material name of air (index 1 at every wavelength, as the optical-design programs take it)."""
-
-MAX_ASPHERE_ORDER = 16
-"""Highest even power of ``r`` of an even asphere (``A4 ... A16``: seven coefficients)."""
-
 
 STOP_SIZES = ("paraxial", "real")
 """How the entrance-pupil diameter sizes the stop that real rays are aimed at (``[aperture] stop_size``):
@@ -48,9 +49,10 @@ class PrescriptionError(ValueError):
 
 
 def _finite(where: str, name: str, v, allowed: str = "a finite number") -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise PrescriptionError(f"{where}: {name} = {v!r} is not allowed: {allowed}")
-    return float(v)
+    try:
+        return finite_number(name, v, allowed)
+    except ValueError as exc:
+        raise PrescriptionError(f"{where}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -63,9 +65,27 @@ class PrescriptionSurface:
     material: str | tuple[float, float] = AIR
     conic: float = 0.0
     aspheric_coefficients: tuple[float, ...] = ()
-    """``(A4, A6, ..., A16)``: coefficients of ``r^4, r^6, ...`` (mm^-3, mm^-5, ...); trailing zeros may be left out."""
+    """The kind's coefficients (even asphere: ``(A4, A6, ..., A16)`` of ``r^4, r^6, ...``, mm^-3, mm^-5, ...);
+    trailing zeros may be left out."""
     semi_diameter_mm: float | None = None
     comment: str = ""
+    kind: str = ""
+    """A name of :data:`lenssim.model.surface_kinds.SURFACE_KINDS`; ``""`` (or ``"standard"``, ``"even_asphere"``):
+    the standard family, an even asphere if it has coefficients, else standard."""
+    shape_parameters: tuple = ()
+    """The kind's own numbers, ``((name, value), ...)`` (a dict is taken), e.g. Qbfs's ``normalization_radius_mm``."""
+
+    @property
+    def surface_kind(self):
+        """The :class:`lenssim.model.surface_kinds.SurfaceKind` that says what this surface's numbers mean."""
+        if self.kind in ("", STANDARD.name, EVEN_ASPHERE.name):
+            return EVEN_ASPHERE if self.aspheric_coefficients else STANDARD
+        return SURFACE_KINDS[self.kind]
+
+    @property
+    def paraxial_curvature_per_mm(self) -> float:
+        """The curvature (1/mm) of the sphere osculating the surface at its vertex (the paraxial trace's)."""
+        return self.surface_kind.paraxial_curvature(self)
 
     @property
     def radius_mm(self) -> float:
@@ -78,14 +98,12 @@ class PrescriptionSurface:
 
     @property
     def is_aspheric(self) -> bool:
-        """A conic or any even-asphere coefficient (the surfaces the industrial cost counts)."""
-        return self.conic != 0 or any(a != 0 for a in self.aspheric_coefficients)
+        """Not a sphere (a conic, an even-asphere term, ...: the surfaces the industrial cost counts)."""
+        return self.surface_kind.is_aspheric(self)
 
     def sag_mm(self, r_mm: float) -> float:
         """The surface's sag (mm, along the axis from its vertex) at height ``r_mm``."""
-        c, k, rho = self.curvature_per_mm, self.conic, r_mm * r_mm
-        z = c * rho / (1 + math.sqrt(max(0.0, 1 - (1 + k) * c * c * rho)))
-        return z + sum(a * rho ** (i + 2) for i, a in enumerate(self.aspheric_coefficients))
+        return self.surface_kind.sag_mm(self, r_mm)
 
     def check(self, number: int) -> "PrescriptionSurface":
         """This surface with its numbers as floats; :class:`PrescriptionError` naming surface ``number`` otherwise."""
@@ -93,20 +111,27 @@ class PrescriptionSurface:
         c = _finite(where, "curvature (1/mm)", self.curvature_per_mm)
         t = _finite(where, "thickness (mm)", self.thickness_mm)
         k = _finite(where, "conic", self.conic)
-        coeffs = tuple(self.aspheric_coefficients)
-        if len(coeffs) > MAX_ASPHERE_ORDER // 2 - 1:
-            raise PrescriptionError(f"{where}: {len(coeffs)} even-asphere coefficients given; at most "
-                                    f"{MAX_ASPHERE_ORDER // 2 - 1} (r^4 ... r^{MAX_ASPHERE_ORDER})")
-        coeffs = tuple(_finite(where, f"A{2 * i + 4}", a) for i, a in enumerate(coeffs))
-        while coeffs and coeffs[-1] == 0:
-            coeffs = coeffs[:-1]
+        kind = self.kind if self.kind not in (STANDARD.name, EVEN_ASPHERE.name) else ""
+        params = self.shape_parameters
+        try:
+            if not isinstance(kind, str):
+                raise ValueError(f"kind {quoted(kind)} is not a name")
+            if kind:
+                SURFACE_KINDS.validate(kind)
+            params = tuple(params.items()) if isinstance(params, dict) else tuple(tuple(p) for p in params)
+            same = replace(self, curvature_per_mm=c, conic=k, kind=kind, shape_parameters=params)
+            fields = same.surface_kind.check(same)
+        except (ValueError, TypeError) as exc:
+            raise PrescriptionError(f"{where}: {exc}") from None
+        same = replace(same, **fields)
+        c0, k0 = same.surface_kind.base_conic(same)
         sd = self.semi_diameter_mm
         if sd is not None:
             sd = _finite(where, "semi-diameter (mm)", sd, "a finite number > 0")
             if not sd > 0:
                 raise PrescriptionError(f"{where}: semi-diameter (mm) = {sd!r} is not allowed: a number > 0")
-            if c != 0 and (1 + k) * c * c * sd * sd >= 1:
-                raise PrescriptionError(f"{where}: the conic surface (radius {1 / c:g} mm, conic {k:g}) is not "
+            if c0 != 0 and (1 + k0) * c0 * c0 * sd * sd >= 1:
+                raise PrescriptionError(f"{where}: the conic surface (radius {1 / c0:g} mm, conic {k0:g}) is not "
                                         f"defined out to its semi-diameter {sd:g} mm")
         mat = self.material
         if isinstance(mat, str):
@@ -125,13 +150,14 @@ class PrescriptionSurface:
                 raise PrescriptionError(f"{where}: model glass (n_d={nd:g}, V_d={vd:g}) is not allowed: n_d >= 1, "
                                         "V_d >= 0")
             mat = (nd, vd)
-        return replace(self, curvature_per_mm=c, thickness_mm=t, conic=k, aspheric_coefficients=coeffs,
-                       semi_diameter_mm=sd, material=mat)
+        return replace(same, thickness_mm=t, semi_diameter_mm=sd, material=mat)
 
     def to_dict(self) -> dict:
-        d = {"radius_mm": "inf" if self.curvature_per_mm == 0 else 1.0 / self.curvature_per_mm,
-             "thickness_mm": self.thickness_mm}
+        d = {"kind": self.kind} if self.kind else {}
+        d.update({"radius_mm": "inf" if self.curvature_per_mm == 0 else 1.0 / self.curvature_per_mm,
+                  "thickness_mm": self.thickness_mm})
         d["material"] = list(self.material) if isinstance(self.material, tuple) else self.material
+        d.update(self.shape_parameters)
         if self.conic:
             d["conic"] = self.conic
         if self.aspheric_coefficients:

@@ -32,23 +32,18 @@ import torch
 from ..model.design import Design
 from ..model.lens import Lens, LensError
 from ..model.numerics import DEFAULT_NUMERICS
+from ..model.surface_kinds.standard import conic_slope
 from ..torch_utils import as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
-           "slope_departure_cost", "slope_departure_cost_third_order", "even_asphere_slope", "even_asphere_cost",
-           "prescription_costs"]
+           "slope_departure_cost", "slope_departure_cost_third_order", "asphere_cost", "prescription_costs"]
 
 DEFAULT_COST_POINTS = DEFAULT_NUMERICS.cost_points
 
 
-def conic_slope(r_mm, c, Q):
-    """Slope ``dz/dr`` of a conic of curvature ``c`` (1/mm) and conic constant ``Q`` at radius ``r`` (mm)."""
-    return c * r_mm / torch.sqrt(1 - (1 + Q) * c**2 * r_mm**2)
-
-
 def sphere_slope(r_mm, k):
-    """Slope ``dz/dr`` of a sphere of curvature ``k`` (1/mm) at radius ``r`` (mm)."""
-    return k * r_mm / torch.sqrt(1 - k**2 * r_mm**2)
+    """Slope ``dz/dr`` of a sphere of curvature ``k`` (1/mm) at radius ``r`` (mm): the conic's with conic 0."""
+    return conic_slope(r_mm, k, 0.0)
 
 
 def _radii(y, n, like):
@@ -185,31 +180,21 @@ def _fit_sphere(target, r, y_mm: float, k0=None):
     return torch.where(use_k0, k0, k)
 
 
-def even_asphere_slope(r_mm, c, Q, coefficients):
-    """Slope ``dz/dr`` of an even asphere: the conic ``(c, Q)`` plus ``A4 r^4 + A6 r^6 + ...`` (``coefficients``
-    ``A4, A6, ...`` in mm^(1-2j)) at radius ``r`` (mm)."""
-    out = conic_slope(r_mm, c, Q)
-    for j, a in enumerate(coefficients):
-        p = 2 * j + 4
-        out = out + p * a * r_mm ** (p - 1)
-    return out
-
-
-def even_asphere_cost(c: float, Q: float, coefficients, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> float:
-    """``C_a`` (slope units) of one even-asphere surface (curvature ``c`` 1/mm, conic ``Q``, ``A4, A6, ...``) over the
-    radius ``y_mm``: the paper's Eq. (3) with the even asphere's exact slope (:func:`even_asphere_slope`) at the ``n``
-    radii ``r_i = y i / (n - 1)``, the sphere of least RMS departure among all that exist over the aperture
-    (:func:`_fit_sphere`; its third-order start ``k0 = c + 3 (Q c^3 + 8 A4) y^2 / 10`` is one of the candidates, the
-    ``A4`` term being a conic's fourth-order term ``Q c^3 / 8``). For ``A4 = ... = 0`` it is :func:`surface_cost` of the
-    conic; ``NaN`` where the conic is not defined out to ``y``."""
-    c64 = torch.tensor(float(c), dtype=torch.float64)
-    r = _radii(y_mm, n_points, c64)
-    coefficients = tuple(float(a) for a in coefficients)
-    target = even_asphere_slope(r, c64, torch.tensor(float(Q), dtype=torch.float64), coefficients)
-    a4 = coefficients[0] if coefficients else 0.0
-    k = _fit_sphere(target, r, y_mm, c64 + 0.3 * (float(Q) * c64**3 + 8 * a4) * y_mm**2)
-    dep = target - sphere_slope(r, k)
-    return float(torch.sqrt((dep**2).mean()))
+def asphere_cost(surface, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> float:
+    """``C_a`` (slope units) of one surface of a prescription (a
+    :class:`lenssim.model.prescription.PrescriptionSurface` of any kind) over the radius ``y_mm``: the paper's Eq. (3)
+    with the exact slope its kind gives (:meth:`lenssim.model.surface_kinds.SurfaceKind.slope`) at the ``n`` radii
+    ``r_i = y i / (n - 1)``, the sphere of least RMS departure among all that exist over the aperture
+    (:func:`_fit_sphere`; its third-order start ``k0 = c + 3 (Q c^3 + 8 A4) y^2 / 10`` from the kind's
+    :meth:`~lenssim.model.surface_kinds.SurfaceKind.seidel_terms` is one of the candidates, the ``A4`` term being a
+    conic's fourth-order term ``Q c^3 / 8``). For a conic it is :func:`surface_cost`; ``NaN`` where the surface is not
+    defined out to ``y``."""
+    kind = surface.surface_kind
+    c, Q, a4 = (torch.tensor(float(v), dtype=torch.float64) for v in kind.seidel_terms(surface))
+    r = _radii(y_mm, n_points, c)
+    target = kind.slope(surface, r)
+    k = _fit_sphere(target, r, y_mm, c + 0.3 * (Q * c**3 + 8 * a4) * y_mm**2)
+    return float(torch.sqrt(((target - sphere_slope(r, k)) ** 2).mean()))
 
 
 def _why_not_finite(c: float, Q: float, y_mm: float, conic: str) -> str:
@@ -282,8 +267,8 @@ def slope_departure_cost_third_order(lens: Lens, design: Design) -> torch.Tensor
 
 
 def prescription_costs(prescription, n_points: int = DEFAULT_COST_POINTS) -> dict[int, dict]:
-    """``C_a`` of every aspheric surface of a :class:`lenssim.model.prescription.Prescription` (conic or even-asphere
-    terms), by surface number (as in the file): ``{number: {"cost": C_a (slope), "radius_mm": the aperture it is
+    """``C_a`` of every aspheric surface of a :class:`lenssim.model.prescription.Prescription` (any kind:
+    :func:`asphere_cost`), by surface number (as in the file): ``{number: {"cost": C_a (slope), "radius_mm": the aperture it is
     taken over}}``. Each surface over its clear semi-diameter, or where the file gives none, over the paraxial beam's
     extent on it (the marginal ray's height plus the chief ray's at the largest field, the largest over the
     wavelengths). The lens's cost is their sum (each asphere is polished and tested on its own)."""
@@ -298,9 +283,9 @@ def prescription_costs(prescription, n_points: int = DEFAULT_COST_POINTS) -> dic
         if y is None:
             seq = seq or SequentialLens(prescription)
             y = max(seq.paraxial_beam_heights_mm(lam)[i] for lam in prescription.wavelengths_um)
-        cost = even_asphere_cost(s.curvature_per_mm, s.conic, s.aspheric_coefficients, y, n_points)
+        cost = asphere_cost(s, y, n_points)
         if not math.isfinite(cost):
             raise LensError(f"surface {i + 1}: its asphere cost is not finite over the radius {y:g} mm ("
-                            + _why_not_finite(s.curvature_per_mm, s.conic, y, "the conic") + ")")
+                            + _why_not_finite(*s.surface_kind.base_conic(s), y, "the conic") + ")")
         out[i + 1] = {"cost": cost, "radius_mm": float(y)}
     return out

@@ -19,26 +19,20 @@ import torch
 from ..model.design import Design
 from ..model.lens import Lens
 from ..model.surface import Surface
+from ..model.surface_kinds import conic_intersection, sag_normal
+from ..model.surface_kinds.standard import conic_sag
 
 __all__ = ["trace_rays", "trace_rays_opl", "transverse_aberration", "surface_frame", "opd"]
 
 
 def _intersect(P, d, c, kappa):
-    """Intersection with the surface in its own frame (vertex at the origin): points, unit normals, distances."""
-    z = P[..., 2]
-    k1 = c * (1 + kappa)
-    A = c * (d[..., 0] ** 2 + d[..., 1] ** 2) + k1 * d[..., 2] ** 2
-    Bh = c * (P[..., 0] * d[..., 0] + P[..., 1] * d[..., 1]) + k1 * z * d[..., 2] - d[..., 2]
-    C = c * (P[..., 0] ** 2 + P[..., 1] ** 2) + k1 * z**2 - 2 * z
-    disc = Bh**2 - A * C
-    if (disc < 0).any():
+    """Intersection with the conic in its own frame (vertex at the origin): points, unit normals, distances (the
+    standard surface kind's closed form and normal, :mod:`lenssim.model.surface_kinds.standard`)."""
+    t, ok = conic_intersection(P, d, c, kappa)
+    if not bool(ok.all()):
         raise ValueError("a ray misses a surface (discriminant < 0); reduce the aperture or field")
-    # root continuous with the vertex-plane intersection (stable for c -> 0)
-    t = -C / (Bh + torch.sign(Bh) * torch.sqrt(disc))
     X = P + t.unsqueeze(-1) * d
-    N = torch.stack([c * X[..., 0], c * X[..., 1], k1 * X[..., 2] - 1], dim=-1)
-    N = N / torch.linalg.norm(N, dim=-1, keepdim=True)
-    return X, N, t
+    return X, sag_normal(X, conic_sag(X[..., 0] ** 2 + X[..., 1] ** 2, c, kappa)[1]), t
 
 
 def _refract(d, N, n1, n2):

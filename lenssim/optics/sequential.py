@@ -10,8 +10,9 @@ object = 0) and answers, at any wavelength of the prescription:
 * Seidel sums surface by surface (:meth:`SequentialLens.seidel_surfaces`, :func:`lenssim.optics.paraxial.seidel_surface_sums`
   with the chief ray through the stop's centre; an even asphere's ``A4`` included) and the chromatic sums
   ``C_I = A h D(dn/n)``, ``C_II = Abar h D(dn/n)`` (Welford sec. 8.2);
-* real rays (:meth:`SequentialLens.trace`), batched in torch (float64), through conic + even-asphere surfaces
-  (the conic's closed-form intersection refined by Newton's method on the full sag), vignetted by every clear
+* real rays (:meth:`SequentialLens.trace`), batched in torch (float64), through any surface kind
+  (:meth:`lenssim.model.surface_kinds.SurfaceKind.intersect`: its base conic's closed-form intersection refined by
+  Newton's method on the full sag), vignetted by every clear
   semi-diameter, with optical path lengths; rays aimed at the stop (:meth:`SequentialLens.aim`): each pupil point
   ``(px, py)`` of the unit disc is the ray that meets the stop surface at ``(px, py)`` times the stop's paraxial
   radius, found by Newton iterations on real rays (``aim="real"``), or the ray through the paraxial entrance
@@ -54,6 +55,7 @@ from ..model.glass import as_glass
 from ..model.misalignment import Misalignment
 from ..model.prescription import Prescription, PrescriptionError
 from ..model.surface import Surface
+from ..model.surface_kinds import NEWTON_ITERATIONS
 from .paraxial import seidel_surface_sums
 
 __all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
@@ -65,10 +67,6 @@ AIM_ITERATIONS = 60
 stops as soon as every ray has converged, usually in a few steps: rays grazing a steep rim can take tens)."""
 AIM_TOLERANCE = 1e-9
 """Aiming converged: every ray meets the stop within this fraction of the stop's radius of its target."""
-NEWTON_ITERATIONS = 12
-"""Newton steps refining an even asphere's intersection from its conic's (quadratic convergence: ample)."""
-INTERSECTION_TOLERANCE_MM = 1e-10
-"""A ray meets an aspheric surface if the sag equation holds to this (mm) after the Newton steps."""
 AXIAL_RIM_RAYS = 64
 """Rays around the axial beam's rim that :meth:`SequentialLens.check_aperture` traces."""
 APERTURE_SLACK = 0.01
@@ -163,23 +161,6 @@ class WavefrontMap:
         """RMS radius (mm) of the rays' image points about their centroid."""
         p = self.image_mm[self.valid][:, :2]
         return float(torch.sqrt(((p - p.mean(dim=0)) ** 2).sum(-1).mean()))
-
-
-def _conic_sag(c, k, rho):
-    """Sag of the conic part at ``rho = r^2`` and ``d sag / d rho``."""
-    root = torch.sqrt(torch.clamp(1 - (1 + k) * c * c * rho, min=0.0))
-    z = c * rho / (1 + root)
-    dz = c / (2 * root.clamp(min=1e-300))
-    return z, dz
-
-
-def _sag(c, k, coeffs, rho):
-    z, dz = _conic_sag(c, k, rho)
-    for i, a in enumerate(coeffs):
-        p = i + 2  # A4 rho^2, A6 rho^3, ...
-        z = z + a * rho**p
-        dz = dz + p * a * rho ** (p - 1)
-    return z, dz
 
 
 class SequentialLens:
@@ -312,10 +293,10 @@ class SequentialLens:
         """The model's :class:`lenssim.model.surface.Surface` list at ``wavelength_um`` (default the primary)."""
         lam = self.primary_wavelength_um if wavelength_um is None else wavelength_um
         out = []
-        for i, s in enumerate(self.prescription.surfaces):
-            out.append(Surface(s.curvature_per_mm, s.conic, self.index_after(i, lam), s.thickness_mm,
-                               aspheric=s.is_aspheric, semi_aperture_mm=s.semi_diameter_mm,
-                               aspheric_coefficients=s.aspheric_coefficients))
+        for i, s in enumerate(self.prescription.surfaces):  # each kind as the even asphere of its third order
+            c, k, a4 = s.surface_kind.seidel_terms(s)
+            out.append(Surface(c, k, self.index_after(i, lam), s.thickness_mm, aspheric=s.is_aspheric,
+                               semi_aperture_mm=s.semi_diameter_mm, aspheric_coefficients=(a4,) if a4 else ()))
         return out
 
     # -- paraxial ----------------------------------------------------------------------------------------------------
@@ -327,7 +308,7 @@ class SequentialLens:
         surfs = self.prescription.surfaces
         for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
             n2 = self.index_after(i, lam)
-            u = (n * u - h * s.curvature_per_mm * (n2 - n)) / n2
+            u = (n * u - h * s.paraxial_curvature_per_mm * (n2 - n)) / n2
             hs.append(h)
             us.append(u)
             h = h + s.thickness_mm * u
@@ -448,8 +429,8 @@ class SequentialLens:
             dn2 = self.index_after(i, short_um) - self.index_after(i, long_um)
             u_in = u if i == 0 else us[i - 1]
             ub_in = ubar if i == 0 else ubs[i - 1]
-            A = n * (hs[i] * s.curvature_per_mm + u_in)
-            Ab = n * (hbs[i] * s.curvature_per_mm + ub_in)
+            c = s.paraxial_curvature_per_mm
+            A, Ab = n * (hs[i] * c + u_in), n * (hbs[i] * c + ub_in)
             d = dn2 / n2 - dn / n
             rows.append((A * hs[i] * d, Ab * hs[i] * d / ubar))
             n, dn = n2, dn2
@@ -457,45 +438,11 @@ class SequentialLens:
 
     # -- real rays ---------------------------------------------------------------------------------------------------
     def _intersect(self, P, d, s, z_v, valid):
-        """Intersection with surface ``s`` (vertex at ``z_v``): points, unit normals (towards -z), distances, and the
-        rays that meet it."""
-        c = s.curvature_per_mm
-        k = s.conic
-        Pl = P - torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
-        k1 = c * (1 + k)
-        A = c * (d[..., 0] ** 2 + d[..., 1] ** 2) + k1 * d[..., 2] ** 2
-        Bh = c * (Pl[..., 0] * d[..., 0] + Pl[..., 1] * d[..., 1]) + k1 * Pl[..., 2] * d[..., 2] - d[..., 2]
-        C = c * (Pl[..., 0] ** 2 + Pl[..., 1] ** 2) + k1 * Pl[..., 2] ** 2 - 2 * Pl[..., 2]
-        disc = Bh**2 - A * C
-        ok = valid & (disc >= 0)
-        disc = torch.where(ok, disc, torch.zeros_like(disc))
-        den = Bh + torch.where(Bh >= 0, 1.0, -1.0) * torch.sqrt(disc)
-        den = torch.where(den == 0, torch.ones_like(den), den)
-        t = -C / den
-        coeffs = s.aspheric_coefficients
-        if coeffs:
-            for _ in range(NEWTON_ITERATIONS):
-                X = Pl + t.unsqueeze(-1) * d
-                rho = X[..., 0] ** 2 + X[..., 1] ** 2
-                z, dz = _sag(c, k, coeffs, rho)
-                g = z - X[..., 2]
-                dg = dz * 2 * (X[..., 0] * d[..., 0] + X[..., 1] * d[..., 1]) - d[..., 2]
-                dg = torch.where(dg == 0, torch.ones_like(dg), dg)
-                t = t - torch.where(ok, g / dg, torch.zeros_like(g))
-            X = Pl + t.unsqueeze(-1) * d
-            rho = X[..., 0] ** 2 + X[..., 1] ** 2
-            z, _ = _sag(c, k, coeffs, rho)
-            ok = ok & ((z - X[..., 2]).abs() < INTERSECTION_TOLERANCE_MM) & torch.isfinite(t)
-            t = torch.where(ok, t, torch.zeros_like(t))
-        X = Pl + t.unsqueeze(-1) * d
-        rho = X[..., 0] ** 2 + X[..., 1] ** 2
-        _, dz = _sag(c, k, coeffs, rho)
-        if c != 0:  # the conic's sag slope diverges at its rim; the implicit form's normal does not
-            ok = ok & (1 - (1 + k) * c * c * rho > 0)
-        N = torch.stack([2 * X[..., 0] * dz, 2 * X[..., 1] * dz, -torch.ones_like(dz)], dim=-1)
-        N = N / torch.linalg.norm(N, dim=-1, keepdim=True)
-        X = X + torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
-        return X, N, t, ok, rho
+        """Intersection with surface ``s`` (vertex at ``z_v``), by its kind: points, unit normals (towards -z),
+        distances, the rays that meet it, and ``x^2 + y^2`` there."""
+        v = torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
+        X, N, t, ok, rho = s.surface_kind.intersect(s, P - v, d, valid)
+        return X + v, N, t, ok, rho
 
     @staticmethod
     def _refract(d, N, n1, n2, valid):

@@ -10,6 +10,7 @@ from scipy import optimize
 from lenssim import Design, LensError, best_fit_sphere_curvature
 
 from lenssim_studies.paper import PAPER_LENS
+from lenssim.model.prescription import PrescriptionSurface
 from lenssim import slope_departure_cost as _cost
 from lenssim import slope_departure_cost_third_order as _cost3
 
@@ -114,7 +115,7 @@ def test_an_even_asphere_s_cost_is_its_definition_evaluated_directly():
     from scipy.optimize import minimize_scalar
 
     from lenssim.model.prescription import PrescriptionSurface
-    from lenssim.optics.cost import even_asphere_cost
+    from lenssim.optics.cost import asphere_cost
 
     c, Q, coeffs, y, n = 1 / 30.0, -0.8, (2e-5, -3e-8, 4e-11), 9.0, 101
     surf = PrescriptionSurface(c, 1.0, "air", conic=Q, aspheric_coefficients=coeffs)
@@ -126,7 +127,7 @@ def test_an_even_asphere_s_cost_is_its_definition_evaluated_directly():
         return np.sqrt(np.mean((slope - k * r / np.sqrt(1 - k**2 * r**2)) ** 2))
 
     best = minimize_scalar(rms, bounds=(c - 0.01, c + 0.01), method="bounded", options={"xatol": 1e-12})
-    ours = even_asphere_cost(c, Q, coeffs, y, n)
+    ours = asphere_cost(surf, y, n)
     assert ours > 1e-3  # a real departure: the check is not empty
     assert ours == pytest.approx(best.fun, rel=1e-6)
 
@@ -134,10 +135,11 @@ def test_an_even_asphere_s_cost_is_its_definition_evaluated_directly():
 def test_an_a4_asphere_tends_to_the_third_order_cost():
     """A sphere with A4 r^4 at a small aperture: the slope departure 4 A4 r^3 less the best line b r leaves an RMS of
     8 |A4| y^3 / sqrt(175) (the continuum; 2001 radii), as a conic's Q c^3 / 8 = A4."""
-    from lenssim.optics.cost import even_asphere_cost
+    from lenssim.optics.cost import asphere_cost
 
     a4, y = 1e-4, 1.0
-    assert even_asphere_cost(1 / 500.0, 0.0, (a4,), y, 2001) == pytest.approx(8 * a4 * y**3 / 175**0.5, rel=2e-3)
+    got = asphere_cost(PrescriptionSurface(1 / 500.0, aspheric_coefficients=(a4,)), y, 2001)
+    assert got == pytest.approx(8 * a4 * y**3 / 175**0.5, rel=2e-3)
 
 
 def test_a_prescription_s_aspheres_cost_what_the_paper_s_singlet_costs():
@@ -207,14 +209,15 @@ ANY_ASPHERES = {  # (c 1/mm, Q, (A4, A6, ...), y mm)
 def test_any_asphere_costs_what_a_brute_force_eq3_gives(name):
     """The cost and the best sphere agree with the brute force: the cost to 1e-9 relative (both are minima, where the
     value is flat), the curvature to 1e-6 (a minimum's abscissa is known to ~sqrt(float64 epsilon) of its scale)."""
-    from lenssim.optics.cost import _fit_sphere, even_asphere_cost, even_asphere_slope
+    from lenssim.optics.cost import _fit_sphere, asphere_cost
 
     c, Q, coeffs, y = ANY_ASPHERES[name]
     ref, k_ref = _reference_cost(c, Q, coeffs, y)
-    got = even_asphere_cost(c, Q, coeffs, y)
+    surf = PrescriptionSurface(c, conic=Q, aspheric_coefficients=coeffs)
+    got = asphere_cost(surf, y)
     assert got == pytest.approx(ref, rel=1e-9)
     r = torch.linspace(0, y, 101, dtype=D)
-    k = float(_fit_sphere(even_asphere_slope(r, torch.tensor(c, dtype=D), torch.tensor(Q, dtype=D), coeffs), r, y))
+    k = float(_fit_sphere(surf.surface_kind.slope(surf, r), r, y))
     assert abs(k - k_ref) <= 1e-6 * max(abs(k_ref), 1 / y)
     assert abs(k) * y < 1  # a sphere that exists over the aperture
 
@@ -273,6 +276,7 @@ def test_a_sphere_fit_that_does_not_converge_is_one_line_not_a_number(monkeypatc
     from lenssim.io.prescription_file import read_lens
 
     monkeypatch.setattr(cost, "SPHERE_FIT_ITERATIONS", 1)
-    assert math.isnan(cost.even_asphere_cost(1 / 1.05, -6.5, (-0.08, 0.025, -0.005, 4e-4), 2.0))
+    surf = PrescriptionSurface(1 / 1.05, conic=-6.5, aspheric_coefficients=(-0.08, 0.025, -0.005, 4e-4))
+    assert math.isnan(cost.asphere_cost(surf, 2.0))
     with pytest.raises(LensError, match=r"surface 1: .*\(its best-fit sphere did not converge within 1 Newton iterations\)"):
         cost.prescription_costs(read_lens(str(PHONE_LENS)))
