@@ -203,11 +203,16 @@ def _prepare(camera: Camera, design: Design, snr_db, fft_size, numerics: Numeric
             alpha = camera.lens.field_angles_deg[i % A]
             raise ResourceLimitError(f"design {at} at {alpha:g} deg: {exc}", exc.setting) from None
     else:
-        if isinstance(fft_size, bool) or not (isinstance(fft_size, int) and fft_size >= 16 and fft_size % 2 == 0):
-            raise ValueError(f"fft_size={fft_size!r} is not allowed: an even integer >= 16")
-        sizes = torch.full((flat.shape[0],), fft_size, dtype=torch.int64)
+        sizes = torch.full((flat.shape[0],), _checked_fft_size(fft_size), dtype=torch.int64)
     snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
     return d64, coeffs64, flat, sizes, snr
+
+
+def _checked_fft_size(fft_size) -> int:
+    """A given FFT size (every PSF on it), refused unless an even integer >= 16."""
+    if isinstance(fft_size, bool) or not (isinstance(fft_size, int) and fft_size >= 16 and fft_size % 2 == 0):
+        raise ValueError(f"fft_size={fft_size!r} is not allowed: an even integer >= 16")
+    return fft_size
 
 
 def _assemble(camera: Camera, d64: Design, coeffs64: torch.Tensor, per_field: dict, sizes, snr, numerics) -> dict:
@@ -237,22 +242,32 @@ def _assemble(camera: Camera, d64: Design, coeffs64: torch.Tensor, per_field: di
 
 
 def exact_criteria(camera: Camera, design: Design, snr_db, *, rho0: float,
-                   numerics: Numerics = DEFAULT_NUMERICS) -> dict:
+                   numerics: Numerics = DEFAULT_NUMERICS, fft_size: int | None = None) -> dict:
     """Every registered OTF criterion (field averages, ``(S,)`` float64, ``()`` for one that does not depend on the
     SNR) of one design with the exact (ray-traced, fitted) wavefront at each field angle
     (:func:`lenssim.optics.exact_wavefront.exact_wavefront_coefficients`), one wavelength (the spectrum's first);
-    also ``NAME_alpha`` ``(A, S)`` (``(A,)``) and ``fft_size`` ``(A,)``."""
+    also ``NAME_alpha`` ``(A, S)`` (``(A,)``), ``fft_size`` ``(A,)``, and the RMS of the fitted wavefront over the
+    pupil (waves, no piston removal: the paper's ``RMS_W`` of the exact wavefront) ``rms_w``, ``rms_w_alpha`` ``(A,)``
+    and ``rms_w_piston_removed``. ``fft_size``: every PSF on this FFT grid (an even integer >= 16) instead of each
+    one's own (:func:`lenssim.optics.psf_bank.fft_size`), e.g. the pixel grid of a prescription's PSFs
+    (:func:`lenssim.sequential_metrics.evaluate_sequential`'s ``psf_grid_px``) for the same frequency samples."""
     if len(camera.spectrum) != 1 or camera.channels:
         raise ValueError("exact_criteria takes a one-wavelength camera")
+    n = None if fft_size is None else _checked_fft_size(fft_size)
     lam = camera.spectrum.wavelengths_um[0]
     c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
-    sizes = choose_fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS)
+    sizes = (choose_fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS) if n is None
+             else torch.full((c.shape[0],), n, dtype=torch.int64))
     per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
                             terms=EXACT_TERMS)
     out = {}
     for k, v in per.items():
         out[k], out[f"{k}_alpha"] = v.mean(dim=0), v
     out["fft_size"] = sizes
+    out["rms_w_alpha"] = wavefront_rms_per_field(camera, c[:, None], terms=EXACT_TERMS)
+    out["rms_w"] = torch.sqrt((out["rms_w_alpha"] ** 2).mean())
+    rms_p = wavefront_rms_per_field(camera, c[:, None], True, EXACT_TERMS)
+    out["rms_w_piston_removed"] = torch.sqrt((rms_p**2).mean())
     return out
 
 

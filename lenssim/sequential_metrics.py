@@ -45,16 +45,24 @@ import torch
 from .criteria import CRITERIA, OTFContext, lens_criteria, otf_criteria, quarter_weights
 from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.cost import prescription_costs
+from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
 from .optics.sequential_psf import SequentialPSF
 from .validate import ResourceLimitError, check_memory
 
-__all__ = ["evaluate_sequential", "evaluation_angles", "sequential_criteria", "EVALUATION_FIELDS", "RMS_PUPIL_GRID"]
+__all__ = ["evaluate_sequential", "evaluation_angles", "sequential_criteria", "EVALUATION_FIELDS", "RMS_PUPIL_GRID",
+           "RMS_QUADRATURES"]
 
 EVALUATION_FIELDS = 15
 """Field angles of the field averages, from the axis to the largest evenly (the paper's 15, 0..14 deg)."""
 RMS_PUPIL_GRID = 64
 """Pupil samples across the diameter of the grid the RMS wavefront is averaged on (equal area per sample)."""
+RMS_QUADRATURES = ("grid", "gauss")
+"""How ``rms_w`` averages over the pupil: ``"grid"`` (the default), the samples of the :data:`RMS_PUPIL_GRID` square
+grid inside the disc, equal weights (its staircase rim holds 0.3% more samples than the disc's area, where the
+wavefront is largest: +0.4% in the paper's singlet's RMS_W); ``"gauss"``,
+:func:`lenssim.optics.exact_wavefront.pupil_quadrature` (Gauss-Legendre in ``rho^2`` times the trapezoid rule in
+azimuth, exact for polynomials of the degree the singlet's exact route fits: that route's quadrature)."""
 
 
 def evaluation_angles(max_field_deg: float, count: int = EVALUATION_FIELDS) -> tuple[float, ...]:
@@ -101,16 +109,22 @@ def _otf_quarters(psf_centered: torch.Tensor, m: int, mirrored: bool):
     return H[..., :q, :q], H[..., :q, :].index_select(-1, neg)
 
 
-def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool) -> tuple[torch.Tensor, torch.Tensor]:
+def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool,
+                   quadrature: str = "grid") -> tuple[torch.Tensor, torch.Tensor]:
     """Per field angle ``(A,)``: the RMS OPD (waves of the primary wavelength) over the unvignetted pupil, referred to
     the chief ray and about the mean, mean square weighted over the spectrum; against the sphere centred on the
-    primary chief ray's image point (``registered``) or on the paraxial image point (the distortion's tilt kept)."""
+    primary chief ray's image point (``registered``) or on the paraxial image point (the distortion's tilt kept);
+    averaged by the pupil ``quadrature`` (:data:`RMS_QUADRATURES`)."""
     table = psf.table()
     lams, weights = psf.spectrum()
-    g = (torch.arange(RMS_PUPIL_GRID, dtype=torch.float64) + 0.5) / RMS_PUPIL_GRID * 2 - 1
-    Y, X = torch.meshgrid(g, g, indexing="ij")
-    disc = X**2 + Y**2 <= 1
-    px, py = X[disc], Y[disc]
+    if quadrature == "gauss":
+        py, px, area = pupil_quadrature()  # rho_r (along the field, +y), rho_t, area weights
+    else:
+        g = (torch.arange(RMS_PUPIL_GRID, dtype=torch.float64) + 0.5) / RMS_PUPIL_GRID * 2 - 1
+        Y, X = torch.meshgrid(g, g, indexing="ij")
+        disc = X**2 + Y**2 <= 1
+        px, py = X[disc], Y[disc]
+        area = torch.ones_like(px)
     A = angles.numel()
     ref = psf.lens.primary_wavelength_um
     ms = torch.zeros(A, dtype=torch.float64)
@@ -123,8 +137,8 @@ def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool) -
             continue
         W, V = table.sample(k, angles, px.expand(A, -1)[:, None, :], py.expand(A, -1)[:, None, :])
         W = W[:, 0] - (dist_um / (2 * lam * N_w))[:, None] * py  # the tilt that moves the image to the paraxial point
-        W, ok = W * (lam / ref), (V[:, 0] <= 1).to(torch.float64)
-        cnt = ok.sum(-1).clamp_min(1)
+        W, ok = W * (lam / ref), (V[:, 0] <= 1).to(torch.float64) * area
+        cnt = ok.sum(-1).clamp_min(torch.finfo(torch.float64).tiny)  # 0 / tiny = 0 where every ray is vignetted
         mean = (W * ok).sum(-1) / cnt
         ms += w / wsum * (W.square() * ok).sum(-1) / cnt
         ms_p += w / wsum * ((W - mean[:, None]).square() * ok).sum(-1) / cnt
@@ -160,7 +174,8 @@ def _reference_otf(reference: SequentialPSF, a: torch.Tensor, n: int, m: int, re
 
 def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=None, psd_model: str = "discrete",
                         numerics: Numerics = DEFAULT_NUMERICS, criteria=None, registered: bool = True,
-                        progress: Callable[[int], None] | None = None, reference: SequentialPSF | None = None) -> dict:
+                        progress: Callable[[int], None] | None = None, reference: SequentialPSF | None = None,
+                        rms_quadrature: str = "grid", grid_px: int | None = None) -> dict:
     """Every criterion of one lens (:func:`lenssim.criteria.lens_criteria` computed from the OTF, and ``rms_w``) for
     ``psf`` (see the module docstring) at the SNRs ``snr_db`` (dB) with the image model's correlation ``rho0``.
 
@@ -174,7 +189,15 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     ``reference``: another provider (e.g. the nominal lens's, on the same sensor and wavelengths) whose OTF at each
     field angle, on the same grid, fills :attr:`lenssim.criteria.OTFContext.reference` (``mse_r_nominal``: the Wiener
     filter designed for it applied to this lens); the grid ``n`` is then the larger of the two PSFs' supports. Without
-    it every result is as before (``mse_r_nominal`` equals ``mse_r``)."""
+    it every result is as before (``mse_r_nominal`` equals ``mse_r``). ``rms_quadrature``: how ``rms_w`` averages over
+    the pupil (:data:`RMS_QUADRATURES`). ``grid_px``: the PSFs' pixel grid ``n`` (even; at least the PSF's support and
+    ``numerics.min_size``) instead of the support's, e.g. the FFT size the singlet's exact route chooses."""
+    if rms_quadrature not in RMS_QUADRATURES:
+        raise ValueError(f"rms_quadrature={rms_quadrature!r} is not allowed: one of {', '.join(RMS_QUADRATURES)}")
+    if grid_px is not None and (isinstance(grid_px, bool) or not isinstance(grid_px, int) or grid_px % 2
+                                or grid_px < numerics.min_size):
+        raise ValueError(f"grid_px={grid_px!r} is not allowed: an even number of pixels, at least "
+                         f"{numerics.min_size} (numerics.min_size) and the PSF's support")
     names = otf_criteria() if criteria is None else tuple(c for c in criteria if CRITERIA[c].from_otf is not None)
     alpha = torch.tensor(evaluation_angles(psf.max_field_deg) if angles_deg is None else
                          [float(a) for a in angles_deg], dtype=torch.float64)
@@ -188,12 +211,16 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
     cols = torch.zeros_like(rows)
     # the grid and its FFT from a few rays, before the wavefront table (minutes for a lens far out of focus)
-    psf.check_fft_size(_grid_size(psf, psf.estimated_extent_px(), numerics))
+    psf.check_fft_size(_grid_size(psf, max(psf.estimated_extent_px(), grid_px or 0), numerics))
     support = int(psf.extents_px(rows, cols, (0.0, 0.0)).max())
     if reference is not None:
         _check_reference(psf, reference, alpha)
         ref_rows = torch.tensor([reference.geometry.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
         support = max(support, int(reference.extents_px(ref_rows, cols, (0.0, 0.0)).max()))
+    if grid_px is not None:
+        if grid_px < support:
+            raise ValueError(f"grid_px={grid_px} is not allowed: below the PSF's support ({support} px)")
+        support = grid_px
     n = _grid_size(psf, support, numerics)
     m = n * numerics.oversample
     check_memory(C * 8 * m * m * 16, f"the OTFs of one field angle on {m} x {m} frequency samples",
@@ -243,7 +270,7 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
         out["cost"] = torch.tensor(sum(v["cost"] for v in per.values()), dtype=torch.float64)
         out["cost_per_surface"] = per
     if criteria is None or "rms_w" in criteria:
-        rms, rms_p = _rms_wavefront(psf, alpha, registered)
+        rms, rms_p = _rms_wavefront(psf, alpha, registered, rms_quadrature)
         out["rms_w_alpha"] = rms
         out["rms_w"] = torch.sqrt((rms**2).mean())
         out["rms_w_piston_removed"] = torch.sqrt((rms_p**2).mean())
