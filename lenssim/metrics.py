@@ -277,14 +277,16 @@ def _third_order_evaluate(camera, design, snr_db, *, rho0, numerics, device=None
 
 
 def _exact_evaluate(camera, design, snr_db, *, rho0, numerics, device=None):
-    """Every criterion: the OTF criteria from the exact wavefront at each field angle (all of them: none is left
-    at its third-order value), the design criteria (RMS_W, C_a) as third order gives them."""
+    """Every criterion: the OTF criteria and RMS_W (with its per-angle and piston-removed forms) from the exact
+    wavefront at each field angle (none is left at its third-order value); C_a, a property of the surfaces."""
     WAVEFRONT_MODELS["exact"].check(camera)
     out = evaluate(camera, design, snr_db, rho0=rho0, numerics=numerics, device=device)
     ex = exact_criteria(camera, design, snr_db, rho0=rho0, numerics=numerics)
     for name, c in lens_criteria().items():
         if c.from_otf is not None:
             out[name], out[f"{name}_alpha"] = ex[name], ex[f"{name}_alpha"]
+    for name in ("rms_w", "rms_w_alpha", "rms_w_piston_removed"):  # the exact wavefront's, not third order's
+        out[name] = ex[name].to(out[name].dtype)
     out["fft_size"] = ex["fft_size"]
     return out
 
