@@ -32,7 +32,7 @@ import torch
 from ..model.design import Design
 from ..model.lens import Lens, LensError
 from ..model.numerics import DEFAULT_NUMERICS
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
            "slope_departure_cost", "slope_departure_cost_third_order", "even_asphere_slope", "even_asphere_cost",
@@ -202,10 +202,10 @@ def even_asphere_cost(c: float, Q: float, coefficients, y_mm: float, n_points: i
     (:func:`_fit_sphere`; its third-order start ``k0 = c + 3 (Q c^3 + 8 A4) y^2 / 10`` is one of the candidates, the
     ``A4`` term being a conic's fourth-order term ``Q c^3 / 8``). For ``A4 = ... = 0`` it is :func:`surface_cost` of the
     conic; ``NaN`` where the conic is not defined out to ``y``."""
-    c64 = torch.tensor(float(c), dtype=torch.float64)
+    c64 = torch.tensor(float(c), dtype=torch.float64, device=HOST)
     r = _radii(y_mm, n_points, c64)
     coefficients = tuple(float(a) for a in coefficients)
-    target = even_asphere_slope(r, c64, torch.tensor(float(Q), dtype=torch.float64), coefficients)
+    target = even_asphere_slope(r, c64, torch.tensor(float(Q), dtype=torch.float64, device=HOST), coefficients)
     a4 = coefficients[0] if coefficients else 0.0
     k = _fit_sphere(target, r, y_mm, c64 + 0.3 * (float(Q) * c64**3 + 8 * a4) * y_mm**2)
     dep = target - sphere_slope(r, k)
@@ -251,11 +251,11 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
         out_dtype = v.dtype if out_dtype is None else torch.promote_types(out_dtype, v.dtype)
     d64 = design.to(torch.float64).broadcast()
     lens.check_design(d64)
-    total = None
+    total, device = None, d64["s"].device
     for surf in lens.surfaces(d64):
         if surf.aspheric:
-            c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64),
-                                           as_tensor(surf.conic, dtype=torch.float64))
+            c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64, device=device),
+                                           as_tensor(surf.conic, dtype=torch.float64, device=device))
             cost = surface_cost(c, Q, surf.semi_aperture_mm or lens.pupil_radius_mm, n_points)
             if not bool(torch.isfinite(cost).all()):
                 bad = int(torch.nonzero(~torch.isfinite(cost.reshape(-1)))[0])
@@ -266,7 +266,7 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
                                                   f"the conic {surf.conic_name}") + ")")
             total = cost if total is None else total + cost
     if total is None:
-        total = torch.zeros(d64.shape, dtype=torch.float64)
+        total = torch.zeros(d64.shape, dtype=torch.float64, device=device)
     return total.to(out_dtype or torch.float64)
 
 
