@@ -36,6 +36,7 @@ import torch
 
 from lenssim import PSFProvider, image_psd
 
+from lenssim.torch_utils import HOST
 from lenssim.validate import check_real
 
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
@@ -146,7 +147,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, electrons_per_u
         return out  # spectrum: apply_windowed inverse transforms only the core
 
     core = scheme.core
-    levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64).log()
+    levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64, device=HOST).log()  # scalars read one at a time
 
     def restore_per_pixel(patches, otf):
         from kornia.filters import box_blur
