@@ -24,6 +24,7 @@ from .model.design import PARAMETERS, Design, parameter_name
 from .optics.image_model import image_psd_quarter, noise_variance
 from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
+from .torch_utils import HOST, tensor_of
 
 __all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost"]
 
@@ -32,7 +33,7 @@ LENS_PARAMETERS = ("s", "Q_back")
 
 
 def _scale(names) -> torch.Tensor:
-    return torch.tensor([PARAMETERS[n].step for n in names], dtype=torch.float64)
+    return torch.tensor([PARAMETERS[n].step for n in names], dtype=torch.float64, device=HOST)
 
 
 class DifferentiableCriterion:
@@ -83,9 +84,9 @@ class DifferentiableCriterion:
             m = n * over
             H = otf_quarter_spectrum(self.camera, coeffs[a:a + 1], n, oversample=over, numerics=self.numerics,
                                      terms=self.terms)
-            psd = image_psd_quarter(m, self.rho0, model=self.psd_model, dtype=self.dtype)
+            psd = image_psd_quarter(m, self.rho0, model=self.psd_model, dtype=self.dtype, device=H.device)
             w = quarter_weights(m, psd.dtype, psd.device)
-            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd, w, psd * w, self.sigma2, n, self.camera,
+            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd, w, psd * w, self.sigma2.to(H.device), n, self.camera,
                              self.numerics)
             v = self.criterion.from_otf(ctx)
             total = total + (v[0, 0] if self.criterion.per_snr else v[0])
@@ -174,15 +175,15 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float | No
     left out is unbounded; the paper's scenario passes its grid, ``lenssim_studies.paper.PAPER_GRID``).
     ``level`` None: plain descent without the cost constraint (the unconstrained optimum).
     """
-    SCALE = _scale_of(quality)
     bounds = dict(bounds or {})
-    x = torch.as_tensor(x0, dtype=torch.float64).clone()
+    x = tensor_of(x0, torch.float64).clone()
+    SCALE = _scale_of(quality).to(x.device)
     free = level is None
     if not free:
         x = _project_to_level(quality, x, level, cost_points)
     quality.fix_sizes(x)
-    lo = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[0] for n in quality.names], dtype=torch.float64)
-    hi = torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[1] for n in quality.names], dtype=torch.float64)
+    lo, hi = (torch.tensor([bounds.get(n, (-float("inf"), float("inf")))[i] for n in quality.names], dtype=torch.float64,
+                           device=x.device) for i in (0, 1))
     step = step0
     history = []
     it = 0

@@ -14,6 +14,7 @@ from .criteria import validate_criterion
 from .model.design import Design
 from .metrics import evaluate
 from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .torch_utils import HOST
 from .validate import check_real
 
 __all__ = ["FocusResult", "best_focus", "best_focus_batch", "FOCUS_BOUNDS_UM"]
@@ -87,7 +88,7 @@ def best_focus_batch(camera: Camera, design: Design, criterion: str, snr_db: flo
         return crit.sign * (r[..., 0] if crit.per_snr else r).to(torch.float64).cpu()  # minimised
 
     g = (math.sqrt(5) - 1) / 2
-    a, b = torch.full(shape, lo, dtype=torch.float64), torch.full(shape, hi, dtype=torch.float64)
+    a, b = (torch.full(shape, v, dtype=torch.float64, device=HOST) for v in (lo, hi))  # as f's values
     c, e = b - g * (b - a), a + g * (b - a)
     fc, fe = f(c), f(e)
     for _ in range(max(1, math.ceil(math.log(tol_um / (hi - lo)) / math.log(g)))):

@@ -40,6 +40,7 @@ from .optics.lens_solves import solve_design
 from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
 from .optics.sequential import SequentialLens
 from .sequential_third_order import third_order_camera
+from .torch_utils import tensor_of
 
 __all__ = ["LensThirdOrderCriterion", "LensExactCriterion", "GRADIENT_CRITERIA", "FD_STEP", "F_NUMBER_TOLERANCE"]
 
@@ -94,7 +95,7 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
         super().__init__(third_order_camera(seq, pitch_um, self.angles), snr_db, criterion, rho0=rho0,
                          psd_model=psd_model, names=(), numerics=numerics, dtype=dtype)
         self.names = tuple(p.name for p in parameters)
-        self.scale = torch.as_tensor(scale, dtype=torch.float64).reshape(-1)
+        self.scale = tensor_of(scale, torch.float64).reshape(-1)
         if self.scale.numel() != len(parameters) or not bool((self.scale > 0).all() & torch.isfinite(self.scale).all()):
             raise ValueError(f"scale must hold one typical step > 0 per free parameter ({len(parameters)})")
         self.steps = (self.scale * FD_STEP).tolist()
@@ -105,7 +106,7 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
 
     def lens_at(self, x) -> SequentialLens:
         """The lens at design ``x`` (floats), its solves applied; a ``ValueError`` saying why a design cannot be made."""
-        values = {p: float(v) for p, v in zip(self.parameters, torch.as_tensor(x).tolist())}
+        values = {p: float(v) for p, v in zip(self.parameters, tensor_of(x).tolist())}
         q, shift = solve_design(self.prescription, values, hold=self.hold, image=self.image)
         return SequentialLens(q, image_shift_mm=shift)
 
@@ -128,10 +129,11 @@ class LensThirdOrderCriterion(DifferentiableCriterion):
 
     def _cost(self, x: torch.Tensor, points: int) -> torch.Tensor:
         q = self.lens_at(x).prescription
-        return torch.tensor(sum(v["cost"] for v in prescription_costs(q, points).values()), dtype=torch.float64)
+        return torch.tensor(sum(v["cost"] for v in prescription_costs(q, points).values()), dtype=torch.float64,
+                            device=x.device)
 
     def design(self, x) -> dict:
-        return {n: float(v) for n, v in zip(self.names, torch.as_tensor(x).reshape(-1).tolist())}
+        return {n: float(v) for n, v in zip(self.names, tensor_of(x).reshape(-1).tolist())}
 
     def coefficients(self, x: torch.Tensor) -> torch.Tensor:
         return _Paraxial.apply(x.to(torch.float64), self._coefficients, self.steps)

@@ -29,7 +29,7 @@ from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.psf_bank import fft_size as choose_fft_size
 from .optics.psf_bank import otf_quarter_spectrum, spectral_coefficients
 from .optics.wavefront_models import WAVEFRONT_MODELS, register_evaluator
-from .torch_utils import as_tensor, chunk_budget_bytes
+from .torch_utils import HOST, as_tensor, chunk_budget_bytes
 from .validate import NumericalError, ResourceLimitError, check_memory
 
 __all__ = ["otf_criteria_bank", "evaluate", "exact_criteria"]
@@ -60,7 +60,7 @@ def otf_criteria_bank(camera: Camera, coeffs: torch.Tensor, sizes: torch.Tensor,
     for c in names:
         if validate_criterion(c).from_otf is None:
             raise ValueError(f"criterion {c!r} is not computed from the OTF")
-    sigma2 = noise_variance(snr_db).reshape(-1).to(coeffs.device)
+    sigma2 = noise_variance(snr_db, device=coeffs.device).reshape(-1)
     P, S = coeffs.shape[0], sigma2.numel()
     C = 1 if channel_weights is None else len(channel_weights)
     lead = () if channel_weights is None else (C,)
@@ -203,8 +203,8 @@ def _prepare(camera: Camera, design: Design, snr_db, fft_size, numerics: Numeric
             alpha = camera.lens.field_angles_deg[i % A]
             raise ResourceLimitError(f"design {at} at {alpha:g} deg: {exc}", exc.setting) from None
     else:
-        sizes = torch.full((flat.shape[0],), _checked_fft_size(fft_size), dtype=torch.int64)
-    snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
+        sizes = torch.full((flat.shape[0],), _checked_fft_size(fft_size), dtype=torch.int64, device=HOST)
+    snr = torch.as_tensor(snr_db, dtype=torch.float64, device=HOST).reshape(-1)
     return d64, coeffs64, flat, sizes, snr
 
 
@@ -257,7 +257,7 @@ def exact_criteria(camera: Camera, design: Design, snr_db, *, rho0: float,
     lam = camera.spectrum.wavelengths_um[0]
     c = torch.stack([exact_wavefront_coefficients(camera, design, a, lam) for a in camera.lens.field_angles_deg])
     sizes = (choose_fft_size(camera, c[:, None], numerics, terms=EXACT_TERMS) if n is None
-             else torch.full((c.shape[0],), n, dtype=torch.int64))
+             else torch.full((c.shape[0],), n, dtype=torch.int64, device=c.device))
     per = otf_criteria_bank(camera, c[:, None].to(torch.float32), sizes, snr_db, rho0=rho0, numerics=numerics,
                             terms=EXACT_TERMS)
     out = {}

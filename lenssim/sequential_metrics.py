@@ -48,6 +48,7 @@ from .optics.cost import prescription_costs
 from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
 from .optics.sequential_psf import SequentialPSF
+from .torch_utils import HOST, tensor_of
 from .validate import ResourceLimitError, check_memory
 
 __all__ = ["evaluate_sequential", "evaluation_angles", "sequential_criteria", "EVALUATION_FIELDS", "RMS_PUPIL_GRID",
@@ -69,7 +70,7 @@ def evaluation_angles(max_field_deg: float, count: int = EVALUATION_FIELDS) -> t
     """``count`` field angles (deg) from 0 to ``max_field_deg``, evenly (the axis alone if ``max_field_deg`` is 0)."""
     if max_field_deg <= 0:
         return (0.0,)
-    return tuple(float(v) for v in torch.linspace(0.0, float(max_field_deg), count, dtype=torch.float64))
+    return tuple(float(v) for v in torch.linspace(0.0, float(max_field_deg), count, dtype=torch.float64, device=HOST))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,13 +100,13 @@ def _otf_quarters(psf_centered: torch.Tensor, m: int, mirrored: bool):
     and their point reflections."""
     n = psf_centered.shape[-1]
     o = m // 2 - n // 2
-    pad = torch.zeros(*psf_centered.shape[:-2], m, m, dtype=psf_centered.dtype)
+    pad = torch.zeros(*psf_centered.shape[:-2], m, m, dtype=psf_centered.dtype, device=psf_centered.device)
     pad[..., o:o + n, o:o + n] = psf_centered
     H = torch.fft.fft2(torch.fft.ifftshift(pad, dim=(-2, -1)))
     q = m // 2 + 1
     if not mirrored:
         return H[..., :q, :q], None
-    neg = torch.remainder(-torch.arange(q), m)
+    neg = torch.remainder(-torch.arange(q, device=H.device), m)
     return H[..., :q, :q], H[..., :q, :].index_select(-1, neg)
 
 
@@ -120,15 +121,15 @@ def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool,
     if quadrature == "gauss":
         py, px, area = pupil_quadrature()  # rho_r (along the field, +y), rho_t, area weights
     else:
-        g = (torch.arange(RMS_PUPIL_GRID, dtype=torch.float64) + 0.5) / RMS_PUPIL_GRID * 2 - 1
+        g = (torch.arange(RMS_PUPIL_GRID, dtype=torch.float64, device=angles.device) + 0.5) / RMS_PUPIL_GRID * 2 - 1
         Y, X = torch.meshgrid(g, g, indexing="ij")
         disc = X**2 + Y**2 <= 1
         px, py = X[disc], Y[disc]
         area = torch.ones_like(px)
     A = angles.numel()
     ref = psf.lens.primary_wavelength_um
-    ms = torch.zeros(A, dtype=torch.float64)
-    ms_p = torch.zeros(A, dtype=torch.float64)
+    ms = torch.zeros(A, dtype=torch.float64, device=angles.device)
+    ms_p = torch.zeros(A, dtype=torch.float64, device=angles.device)
     wsum = sum(weights)
     dist_um = torch.zeros_like(angles) if registered else table.distortion_at(angles) * 1e3
     N_w = psf.working_f_number
@@ -164,7 +165,7 @@ def _reference_otf(reference: SequentialPSF, a: torch.Tensor, n: int, m: int, re
     store = reference._cache.setdefault("reference_otfs", {})
     key = (float(a[0]), n, m, registered)
     if key not in store:
-        half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)
+        half_pi = torch.tensor([math.pi / 2], dtype=torch.float64, device=a.device)
         q, q_m = _otf_quarters(reference.psfs_at_angles(a, half_pi, n, n, distortion=not registered,
                                                         complex_dtype=torch.complex128)[0], m,
                                not reference.lens.is_centred)
@@ -200,7 +201,7 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
                          f"{numerics.min_size} (numerics.min_size) and the PSF's support")
     names = otf_criteria() if criteria is None else tuple(c for c in criteria if CRITERIA[c].from_otf is not None)
     alpha = torch.tensor(evaluation_angles(psf.max_field_deg) if angles_deg is None else
-                         [float(a) for a in angles_deg], dtype=torch.float64)
+                         [float(a) for a in angles_deg], dtype=torch.float64, device=HOST)  # as the wavefront table
     for a in alpha.tolist():
         if not (math.isfinite(a) and 0 <= a <= psf.max_field_deg * (1 + 1e-12)):
             raise ValueError(f"field angle {a:g} deg is not allowed: 0 to the {psf.max_field_deg:g} deg the PSFs were "
@@ -208,14 +209,15 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     sigma2 = noise_variance(snr_db).reshape(-1).to(torch.float64)
     S, A, C = sigma2.numel(), alpha.numel(), psf.channels
     geo = psf.geometry
-    rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
+    rows = torch.tensor([geo.radius_px(a) for a in alpha.tolist()], dtype=torch.float64, device=HOST)
     cols = torch.zeros_like(rows)
     # the grid and its FFT from a few rays, before the wavefront table (minutes for a lens far out of focus)
     psf.check_fft_size(_grid_size(psf, max(psf.estimated_extent_px(), grid_px or 0), numerics))
     support = int(psf.extents_px(rows, cols, (0.0, 0.0)).max())
     if reference is not None:
         _check_reference(psf, reference, alpha)
-        ref_rows = torch.tensor([reference.geometry.radius_px(a) for a in alpha.tolist()], dtype=torch.float64)
+        ref_rows = torch.tensor([reference.geometry.radius_px(a) for a in alpha.tolist()], dtype=torch.float64,
+                                device=HOST)
         support = max(support, int(reference.extents_px(ref_rows, cols, (0.0, 0.0)).max()))
     if grid_px is not None:
         if grid_px < support:
@@ -225,15 +227,15 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
     m = n * numerics.oversample
     check_memory(C * 8 * m * m * 16, f"the OTFs of one field angle on {m} x {m} frequency samples",
                  setting="max_fft_size")
-    psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=torch.float64)
-    weights = quarter_weights(m, torch.float64, None)
+    psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=torch.float64, device=HOST)
+    weights = quarter_weights(m, torch.float64, HOST)
     pw = psd_q * weights
     # the aberration-free PSF of the same (vignetted) pupil, centred on its image point: the Strehl ratio's reference
     perfect = dataclasses.replace(psf.table(), opd_waves=torch.zeros_like(psf.table().opd_waves),
                                   distortion_mm=torch.zeros_like(psf.table().distortion_mm))
     view = _SensorView(psf.sensor)
-    per = {c: torch.empty((C, A, S) if CRITERIA[c].per_snr else (C, A), dtype=torch.float64) for c in names}
-    half_pi = torch.tensor([math.pi / 2], dtype=torch.float64)  # the field along +y: the rows
+    per = {c: torch.empty((C, A, S) if CRITERIA[c].per_snr else (C, A), dtype=torch.float64, device=HOST) for c in names}
+    half_pi = torch.tensor([math.pi / 2], dtype=torch.float64, device=HOST)  # the field along +y: the rows
     mirrored = not psf.lens.is_centred  # a decentred or tilted lens: both quarters (_otf_quarters)
     for i in range(A if names else 0):
         a = alpha[i:i + 1]
@@ -256,7 +258,7 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
                 per[name][c, i] = vals[name][0] if len(vals[name]) == 1 else 0.5 * (vals[name][0] + vals[name][1])
         if progress is not None:
             progress(1)
-    out: dict = {"alpha_deg": alpha, "snr_db": torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1),
+    out: dict = {"alpha_deg": alpha, "snr_db": tensor_of(snr_db, torch.float64).reshape(-1),
                  "psf_grid_px": n}
     for name in names:
         v = per[name]
@@ -267,7 +269,7 @@ def evaluate_sequential(psf: SequentialPSF, snr_db, *, rho0: float, angles_deg=N
             out[f"{name}_per_channel"] = field_mean
     if criteria is None or "cost" in criteria:  # C_a: the lens's aspheres, each over its clear aperture
         per = prescription_costs(psf.lens.prescription, numerics.cost_points)
-        out["cost"] = torch.tensor(sum(v["cost"] for v in per.values()), dtype=torch.float64)
+        out["cost"] = torch.tensor(sum(v["cost"] for v in per.values()), dtype=torch.float64, device=HOST)
         out["cost_per_surface"] = per
     if criteria is None or "rms_w" in criteria:
         rms, rms_p = _rms_wavefront(psf, alpha, registered, rms_quadrature)

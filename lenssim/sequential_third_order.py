@@ -27,6 +27,7 @@ from .optics.cost import prescription_costs
 from .optics.psf_bank import fft_size as choose_fft_size
 from .optics.seidel_wavefront import SEIDEL_TERMS, equivalent_thin_lens, third_order_coefficients
 from .optics.sequential import SequentialLens
+from .torch_utils import HOST, tensor_of
 
 __all__ = ["evaluate_third_order", "third_order_camera"]
 
@@ -59,8 +60,8 @@ def evaluate_third_order(seq: SequentialLens, snr_db, *, pitch_um: float, rho0: 
     if len(camera.spectrum) == 1:  # one wavelength: no lateral colour, the paper's four terms exactly
         coeffs, terms = coeffs[..., :len(TERMS)], TERMS
     sizes = choose_fft_size(camera, coeffs, numerics, terms=terms)
-    snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
-    out: dict = {"alpha_deg": torch.tensor(angles, dtype=torch.float64), "snr_db": snr, "fft_size": sizes}
+    snr = tensor_of(snr_db, torch.float64).reshape(-1)
+    out: dict = {"alpha_deg": torch.tensor(angles, dtype=torch.float64, device=HOST), "snr_db": snr, "fft_size": sizes}
     if names:
         per = otf_criteria_bank(camera, coeffs.to(dtype), sizes, snr, rho0=rho0, psd_model=psd_model,
                                 numerics=numerics, criteria=names, terms=terms)
@@ -74,6 +75,6 @@ def evaluate_third_order(seq: SequentialLens, snr_db, *, pitch_um: float, rho0: 
             (wavefront_rms_per_field(camera, c, True, terms=terms)[0] ** 2).mean())
     if criteria is None or "cost" in criteria:
         per_surface = prescription_costs(seq.prescription, numerics.cost_points)
-        out["cost"] = torch.tensor(sum(v["cost"] for v in per_surface.values()), dtype=torch.float64)
+        out["cost"] = torch.tensor(sum(v["cost"] for v in per_surface.values()), dtype=torch.float64, device=HOST)
         out["cost_per_surface"] = per_surface
     return out

@@ -41,6 +41,7 @@ from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, 
 from .optics.sequential import SequentialLens
 from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from .sequential_metrics import evaluate_sequential, evaluation_angles
+from .torch_utils import HOST, tensor_of
 
 __all__ = ["manufactured_lens", "copy_provider", "nominal_criteria", "copy_criteria", "tolerance_angles",
            "lens_tolerance_dataset", "run_lens_tolerance", "summarise_lens_tolerance",
@@ -137,19 +138,19 @@ def lens_tolerance_dataset(psf: SequentialPSF, tolerances: SurfaceTolerances, pe
     import xarray as xr
 
     n = len(rows)
-    snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
-    coords = {"lens": torch.arange(n).numpy(), "snr": snr.numpy()}
+    snr = tensor_of(snr_db, torch.float64).reshape(-1)
+    coords = {"lens": torch.arange(n, device=HOST).numpy(), "snr": snr.numpy()}
     data = {}
     for k in CRITERIA:
-        per_snr = torch.as_tensor(rows[0][k]).ndim > 0
-        v = torch.stack([torch.as_tensor(r[k], dtype=torch.float64) for r in rows]).numpy()
+        per_snr = tensor_of(rows[0][k]).ndim > 0
+        v = torch.stack([tensor_of(r[k], torch.float64) for r in rows]).numpy()
         data[k] = (("lens", "snr") if per_snr else ("lens",), v, {"units": "waves" if k == "rms_w" else "1"})
-        data[f"nominal_{k}"] = (("snr",) if per_snr else (), torch.as_tensor(nom[k]).numpy(),
+        data[f"nominal_{k}"] = (("snr",) if per_snr else (), tensor_of(nom[k]).numpy(),
                                 {"about": "the nominal lens at the copies' numerics"})
-        data[f"nominal_default_{k}"] = (("snr",) if per_snr else (), torch.as_tensor(full[k]).numpy(),
+        data[f"nominal_default_{k}"] = (("snr",) if per_snr else (), tensor_of(full[k]).numpy(),
                                         {"about": "the nominal lens at the default numerics"})
     for k in ("image_shift_mm", "efl_mm"):
-        data[k] = (("lens",), torch.tensor([float(r[k]) for r in rows], dtype=torch.float64).numpy(),
+        data[k] = (("lens",), torch.tensor([float(r[k]) for r in rows], dtype=torch.float64, device=HOST).numpy(),
                    {"units": "mm", "about": "the copy's image-plane shift from its own file's plane" if
                     k == "image_shift_mm" else "the copy's paraxial focal length (primary wavelength)"})
     for name, (v, unit, about) in pert.variables().items():
@@ -204,9 +205,9 @@ def summarise_lens_tolerance(ds, ref_snr: float) -> dict:
     j = _snr_index(ds, ref_snr)
     out = {"reference_snr_db": float(ref_snr), "lenses": int(ds.sizes["lens"])}
     for k in CRITERIA:
-        v = torch.as_tensor(ds[k].values, dtype=torch.float64)
-        nom = torch.as_tensor(ds[f"nominal_{k}"].values, dtype=torch.float64)
-        full = torch.as_tensor(ds[f"nominal_default_{k}"].values, dtype=torch.float64)
+        v = tensor_of(ds[k].values, torch.float64)
+        nom = tensor_of(ds[f"nominal_{k}"].values, torch.float64)
+        full = tensor_of(ds[f"nominal_default_{k}"].values, torch.float64)
         if v.ndim == 2:
             v, nom, full = v[:, j], nom[j], full[j]
         out[k] = {"mean": float(v.mean()), "median": float(v.median()) if v.numel() % 2 else float(v.quantile(0.5)),

@@ -25,7 +25,7 @@ from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
 from .optics.psf_bank import fft_size, otf_quarter_pair, otf_quarter_spectrum
 from .optics.aberrations import pupil_monomials
-from .torch_utils import chunk_budget_bytes
+from .torch_utils import HOST, chunk_budget_bytes, tensor_of
 from .validate import NumericalError, check_memory
 
 __all__ = ["AZIMUTHS_DEG", "as_built_criteria", "AS_BUILT_CRITERIA"]
@@ -96,23 +96,24 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
     n_lens = fft_size(camera, flat, numerics, terms=AS_BUILT_TERMS).reshape(N, F)
     n_nom = fft_size(camera, c0, numerics, terms=AS_BUILT_TERMS)  # (F,)
     sizes = torch.maximum(n_lens, n_nom[None])  # the lens and its reference on one grid
-    snr = torch.as_tensor(snr_db, dtype=torch.float64).reshape(-1)
+    snr = tensor_of(snr_db, torch.float64).reshape(-1)
     sigma2 = noise_variance(snr).reshape(-1)
     S = snr.numel()
     names = otf_criteria(reference=True)
-    per = {k: torch.empty((N, F, S) if CRITERIA[k].per_snr else (N, F), dtype=torch.float64) for k in names}
+    per = {k: torch.empty((N, F, S) if CRITERIA[k].per_snr else (N, F), dtype=torch.float64, device=HOST)
+           for k in names}
     oversample = numerics.oversample
     flat_sizes = sizes.reshape(-1)
-    point = torch.arange(F).repeat(N)
+    point = torch.arange(F, device=HOST).repeat(N)
     for n in torch.unique(flat_sizes).tolist():
         idx = torch.nonzero(flat_sizes == n).flatten()
         m = n * oversample
         psd_q = image_psd_quarter(m, rho0, model=psd_model, dtype=dtype, device=device)
         weights = quarter_weights(m, psd_q.dtype, psd_q.device)
         pw = psd_q * weights
-        per_psf = 2 * 4 * m * m * (2 * torch.tensor([], dtype=dtype).element_size())  # lens + reference, 2 quarters
+        per_psf = 2 * 4 * m * m * (2 * dtype.itemsize)  # lens + reference, 2 quarters
         check_memory(per_psf, f"one as-built OTF of {m} x {m} samples", setting="max_fft_size")
-        step = max(1, int(chunk_budget_bytes(device or "cpu", numerics.chunk_bytes) // per_psf))
+        step = max(1, int(chunk_budget_bytes(device or HOST, numerics.chunk_bytes) // per_psf))
         nominal = {}
         for start in range(0, idx.numel(), step):
             sel = idx[start:start + step]

@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["as_tensor", "select_device", "DEVICE_CHOICES", "GPU_MEMORY_FRACTION", "chunk_budget_bytes"]
+__all__ = ["as_tensor", "tensor_of", "select_device", "DEVICE_CHOICES", "GPU_MEMORY_FRACTION", "chunk_budget_bytes", "HOST"]
+
+HOST = torch.device("cpu")
+"""Where the library makes a tensor that no input places: tables it caches or reads on the host (moved to the inputs'
+device where they meet them), numbers given as Python numbers, and what the CPU-only real-ray tracer computes. Named so
+that no tensor follows torch's default device (``torch.set_default_device``): every other tensor follows its inputs
+(tests/test_device_follow.py runs the public API under another default device to check it)."""
 
 DEVICE_CHOICES = "auto (CUDA if present, else CPU), cpu, cuda or cuda:N"
 
 
 def as_tensor(x, *, like: torch.Tensor | None = None, dtype=None, device=None) -> torch.Tensor:
-    """Convert ``x`` to a floating tensor, following ``like`` (dtype, device) when given."""
+    """Convert ``x`` to a floating tensor, following ``like`` (dtype, device) when given; numbers (not a tensor) go to
+    ``device`` or :data:`HOST`, never torch's default device."""
     if like is not None:
         dtype = dtype or like.dtype
         device = device or like.device
@@ -18,7 +25,13 @@ def as_tensor(x, *, like: torch.Tensor | None = None, dtype=None, device=None) -
         if not x.is_floating_point():
             x = x.to(torch.get_default_dtype())
         return x.to(dtype=dtype or x.dtype, device=device or x.device)
-    return torch.as_tensor(x, dtype=dtype or torch.get_default_dtype(), device=device)
+    return torch.as_tensor(x, dtype=dtype or torch.get_default_dtype(), device=device or HOST)
+
+
+def tensor_of(x, dtype=None) -> torch.Tensor:
+    """``torch.as_tensor(x, dtype)`` where ``x`` stays on its device if it is a tensor and numbers and lists go to
+    :data:`HOST`: never to torch's default device (which ``torch.as_tensor`` would move even a tensor to)."""
+    return torch.as_tensor(x, dtype=dtype, device=x.device if isinstance(x, torch.Tensor) else HOST)
 
 
 def select_device(name: str = "auto") -> torch.device:

@@ -15,6 +15,8 @@ import warnings
 
 import torch
 
+from .torch_utils import HOST
+
 __all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "ResumeWarning", "check_real", "check_int", "check_finite",
            "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
            "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED", "check_snr_db", "check_pixel_pitch_um",
@@ -144,7 +146,7 @@ def check_snr_db(values, name: str = "", *, warn: bool = True) -> tuple[float, .
     e.g. ``"--snr"``, prefixes the message)."""
     lead = f"{name}: " if name else ""
     try:
-        snr = torch.as_tensor(values, dtype=torch.float64).reshape(-1)
+        snr = torch.as_tensor(values, dtype=torch.float64, device=HOST).reshape(-1)
     except (TypeError, ValueError, RuntimeError):
         raise ValueError(f"{lead}SNR {values!r} is not allowed: numbers in dB") from None
     lo, hi = SNR_DB_RANGE

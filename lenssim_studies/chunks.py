@@ -17,6 +17,7 @@ import torch
 from lenssim.criteria import lens_criteria
 from lenssim.model.design import Design
 from lenssim.metrics import evaluate
+from lenssim.torch_utils import HOST
 
 __all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
            "read_stamped_chunk", "finished_result", "dataset_checksum", "stamp_result", "verify_result",
@@ -114,8 +115,8 @@ def _compute_chunk(cfg, i: int, device, progress) -> dict:
     first = cfg.values(cfg.dims[0])[i]
     vals = {d: torch.from_numpy(np.ascontiguousarray(a)) for d, a in zip(rest, axes)}
     shape = axes[0].shape if rest else ()
-    vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64)
-    vals.update({k: torch.full(shape, v, dtype=torch.float64) for k, v in cfg.fixed.items()})
+    vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64, device=HOST)  # as from_numpy's
+    vals.update({k: torch.full(shape, v, dtype=torch.float64, device=HOST) for k, v in cfg.fixed.items()})
     if cfg.focus is not None:
         from lenssim.focus import best_focus_batch
 

@@ -23,6 +23,7 @@ from lenssim.model.lens import Lens, LensError
 from lenssim.model.numerics import DEFAULT_NUMERICS, Numerics
 from lenssim.model.sensor import Sensor
 from lenssim.model.spectrum import Spectrum
+from lenssim.torch_utils import HOST
 from lenssim.validate import ResourceLimitError, check_memory, check_real, listed, quoted
 
 from .paper import PAPER_CAMERA, PAPER_GRID, PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SNR_DB, PAPER_SPECTRUM
@@ -154,15 +155,16 @@ class SweepConfig:
         rest = self.dims[1:]
         axes = [torch.from_numpy(a) for a in np.meshgrid(*(self.values(d) for d in rest), indexing="ij")] if rest else []
         for v in self.values(self.dims[0]):
-            vals = {**{k: torch.tensor(x, dtype=torch.float64) for k, x in self.fixed.items()}, **dict(zip(rest, axes))}
-            vals[self.dims[0]] = torch.tensor(float(v), dtype=torch.float64)
+            vals = {**{k: torch.tensor(x, dtype=torch.float64, device=HOST) for k, x in self.fixed.items()},
+                    **dict(zip(rest, axes))}
+            vals[self.dims[0]] = torch.tensor(float(v), dtype=torch.float64, device=HOST)
             self.lens.check_design(Design(vals))
 
     def grid_design(self) -> Design:
         """Every design of the grid, as a design of shape ``(len(dim0), len(dim1), ...)``."""
         axes = np.meshgrid(*(self.values(d) for d in self.dims), indexing="ij")
         vals = {d: torch.from_numpy(a) for d, a in zip(self.dims, axes)}
-        vals.update({k: torch.full(axes[0].shape, v, dtype=torch.float64) for k, v in self.fixed.items()})
+        vals.update({k: torch.full(axes[0].shape, v, dtype=torch.float64, device=HOST) for k, v in self.fixed.items()})
         return Design(vals)
 
     def to_dict(self) -> dict:

@@ -39,7 +39,7 @@ import torch
 
 from lenssim import PSFProvider, frame_center
 from lenssim.optics.psf_bank import nice_fft_size
-from lenssim.torch_utils import chunk_budget_bytes
+from lenssim.torch_utils import HOST, chunk_budget_bytes, tensor_of
 
 from .checks import check_image, check_provider
 
@@ -92,7 +92,7 @@ PAPER_SCHEME = WindowScheme()
 
 def window_centres(length: int, stride: int) -> torch.Tensor:
     """Centres ``0, stride, 2 stride, ...`` up to the first one at or beyond ``length - 1``."""
-    return torch.arange(0, (length - 1) + stride, stride)[: int(math.ceil((length - 1) / stride)) + 1]
+    return torch.arange(0, (length - 1) + stride, stride, device=HOST)[: int(math.ceil((length - 1) / stride)) + 1]
 
 
 def axis_positions(length: int, stride: int, core: int, center: float) -> torch.Tensor:
@@ -106,7 +106,7 @@ def axis_positions(length: int, stride: int, core: int, center: float) -> torch.
     """
     lo, hi = -core / 2, length - 1 + core / 2  # exclusive: a position this far out has zero weight inside
     c = float(center)
-    k = torch.arange(math.floor((lo - c) / stride), math.ceil((hi - c) / stride) + 1, dtype=torch.float64)
+    k = torch.arange(math.floor((lo - c) / stride), math.ceil((hi - c) / stride) + 1, dtype=torch.float64, device=HOST)
     pos = c + stride * k
     return pos[(pos > lo) & (pos < hi)]
 
@@ -133,7 +133,7 @@ def window_count(shape, scheme: WindowScheme | None = None, optical_center=None,
 def tent_weights(core: int, dtype=torch.float64, shift: float = 0.0) -> torch.Tensor:
     """1-D tent over the core: ``1 - |d + shift| / (core/2)`` at pixel offsets ``d = -core/2 .. core/2 - 1`` from
     the core's anchor pixel, for a window position ``shift`` (``0 <= shift < 1``) px before that pixel."""
-    d = torch.arange(-core // 2, core // 2, dtype=torch.float64) + shift
+    d = torch.arange(-core // 2, core // 2, dtype=torch.float64, device=HOST) + shift
     return (1 - d.abs() / (core / 2)).clamp_min(0).to(dtype)
 
 
@@ -196,7 +196,7 @@ def fitted_windows(need: torch.Tensor, window: int, least: int | None = None) ->
     :data:`FIT_SIZES` (below ``window``, at least ``least``, default the least of them) holding ``need +``
     :data:`FIT_MARGIN_PX`, else ``window``."""
     least = FIT_SIZES[0] if least is None else least
-    table = torch.tensor([w for w in FIT_SIZES if least <= w < window] + [window], dtype=torch.int64)
+    table = torch.tensor([w for w in FIT_SIZES if least <= w < window] + [window], dtype=torch.int64, device=need.device)
     w = table[torch.searchsorted(table, (need + FIT_MARGIN_PX).clamp(max=window))]
     return torch.where(need > 0, w, window)
 
@@ -227,7 +227,8 @@ def window_sizes(extents: torch.Tensor, scheme: WindowScheme, fit: bool, least: 
                              f"needed, over the {MAX_WINDOW_PX} px allowed (use a smaller core, or a sharper design)")
         values, inv = torch.unique(need[over], return_inverse=True)
         sizes = sizes.clone()
-        sizes[over] = torch.tensor([grown_window(int(v)) for v in values.tolist()], dtype=sizes.dtype)[inv]
+        sizes[over] = torch.tensor([grown_window(int(v)) for v in values.tolist()], dtype=sizes.dtype,
+                                   device=sizes.device)[inv]
     return sizes
 
 
@@ -297,7 +298,7 @@ class _WindowOTFs:
         # rest of the level taken out is uniform over the whole grid, which a circular convolution over it sees at
         # the zero frequency only: the PSF keeps its exact OTF at every other frequency and a sum of one less the
         # caller's pedestal.
-        self.level = (torch.tensor(psf.pedestal_fractions(pedestal), dtype=torch.float64) / self.n**2
+        self.level = (torch.tensor(psf.pedestal_fractions(pedestal), dtype=torch.float64, device=HOST) / self.n**2
                       if pedestal is not None else None)
         self.rev = (-torch.arange(win, device=device)) % win  # the row of -f_y for each row f_y
 
@@ -408,11 +409,11 @@ def interpolation_error_db(psf: PSFProvider, scheme: WindowScheme, multiple: int
 
     n = scheme.window if n is None else n
     s = multiple * scheme.stride
-    r = torch.as_tensor(radii_px, dtype=torch.float64).reshape(-1)
+    r = tensor_of(radii_px, torch.float64).reshape(-1)
     cy, cx = optical_center
     a = math.radians(azimuth_deg)
     py, px = cy + r * math.sin(a), cx + r * math.cos(a)
-    off = torch.tensor([[-1, -1], [-1, 1], [1, -1], [1, 1], [0, 0]], dtype=torch.float64) * (s / 2)
+    off = torch.tensor([[-1, -1], [-1, 1], [1, -1], [1, 1], [0, 0]], dtype=torch.float64, device=r.device) * (s / 2)
     P = image_psd(n, rho0, dtype=torch.float64)
     P = P / P.mean()
     var = []
@@ -443,7 +444,7 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
     center = optical_center if optical_center is not None else frame_center(shape)
     H, W = shape[-2:]
     corner = max(math.hypot(a, b) for a in (center[0], H - 1 - center[0]) for b in (center[1], W - 1 - center[1]))
-    radii = torch.linspace(0.0, corner, ZONE_SAMPLES, dtype=torch.float64)  # cells reach s/sqrt(2) px beyond
+    radii = torch.linspace(0.0, corner, ZONE_SAMPLES, dtype=torch.float64, device=HOST)  # cells reach s/sqrt(2) px beyond
     if region is not None:
         reach = max(ZONE_MULTIPLES) * scheme.core  # a window touching the region: its tent this far beyond
         r0, r1, c0, c1 = (region[0] - reach, region[1] + reach, region[2] - reach, region[3] + reach)
@@ -454,7 +455,7 @@ def choose_stride_zones(psf: PSFProvider, shape, scheme: WindowScheme = None, op
         radii = radii[(radii >= lo - 2 * step) & (radii <= hi + 2 * step)]
         if radii.numel() == 0:
             return StrideZones((), (1,))
-    best = torch.ones(radii.numel(), dtype=torch.int64)
+    best = torch.ones(radii.numel(), dtype=torch.int64, device=radii.device)
     for m in sorted(ZONE_MULTIPLES)[1:]:
         if m * scheme.core > scheme.window:
             break
@@ -502,9 +503,9 @@ def _cached_errors(psf: PSFProvider, scheme: WindowScheme, m: int, radii: torch.
                 _ZONE_ERRORS.move_to_end(k)
                 out.append(_ZONE_ERRORS[k])
             else:  # dropped meanwhile by another thread's entries: estimated again
-                out.append(float(interpolation_error_db(psf, scheme, m, torch.tensor([k[-1]]), center,
+                out.append(float(interpolation_error_db(psf, scheme, m, [k[-1]], center,
                                                         azimuth_deg=az)[0]))
-    return torch.tensor(out, dtype=torch.float64)
+    return torch.tensor(out, dtype=torch.float64, device=HOST)
 
 
 def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZones | None):
@@ -513,7 +514,7 @@ def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZ
     if zones is None or zones.uniform or scheme.anchor != "axis":
         py, px = _region_positions(shape, scheme, center, region)
         Y, X = torch.meshgrid(py, px, indexing="ij")
-        return Y.flatten(), X.flatten(), torch.full((Y.numel(),), scheme.core, dtype=torch.int64)
+        return Y.flatten(), X.flatten(), torch.full((Y.numel(),), scheme.core, dtype=torch.int64, device=Y.device)
     edges = (0.0,) + tuple(zones.edges_px) + (math.inf,)
     Ys, Xs, Cs = [], [], []
     for k, m in enumerate(zones.multiples):
@@ -528,7 +529,7 @@ def _zoned_positions(shape, scheme: WindowScheme, center, region, zones: StrideZ
         keep = (rmax > edges[k]) & (rmin < edges[k + 1])
         Ys.append(Y[keep])
         Xs.append(X[keep])
-        Cs.append(torch.full((int(keep.sum()),), sub.core, dtype=torch.int64))
+        Cs.append(torch.full((int(keep.sum()),), sub.core, dtype=torch.int64, device=keep.device))
     return torch.cat(Ys), torch.cat(Xs), torch.cat(Cs)
 
 
@@ -691,7 +692,7 @@ def blur_exact(image: torch.Tensor, psf: PSFProvider, rows, cols, *, n: int = 51
     check_provider(psf)
     B, C, H, W = image.shape
     center = optical_center if optical_center is not None else frame_center(image.shape)
-    rows, cols = torch.as_tensor(rows), torch.as_tensor(cols)
+    rows, cols = tensor_of(rows), tensor_of(cols)
     c = n // 2
     padded = _pad(image, c)
     out = torch.empty(B, C, rows.numel(), dtype=image.dtype, device=image.device)

@@ -51,6 +51,7 @@ import torch
 from lenssim import PSFProvider, Sensor
 from lenssim.optics.psf_provider import DerivedPSF
 from lenssim.registry import Registry
+from lenssim.torch_utils import HOST, tensor_of
 
 from .cfa import DEMOSAIC_METHODS, demosaic, mosaic, validate_cfa
 from .checks import check_image
@@ -118,12 +119,12 @@ def fixed_pattern(seed: int, salt: int, origin, shape, *, dtype=torch.float64, d
     H, W = shape
     r0, c0 = origin
     t = FIXED_PATTERN_TILE_PX
-    out = torch.empty(H, W, dtype=dtype)
+    out = torch.empty(H, W, dtype=dtype, device=HOST)  # drawn on the host: the same pattern on every device
     for tr in range(r0 // t, (r0 + H - 1) // t + 1):
         for tc in range(c0 // t, (c0 + W - 1) // t + 1):
             key = ((int(seed) * 1_000_003 + salt) * 1_000_003 + tr) * 1_000_003 + tc
             g = torch.Generator().manual_seed(key % 2**63)
-            tile = torch.randn(t, t, generator=g, dtype=torch.float64)
+            tile = torch.randn(t, t, generator=g, dtype=torch.float64, device=HOST)
             a0, a1 = max(tr * t, r0), min((tr + 1) * t, r0 + H)
             b0, b1 = max(tc * t, c0), min((tc + 1) * t, c0 + W)
             out[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = tile[a0 - tr * t:a1 - tr * t, b0 - tc * t:b1 - tc * t].to(dtype)
@@ -386,7 +387,7 @@ class CameraChain:
         outside the camera's gamut, clipped to 0); unchanged without a colour matrix."""
         if not self.sensor.colour_matrix:
             return scene
-        m = torch.linalg.inv(torch.tensor(self.sensor.colour_matrix, dtype=torch.float64)).to(scene)
+        m = torch.linalg.inv(torch.tensor(self.sensor.colour_matrix, dtype=torch.float64, device=HOST)).to(scene)
         return torch.einsum("ij,bjhw->bihw", m, scene).clamp_min_(0)
 
     def capture(self, image: torch.Tensor, electrons_per_unit: float, full_well: float, *, generator: torch.Generator,
@@ -431,7 +432,7 @@ class CameraChain:
     def white_balance_gains(self, units: torch.Tensor, *, origin=(0, 0), channels: int = 3) -> torch.Tensor:
         """Per-channel gains ``(C,)`` from the sensor's units to the scene's: 1 / relative QE (illuminant), or grey
         world (each channel's mean brought to green's, green's gain the illuminant's)."""
-        illum = torch.tensor([1 / q for q in _qe_rel(self.sensor, channels)], dtype=torch.float64)
+        illum = torch.tensor([1 / q for q in _qe_rel(self.sensor, channels)], dtype=torch.float64, device=HOST)
         if self.white_balance == "illuminant" or channels != 3:
             return illum
         if units.shape[1] == 1:
@@ -535,15 +536,15 @@ class PlanePSF(DerivedPSF):
         return replace(g, pixel_pitch_um=2 * g.pixel_pitch_um)
 
     def _frame(self, rows, cols, optical_center):
-        r = 2 * torch.as_tensor(rows, dtype=torch.float64) + self.dy
-        c = 2 * torch.as_tensor(cols, dtype=torch.float64) + self.dx
+        r = 2 * tensor_of(rows, torch.float64) + self.dy
+        c = 2 * tensor_of(cols, torch.float64) + self.dx
         return r, c, (2 * optical_center[0] + self.dy, 2 * optical_center[1] + self.dx)
 
     def psf_at_pixels(self, rows, cols, optical_center, n: int, *, centered: bool = True, dtype=None, device=None):
         r, c, oc = self._frame(rows, cols, optical_center)
         # the frame's PSFs on the smallest odd grid that holds their support (known) with a margin, at most the
         # 2 n + 1 frame pixels the plane's n x n grid spans
-        ext = int(torch.as_tensor(self.base.extents_px(r, c, oc)).max()) if len(r) else 0
+        ext = int(tensor_of(self.base.extents_px(r, c, oc)).max()) if len(r) else 0
         m = 2 * n + 1 if ext <= 0 else min(2 * n + 1, 2 * (ext // 2) + PLANE_PSF_MARGIN_PX + 1)
         p = self.base.psf_at_pixels(r, c, oc, m, centered=True, dtype=torch.float64, device=device)
         if p.ndim == 4:
@@ -567,7 +568,7 @@ class PlanePSF(DerivedPSF):
 
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         r, c, oc = self._frame(rows, cols, optical_center)
-        return torch.as_tensor(self.base.extents_px(r, c, oc)).to(torch.int64) // 2 + 2
+        return tensor_of(self.base.extents_px(r, c, oc)).to(torch.int64) // 2 + 2
 
     def pedestal_fractions(self, n: int):
         return (0.0,)

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lenssim.torch_utils import tensor_of
+
 from .cfa import validate_cfa
 
 __all__ = ["write_dng", "DNG_VERSION", "D65_ILLUMINANT"]
@@ -56,7 +58,7 @@ def write_dng(path: str | os.PathLike, raw: torch.Tensor, pattern: str, *, black
     check_output_file(path, "DNG file")
     if path.exists():
         raise FileExistsError(f"{str(path)!r} exists; choose another DNG file or remove it")
-    a = torch.as_tensor(raw)
+    a = tensor_of(raw)
     if a.ndim == 4 and a.shape[:2] == (1, 1):
         a = a[0, 0]
     if a.ndim != 2:

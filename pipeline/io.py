@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from lenssim.io.files import atomic_write
+from lenssim.torch_utils import HOST
 
 __all__ = ["exit_without_teardown", "ImageFileError", "ImageInfo", "ImageStats", "image_info", "read_image", "scan_image",
            "write_image", "READ_BAND_BYTES", "MAX_LINEAR_VALUE"]
@@ -261,7 +262,7 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
             if not ok:
                 break
             r1 = min(H, r0 + WRITE_BAND_ROWS)
-            band = torch.empty((r1 - r0, W, C), dtype=torch.float32)
+            band = torch.empty((r1 - r0, W, C), dtype=torch.float32, device=HOST)
             band.copy_(image[:, r0:r1].permute(1, 2, 0))
             if bits != "float":
                 band.clamp_(0.0, 1.0)

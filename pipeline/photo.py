@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lenssim.torch_utils import HOST
+
 from .colour_space import srgb_to_linear
 from .io import ImageFileError, ImageInfo, read_image, scan_image
 
@@ -157,7 +159,7 @@ def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BY
         raise ImageFileError(f"photo {spec!r} is black (all pixels 0): there is no light to simulate")
     if img is not None:
         return Photo.of(img if info.linear else srgb_to_linear(img), spec)
-    peak = hi if info.linear else float(srgb_to_linear(torch.tensor([[[[hi]]]], dtype=torch.float32)))
+    peak = hi if info.linear else float(srgb_to_linear(torch.tensor([[[[hi]]]], dtype=torch.float32, device=HOST)))
     return Photo(spec, info.shape, peak, None, spec, info.linear)
 
 

@@ -17,6 +17,7 @@ import math
 import torch
 
 from lenssim import FieldGeometry
+from lenssim.torch_utils import HOST
 
 
 __all__ = ["resolution_scene", "target_tile"]
@@ -24,27 +25,27 @@ __all__ = ["resolution_scene", "target_tile"]
 
 def target_tile(size: int = 256, kind: int = 0) -> torch.Tensor:
     """One ``size x size`` grey target (values in [0, 1], float64): 0 Siemens star, 1 bar groups, 2 step wedge + texture."""
-    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float64) - size / 2 + 0.5,
-                          torch.arange(size, dtype=torch.float64) - size / 2 + 0.5, indexing="ij")
+    y, x = torch.meshgrid(torch.arange(size, dtype=torch.float64, device=HOST) - size / 2 + 0.5,
+                          torch.arange(size, dtype=torch.float64, device=HOST) - size / 2 + 0.5, indexing="ij")
     if kind == 0:
         theta = torch.atan2(y, x)
         star = (torch.sin(36 * theta) > 0).double()
         return torch.where(torch.hypot(x, y) < size * 0.47, star, torch.full_like(star, 0.5))
     if kind == 1:  # bar groups, periods 2..16 px, vertical and horizontal
-        tile = torch.full((size, size), 0.5, dtype=torch.float64)
+        tile = torch.full((size, size), 0.5, dtype=torch.float64, device=HOST)
         q, h2 = size // 4, size // 2
         bh, bw = q - 8, h2 - 8
         for i, period in enumerate((2, 3, 4, 6, 8, 10, 12, 16)):
             r, c = divmod(i, 2)
-            idx = torch.arange(bw if r % 2 == 0 else bh)
+            idx = torch.arange(bw if r % 2 == 0 else bh, device=HOST)
             bars = ((2 * idx // period) % 2).double()
             block = bars[None, :].expand(bh, -1) if r % 2 == 0 else bars[:, None].expand(-1, bw)
             tile[r * q + 4:r * q + 4 + bh, c * h2 + 4:c * h2 + 4 + bw] = block
         return tile
-    steps = torch.linspace(0.05, 0.95, 8, dtype=torch.float64)  # grey wedge above, fine random texture below
-    tile = steps[torch.arange(size) * 8 // size][None, :].repeat(size, 1)
+    steps = torch.linspace(0.05, 0.95, 8, dtype=torch.float64, device=HOST)  # grey wedge above, fine random texture below
+    tile = steps[torch.arange(size, device=HOST) * 8 // size][None, :].repeat(size, 1)
     g = torch.Generator().manual_seed(7)
-    tile[size // 2:] = torch.rand(size - size // 2, size, generator=g).double()
+    tile[size // 2:] = torch.rand(size - size // 2, size, generator=g, device=HOST).double()
     return tile
 
 
@@ -67,14 +68,14 @@ def resolution_scene(height: int = 4000, width: int = 6000, *, seed: int = 0, ti
     if height < tile or width < tile:
         raise ValueError(f"scene {height}x{width} is smaller than one {tile}-px target")
     g = torch.Generator().manual_seed(seed)
-    lo = torch.rand(1, 3, max(2, height // 64), max(2, width // 64), generator=g).double()
+    lo = torch.rand(1, 3, max(2, height // 64), max(2, width // 64), generator=g, device=HOST).double()
     bg = torch.nn.functional.interpolate(lo, size=(height, width), mode="bilinear", align_corners=False)
-    fine = torch.rand(1, 1, height // 4, width // 4, generator=g).double()
+    fine = torch.rand(1, 1, height // 4, width // 4, generator=g, device=HOST).double()
     bg = 0.6 * bg + 0.25 * torch.nn.functional.interpolate(fine, size=(height, width), mode="bilinear",
                                                            align_corners=False) + 0.05
     img = bg
     tiles = [target_tile(tile, k) for k in range(3)]
-    colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]], dtype=torch.float64)
+    colours = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.85, 0.7], [0.7, 0.85, 1.0]], dtype=torch.float64, device=HOST)
     diagonal = _diagonal_positions(height, width, tile, geometry)
     clear = lambda r, c: all(abs(r - dr) >= tile + 8 or abs(c - dc) >= tile + 8 for dr, dc, _ in diagonal)  # noqa: E731
     k = 0

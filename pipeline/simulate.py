@@ -37,6 +37,7 @@ import torch
 from lenssim import FieldGeometry, PSFProvider, Sensor, frame_center
 
 from lenssim.io.files import atomic_write_text
+from lenssim.torch_utils import HOST
 from lenssim.validate import ResumeWarning, check_int, check_real, warn_model
 
 from .blur import (PAPER_SCHEME, ZONE_MULTIPLES, StrideZones, WindowScheme, blur_windowed, choose_stride_zones,
@@ -272,7 +273,7 @@ def simulate_crops(ideal: torch.Tensor, psf: PSFProvider, full_well, boxes, *, s
     # the blur region = crop + what the restorations read beyond it; the sub-array = that + the blur's own reach
     # (every crop's, before any work: a PSF too large for any window stops the run here)
     for r0, r1, c0, c1 in boxes:  # a PSF wider than the photo leaves nothing of the scene resolved
-        y, x = torch.tensor([(r0 + r1 - 1) / 2]), torch.tensor([(c0 + c1 - 1) / 2])
+        y, x = (torch.tensor([v], dtype=torch.float64, device=HOST) for v in ((r0 + r1 - 1) / 2, (c0 + c1 - 1) / 2))
         support = max(int(p.extents_px(y, x, centre).max()) for p in providers)
         if support > max(H, W):
             raise ValueError(f"the PSF at the crop {(r0, r1, c0, c1)} spans about {support} px, more than the {W} x {H} "
@@ -550,7 +551,7 @@ def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, s
                         noisy, _ = read_image(sensor_path, what="checkpoint")
                     except ImageFileError as exc:  # unreadable now (e.g. the disk failed): computed again
                         warnings.warn(f"{exc}; computing the sensor image again", ResumeWarning, stacklevel=2)
-                        noisy = torch.empty(0)
+                        noisy = torch.empty(0, device=HOST)
                     if chain.develops and tuple(noisy.shape) == _raw_shape(ideal.shape, chain):
                         if progress is not None:
                             progress(window_count(ideal.shape, scheme, zones=zones))

@@ -16,17 +16,18 @@ def pytest_collection_modifyitems(config, items):
 
 
 def _device_dtypes():
+    """Every (device, dtype) case, the CUDA ones skipped where no GPU is present (shown as skipped, not left out)."""
     import torch
 
-    cases = [("cpu", torch.float32), ("cpu", torch.float64)]
-    if torch.cuda.is_available():
-        cases += [("cuda", torch.float32), ("cuda", torch.float64)]
-    return cases
+    no_gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+    return [pytest.param((dev, dt), id=f"{dev}-{str(dt).replace('torch.', '')}", marks=no_gpu if dev == "cuda" else ())
+            for dev in ("cpu", "cuda") for dt in (torch.float32, torch.float64)]
 
 
-@pytest.fixture(params=_device_dtypes(), ids=lambda c: f"{c[0]}-{str(c[1]).replace('torch.', '')}")
+@pytest.fixture(params=_device_dtypes())
 def device_dtype(request):
-    """(device, dtype): CPU float32/float64 always, CUDA too where a GPU is present (as kornia's fixtures)."""
+    """(device, dtype): CPU float32/float64 always, CUDA float32/float64 where a GPU is present (as kornia's
+    fixtures), skipped elsewhere."""
     import torch
 
     dev, dt = request.param

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 
+from ..torch_utils import HOST
 from ..validate import listed, quoted
 
 __all__ = ["Parameter", "PARAMETERS", "parameter_name", "Design", "load_designs"]
@@ -63,7 +64,7 @@ def parameter_name(name: str) -> str:
     raise ValueError(f"design parameter {quoted(name)} is not known; valid: {valid}")
 
 
-def _to_tensor(name: str, v) -> torch.Tensor:
+def _to_tensor(name: str, v, device) -> torch.Tensor:
     if isinstance(v, torch.Tensor):
         if v.is_complex():
             raise ValueError(f"design parameter {name} is complex: expected real values")
@@ -71,7 +72,7 @@ def _to_tensor(name: str, v) -> torch.Tensor:
     if isinstance(v, bool):
         raise ValueError(f"design parameter {name}={v!r} is not allowed: a number")
     try:
-        return torch.as_tensor(v, dtype=torch.float64)  # Python numbers keep their full (double) precision
+        return torch.as_tensor(v, dtype=torch.float64, device=device)  # numbers keep their full (double) precision
     except (TypeError, ValueError, RuntimeError):
         raise ValueError(f"design parameter {name}={v!r} is not allowed: a number or a tensor of numbers") from None
 
@@ -81,18 +82,21 @@ class Design:
 
     ``Design(s=-0.775, Q_back=-2.4)``, ``Design({"s": s_grid, "Q": q_grid})`` (aliases accepted).
     ``design["Q"]`` and ``design["Q_back"]`` are the same tensor; a parameter that was not given
-    reads as its default (a 0-d float64 tensor). Python numbers become float64 tensors.
+    reads as its default (a 0-d float64 tensor). Python numbers become float64 tensors, on the device of the tensors
+    given beside them (the host if none is).
     """
 
     __slots__ = ("values", "name", "description")
 
     def __init__(self, values: Mapping | None = None, *, name: str = "", description: str = "", **kw):
         merged: dict[str, torch.Tensor] = {}
-        for key, v in list((values or {}).items()) + list(kw.items()):
+        given = list((values or {}).items()) + list(kw.items())
+        device = next((v.device for _, v in given if isinstance(v, torch.Tensor)), HOST)
+        for key, v in given:
             canon = parameter_name(key)
             if canon in merged:
                 raise ValueError(f"design parameter {canon} is given twice (as {key!r} and another name)")
-            merged[canon] = _to_tensor(canon, v)
+            merged[canon] = _to_tensor(canon, v, device)
         try:
             torch.broadcast_shapes(*(t.shape for t in merged.values()))
         except RuntimeError:
@@ -114,7 +118,7 @@ class Design:
             return self.values[canon]
         ref = next(iter(self.values.values()), None)
         return torch.tensor(PARAMETERS[canon].default, dtype=ref.dtype if ref is not None else torch.float64,
-                            device=ref.device if ref is not None else None)
+                            device=ref.device if ref is not None else HOST)
 
     def __contains__(self, name: str) -> bool:
         return parameter_name(name) in self.values

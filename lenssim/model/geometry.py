@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor, tensor_of
 
 __all__ = ["FieldGeometry", "frame_center"]
 
@@ -50,8 +50,8 @@ class FieldGeometry:
     def offsets_mm(self, rows, cols, optical_center) -> tuple[torch.Tensor, torch.Tensor]:
         """Image-plane ``(x_mm, y_mm)`` (float64) of pixel positions ``(rows, cols)`` of an array whose
         optical axis is at ``optical_center`` (rows, cols, px)."""
-        y = (torch.as_tensor(rows).to(torch.float64) - optical_center[0]) * self.pitch_mm
-        x = (torch.as_tensor(cols).to(torch.float64) - optical_center[1]) * self.pitch_mm
+        y = (tensor_of(rows, torch.float64) - optical_center[0]) * self.pitch_mm
+        x = (tensor_of(cols, torch.float64) - optical_center[1]) * self.pitch_mm
         return x, y
 
     def radius_px(self, alpha_deg: float) -> float:
@@ -89,7 +89,7 @@ class FieldGeometry:
         """Field angle (deg) of each ``tile`` x ``tile`` block's centre, ``(rows, cols)`` float64 (blocks from
         the top-left corner; a narrower remainder at the right or bottom is left out)."""
         H, W = shape[-2:]
-        cy = torch.arange(H // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (H - 1) / 2
-        cx = torch.arange(W // tile, dtype=torch.float64) * tile + (tile - 1) / 2 - (W - 1) / 2
+        cy = torch.arange(H // tile, dtype=torch.float64, device=HOST) * tile + (tile - 1) / 2 - (H - 1) / 2
+        cx = torch.arange(W // tile, dtype=torch.float64, device=HOST) * tile + (tile - 1) / 2 - (W - 1) / 2
         r_mm = torch.hypot(cy[:, None], cx[None, :]) * self.pitch_mm
         return torch.rad2deg(torch.atan(r_mm / self.focal_length_mm))

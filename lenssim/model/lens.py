@@ -23,7 +23,7 @@ import torch
 from .design import Design
 from .glass import ConstantGlass, as_glass
 from .surface import Surface
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor
 from ..validate import listed, quoted, warn_model
 
 THIRD_ORDER_LIMIT = 0.25
@@ -233,8 +233,8 @@ class Lens:
         return 1 - 2 / (self.power(wavelength_um) * self.focus_distance_mm(wavelength_um))
 
     def field_angles(self, *, dtype=None, device=None) -> torch.Tensor:
-        """Field angles as a tensor of shape ``(A,)`` in degrees."""
-        return torch.tensor(self.field_angles_deg, dtype=dtype or torch.get_default_dtype(), device=device)
+        """Field angles as a tensor of shape ``(A,)`` in degrees (on ``device``, default :data:`HOST`)."""
+        return torch.tensor(self.field_angles_deg, dtype=dtype or torch.get_default_dtype(), device=device or HOST)
 
     def check_design(self, design: Design) -> None:
         """Raise :class:`LensError` if a design is not a physical lens.
@@ -256,10 +256,10 @@ class Lens:
                 raise LensError(f"focus_shift_um={v!r} is not allowed: the image plane must stay within the lens's "
                                 f"focal length of the focus, |focus_shift_um| < {1e3 * self.focal_length_mm:g} um")
         y2 = self.pupil_radius_mm**2
-        shape = design.shape
+        shape, device = design.shape, design["s"].device
         for i, surf in enumerate(self.surfaces(design)):
-            c = torch.as_tensor(surf.curvature, dtype=torch.float64)
-            kappa = torch.as_tensor(surf.conic, dtype=torch.float64)
+            c = torch.as_tensor(surf.curvature, dtype=torch.float64, device=device)
+            kappa = torch.as_tensor(surf.conic, dtype=torch.float64, device=device)
             arg = torch.broadcast_to(1 - (1 + kappa) * c**2 * y2, torch.broadcast_shapes(shape, c.shape, kappa.shape))
             if (arg <= 0).any():
                 j = int(torch.nonzero((arg <= 0).flatten())[0])

@@ -49,6 +49,7 @@ import torch
 from .misalignment import Misalignment
 from .prescription import Prescription
 from .tolerances import GRADES, TOLERANCE_SIGMAS, check_limits
+from ..torch_utils import HOST
 from ..validate import listed, quoted
 
 __all__ = ["SurfaceTolerances", "SurfacePerturbations", "SURFACE_GRADES", "THICKNESS_UM", "ELEMENT_DECENTRE_UM",
@@ -138,7 +139,7 @@ class SurfaceTolerances:
         sd = 1.0 / TOLERANCE_SIGMAS
 
         def draw(k, limit, *vector):
-            return torch.randn((n, k, *vector), generator=g, dtype=torch.float64) * (limit * sd)
+            return torch.randn((n, k, *vector), generator=g, dtype=torch.float64, device=HOST) * (limit * sd)
 
         lens_at = lens_surfaces(prescription)
         elements = lens_elements(prescription)

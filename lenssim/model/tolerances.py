@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass, fields
 
 import torch
 
+from ..torch_utils import HOST, tensor_of
 from ..validate import listed, quoted
 
 __all__ = ["Tolerances", "Perturbations", "GRADES", "TOLERANCE_SIGMAS", "COST_SCALE", "FIGURE_TERMS", "grade"]
@@ -120,7 +121,7 @@ class Tolerances:
 
     def figure_slope_rad(self, cost):
         """Expected RMS slope (rad) of the asphere's figure error for slope-departure cost(s) ``cost``."""
-        c = torch.as_tensor(cost, dtype=torch.float64)
+        c = tensor_of(cost, torch.float64)
         return self.figure_floor + self.figure_per_cost * (c.clamp(min=0) / COST_SCALE) ** self.figure_exponent
 
     def sample(self, n: int, *, seed: int) -> "Perturbations":
@@ -132,7 +133,7 @@ class Tolerances:
         s = 1.0 / TOLERANCE_SIGMAS
 
         def draw(shape, limit):
-            z = torch.randn(shape, generator=g, dtype=torch.float64)
+            z = torch.randn(shape, generator=g, dtype=torch.float64, device=HOST)  # the generator's device
             return z * (limit * s)
 
         return Perturbations(
@@ -144,7 +145,8 @@ class Tolerances:
             asphere_tilt_rad=draw((n, 2), self.asphere_tilt_arcmin * ARCMIN_RAD),
             lens_tilt_rad=draw((n, 2), self.lens_tilt_arcmin * ARCMIN_RAD),
             despace_mm=draw((n,), self.despace_um * 1e-3),
-            figure=torch.randn((n, len(FIGURE_TERMS)), generator=g, dtype=torch.float64) / math.sqrt(len(FIGURE_TERMS)),
+            figure=torch.randn((n, len(FIGURE_TERMS)), generator=g, dtype=torch.float64, device=HOST)
+            / math.sqrt(len(FIGURE_TERMS)),
             tolerances=self,
         )
 

@@ -37,7 +37,7 @@ import torch
 from ..checks import check_shape
 from ..model.design import Design
 from ..model.lens import Lens
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor
 from ..validate import check_finite
 
 __all__ = [
@@ -253,8 +253,9 @@ def _disc_mean(a: int, b: int) -> float:
     return 2.0 / (2 * a + b + 2) * ratio
 
 
-_MOMENTS = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in TERMS] for ti in TERMS], dtype=torch.float64)
-_MEANS = torch.tensor([_disc_mean(t.a, t.b) for t in TERMS], dtype=torch.float64)
+_MOMENTS = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in TERMS] for ti in TERMS], dtype=torch.float64,
+                        device=HOST)
+_MEANS = torch.tensor([_disc_mean(t.a, t.b) for t in TERMS], dtype=torch.float64, device=HOST)
 
 
 @lru_cache(maxsize=8)
@@ -262,8 +263,9 @@ def _moments(terms: tuple) -> tuple[torch.Tensor, torch.Tensor]:
     """Disc means of the products of ``terms``' monomials and of each monomial (even in ``rho_t``)."""
     if any(t.c for t in terms):
         raise ValueError("rms_wavefront takes monomials even in rho_t (c = 0)")
-    M = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in terms] for ti in terms], dtype=torch.float64)
-    return M, torch.tensor([_disc_mean(t.a, t.b) for t in terms], dtype=torch.float64)
+    M = torch.tensor([[_disc_mean(ti.a + tj.a, ti.b + tj.b) for tj in terms] for ti in terms], dtype=torch.float64,
+                     device=HOST)
+    return M, torch.tensor([_disc_mean(t.a, t.b) for t in terms], dtype=torch.float64, device=HOST)
 
 
 def rms_wavefront(coeffs: torch.Tensor, piston_removed: bool = False, terms=None) -> torch.Tensor:

@@ -49,6 +49,7 @@ from ..model.camera import Camera
 from ..model.design import Design
 from ..model.tolerances import Perturbations
 from .cost import slope_departure_cost
+from ..torch_utils import HOST, tensor_of
 
 __all__ = ["AS_BUILT_TERMS", "as_built_coefficients", "as_built_surfaces", "nominal_as_built_coefficients",
            "field_points", "figure_heights_mm"]
@@ -68,7 +69,7 @@ def field_points(alpha_deg, azimuths_deg=(0.0, 90.0, 180.0, 270.0)):
         for p in (azimuths_deg if float(a) != 0 else azimuths_deg[:1]):
             al.append(float(a))
             az.append(float(p))
-    return torch.tensor(al, dtype=torch.float64), torch.tensor(az, dtype=torch.float64)
+    return torch.tensor(al, dtype=torch.float64, device=HOST), torch.tensor(az, dtype=torch.float64, device=HOST)
 
 
 def _rot(v: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
@@ -108,7 +109,7 @@ def _perturbed(camera: Camera, design: Design, pert: Perturbations, wavelength_u
         raise ValueError(f"position_factor={lens.position_factor}: the as-built model supports only p = -1 "
                          "(object at infinity)")
     d = design.to(torch.float64)
-    c1, c2 = (torch.as_tensor(c, dtype=torch.float64).reshape(()) for c in lens.curvatures(d["s"]))
+    c1, c2 = (tensor_of(c, torch.float64).reshape(()) for c in lens.curvatures(d["s"]))
     c1 = c1 / (1 + pert.radius_front)
     c2 = c2 / (1 + pert.radius_back)
     n = lens.glass.index(wavelength_um) + pert.index
@@ -174,8 +175,8 @@ def as_built_coefficients(camera: Camera, design: Design, pert: Perturbations, a
     float64 ``(N, F, K, 6)`` (``K`` = 1 with ``wavelength_um``)."""
     lens = camera.lens
     lams = camera.spectrum.wavelengths_um if wavelength_um is None else (wavelength_um,)
-    alpha = torch.as_tensor(alpha_deg, dtype=torch.float64).reshape(-1)
-    phi = torch.deg2rad(torch.as_tensor(azimuth_deg, dtype=torch.float64).reshape(-1))
+    alpha = tensor_of(alpha_deg, torch.float64).reshape(-1)
+    phi = torch.deg2rad(tensor_of(azimuth_deg, torch.float64).reshape(-1))
     d = design.to(torch.float64)
     y = lens.pupil_radius_mm
     N, F = len(pert), alpha.numel()

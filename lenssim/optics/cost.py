@@ -33,7 +33,7 @@ from ..model.design import Design
 from ..model.lens import Lens, LensError
 from ..model.numerics import DEFAULT_NUMERICS
 from ..model.surface_kinds.standard import conic_slope
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
            "slope_departure_cost", "slope_departure_cost_third_order", "asphere_cost", "prescription_costs"]
@@ -190,7 +190,7 @@ def asphere_cost(surface, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> f
     conic's fourth-order term ``Q c^3 / 8``). For a conic it is :func:`surface_cost`; ``NaN`` where the surface is not
     defined out to ``y``."""
     kind = surface.surface_kind
-    c, Q, a4 = (torch.tensor(float(v), dtype=torch.float64) for v in kind.seidel_terms(surface))
+    c, Q, a4 = (torch.tensor(float(v), dtype=torch.float64, device=HOST) for v in kind.seidel_terms(surface))
     r = _radii(y_mm, n_points, c)
     target = kind.slope(surface, r)
     k = _fit_sphere(target, r, y_mm, c + 0.3 * (Q * c**3 + 8 * a4) * y_mm**2)
@@ -236,11 +236,11 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
         out_dtype = v.dtype if out_dtype is None else torch.promote_types(out_dtype, v.dtype)
     d64 = design.to(torch.float64).broadcast()
     lens.check_design(d64)
-    total = None
+    total, device = None, d64["s"].device
     for surf in lens.surfaces(d64):
         if surf.aspheric:
-            c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64),
-                                           as_tensor(surf.conic, dtype=torch.float64))
+            c, Q = torch.broadcast_tensors(as_tensor(surf.curvature, dtype=torch.float64, device=device),
+                                           as_tensor(surf.conic, dtype=torch.float64, device=device))
             cost = surface_cost(c, Q, surf.semi_aperture_mm or lens.pupil_radius_mm, n_points)
             if not bool(torch.isfinite(cost).all()):
                 bad = int(torch.nonzero(~torch.isfinite(cost.reshape(-1)))[0])
@@ -251,7 +251,7 @@ def slope_departure_cost(lens: Lens, design: Design, n_points: int = DEFAULT_COS
                                                   f"the conic {surf.conic_name}") + ")")
             total = cost if total is None else total + cost
     if total is None:
-        total = torch.zeros(d64.shape, dtype=torch.float64)
+        total = torch.zeros(d64.shape, dtype=torch.float64, device=device)
     return total.to(out_dtype or torch.float64)
 
 

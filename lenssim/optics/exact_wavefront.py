@@ -36,6 +36,7 @@ from .aberrations import Term, pupil_monomials
 from ..model.camera import Camera
 from ..model.design import Design
 from .raytrace import opd
+from ..torch_utils import HOST
 
 __all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "pupil_quadrature", "opd_rms_waves",
            "fit_exact_terms", "lens_exact_coefficients"]
@@ -53,11 +54,11 @@ QUADRATURE_SPOKES = 48
 @lru_cache(maxsize=4)
 def pupil_quadrature(n_rings: int = QUADRATURE_RINGS, n_spokes: int = QUADRATURE_SPOKES):
     """Pupil points and area weights of the unit disc: ``(rho_r, rho_t, weight)``, float64 ``(P,)`` each, the
-    weights summing to 1 (Gauss-Legendre in ``rho^2`` times the trapezoid rule in azimuth)."""
+    weights summing to 1 (Gauss-Legendre in ``rho^2`` times the trapezoid rule in azimuth), on :data:`HOST` (cached)."""
     x, w = np.polynomial.legendre.leggauss(n_rings)
-    r = torch.tensor(np.sqrt((x + 1) / 2), dtype=torch.float64)
-    wr = torch.tensor(w / 2, dtype=torch.float64)
-    th = torch.arange(n_spokes, dtype=torch.float64) * (2 * math.pi / n_spokes)
+    r = torch.tensor(np.sqrt((x + 1) / 2), dtype=torch.float64, device=HOST)
+    wr = torch.tensor(w / 2, dtype=torch.float64, device=HOST)
+    th = torch.arange(n_spokes, dtype=torch.float64, device=HOST) * (2 * math.pi / n_spokes)
     R, T = torch.meshgrid(r, th, indexing="ij")
     weight = (wr[:, None] / n_spokes).expand_as(R).flatten()
     return (R * torch.cos(T)).flatten(), (R * torch.sin(T)).flatten(), weight
@@ -115,7 +116,7 @@ def lens_exact_coefficients(seq, angles_deg, wavelengths_um) -> torch.Tensor:
     the chief ray, the lateral colour kept as a tilt). Raises ``ValueError`` where a ray cannot be traced."""
     rr, rt, wt = pupil_quadrature()
     lam0 = seq.primary_wavelength_um
-    zero = torch.zeros(1, dtype=torch.float64)
+    zero = torch.zeros(1, dtype=torch.float64, device=HOST)
     rows = []
     for a in angles_deg:
         a = float(a)

@@ -23,6 +23,7 @@ from functools import lru_cache
 
 import torch
 
+from ..torch_utils import HOST, as_tensor
 from ..validate import check_snr_db
 
 __all__ = ["PSD_MODELS", "psd_continuous", "image_psd", "image_psd_quarter", "noise_variance"]
@@ -51,7 +52,7 @@ def _even_dft_quarter(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
 def _lattice_correlation(rho0: float):
     """``rho0^|m|`` on the integer lattice ``|m_i| <= L`` with ``rho0^L < 1e-13`` (float64, CPU), and ``L``."""
     L = int(math.ceil(math.log(1e-13) / math.log(rho0)))
-    m = torch.arange(-L, L + 1, dtype=torch.float64)
+    m = torch.arange(-L, L + 1, dtype=torch.float64, device=HOST)
     return rho0 ** torch.hypot(m[:, None], m[None, :]), L
 
 
@@ -60,15 +61,15 @@ def _psd_quarter_cached(n: int, rho0: float, model: str) -> torch.Tensor:
     """``P_x`` on the quarter plane ``0..n/2`` x ``0..n/2`` (float64, CPU); memory ``O(n^2 / 4)``."""
     h = n // 2
     if model == "continuous":
-        k = torch.arange(h + 1, dtype=torch.float64) / n
+        k = torch.arange(h + 1, dtype=torch.float64, device=HOST) / n
         return psd_continuous(torch.hypot(k[:, None], k[None, :]), rho0)
     corr, L = _lattice_correlation(rho0)
     # fold the lattice correlation modulo n (it is even, so the folded one is too) and keep 0..n/2
-    r = torch.remainder(torch.arange(-L, L + 1), n)
+    r = torch.remainder(torch.arange(-L, L + 1, device=HOST), n)
     keep = r <= h
     idx = r[keep]
-    folded = torch.zeros(2 * L + 1, h + 1, dtype=torch.float64).index_add_(1, idx, corr[:, keep])
-    folded = torch.zeros(h + 1, h + 1, dtype=torch.float64).index_add_(0, idx, folded[keep])
+    folded = torch.zeros(2 * L + 1, h + 1, dtype=torch.float64, device=HOST).index_add_(1, idx, corr[:, keep])
+    folded = torch.zeros(h + 1, h + 1, dtype=torch.float64, device=HOST).index_add_(0, idx, folded[keep])
     if n % 2:
         raise ValueError(f"n={n} is not allowed here: the quarter-plane spectrum needs an even size")
     return _even_dft_quarter(_even_dft_quarter(folded, n, 1), n, 0)
@@ -101,17 +102,17 @@ def image_psd(n: int, rho0: float, *, model: str = "discrete", dtype=torch.float
     if not (isinstance(n, int) and n >= 2 and n % 2 == 0):
         raise ValueError(f"n={n!r} is not allowed: an even integer >= 2")
     q = image_psd_quarter(n, rho0, model=model, dtype=torch.float64)
-    k = torch.arange(n)
+    k = torch.arange(n, device=HOST)
     fold = torch.minimum(k, n - k)
     return q[fold][:, fold].to(dtype=dtype, device=device)
 
 
-def noise_variance(snr_db) -> torch.Tensor:
-    """``sigma_w^2 = 10^(-SNR/10)`` for SNR in dB (signal power 1), SNR within :data:`SNR_DB_RANGE`.
+def noise_variance(snr_db, *, device=None) -> torch.Tensor:
+    """``sigma_w^2 = 10^(-SNR/10)`` for SNR in dB (signal power 1), SNR within :data:`SNR_DB_RANGE`, float64 on
+    ``device`` (default: ``snr_db``'s, the CPU for numbers).
 
     Outside :data:`SNR_DB_VALIDATED` (where the numerics' convergence was checked) a
     :class:`ModelValidityWarning` says so.
     """
     check_snr_db(snr_db)
-    snr = torch.as_tensor(snr_db, dtype=torch.float64)
-    return 10 ** (-snr / 10)
+    return 10 ** (-as_tensor(snr_db, dtype=torch.float64, device=device) / 10)

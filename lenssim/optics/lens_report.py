@@ -23,6 +23,7 @@ import math
 import torch
 
 from .sequential import SequentialLens
+from ..torch_utils import HOST
 
 __all__ = ["lens_report", "field_quality", "REPORT_GRID", "PSF_PADDING", "DEFAULT_MTF_FREQUENCIES_CPMM",
            "MAX_PHASE_STEP_WAVES", "MAX_REPORT_GRID"]
@@ -41,7 +42,7 @@ DEFAULT_MTF_FREQUENCIES_CPMM = (10.0, 30.0, 50.0)
 
 
 def _square_pupil(n: int):
-    g = (torch.arange(n, dtype=torch.float64) + 0.5) / n * 2 - 1
+    g = (torch.arange(n, dtype=torch.float64, device=HOST) + 0.5) / n * 2 - 1
     Y, X = torch.meshgrid(g, g, indexing="ij")
     return X, Y, X**2 + Y**2 <= 1
 
@@ -53,8 +54,8 @@ def _pupil_phase(seq: SequentialLens, field: float, lam: float, grid: int):
     w = seq.wavefront(field, X[inside], Y[inside], lam)
     if not bool(w.valid.any()):
         raise ValueError(f"field {field:g}: every ray is vignetted")
-    amp = torch.zeros(grid, grid, dtype=torch.float64)
-    phase = torch.zeros(grid, grid, dtype=torch.float64)
+    amp = torch.zeros(grid, grid, dtype=torch.float64, device=X.device)
+    phase = torch.zeros(grid, grid, dtype=torch.float64, device=X.device)
     idx = torch.nonzero(inside, as_tuple=True)
     v = w.valid
     amp[idx[0][v], idx[1][v]] = 1.0
@@ -91,7 +92,7 @@ def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MT
                                    f"{grid} x {grid} pupil grid (at most {MAX_PHASE_STEP_WAVES:g} resolves the PSF): "
                                    "the blur is too large for a diffraction PSF; no Strehl ratio or MTF"}
     m = grid * PSF_PADDING
-    pupil = torch.zeros(m, m, dtype=torch.complex128)
+    pupil = torch.zeros(m, m, dtype=torch.complex128, device=amp.device)
     pupil[:grid, :grid] = amp * torch.exp(2j * math.pi * phase)
     field_ = torch.fft.fft2(pupil)
     psf = field_.real**2 + field_.imag**2

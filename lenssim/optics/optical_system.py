@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 import torch
 
 from .paraxial import seidel_surface_sums
+from ..torch_utils import tensor_of
 
 __all__ = ["OpticalSystem", "surface_seidel_sums"]
 
@@ -72,7 +73,7 @@ def surface_seidel_sums(system: OpticalSystem, design, alpha, wavelength_um: flo
     if system.stop_index != 0:
         raise ValueError("surface_seidel_sums puts the stop at the first surface; this system's stop is at surface "
                          f"{system.stop_index}")
-    alpha = torch.as_tensor(alpha, dtype=torch.float64)
+    alpha = tensor_of(alpha, torch.float64)
     y = system.pupil_radius_mm
     u = torch.full_like(alpha, -y * object_vergence_per_mm)
     s = seidel_surface_sums(system.surfaces(design, wavelength_um), torch.full_like(alpha, y), u,

@@ -24,6 +24,7 @@ from __future__ import annotations
 import torch
 
 from ..model.surface import Surface  # the model's data type, re-exported here
+from ..torch_utils import tensor_of
 
 __all__ = ["Surface", "seidel_surface_sums"]
 
@@ -50,9 +51,9 @@ def seidel_surface_sums(surfaces, h, u, hbar, ubar, n_object: float = 1.0) -> to
         S2 = -A * Ab * h * d_un + asph * h**3 * hbar
         S3 = -Ab**2 * h * d_un + asph * h**2 * hbar**2
         S4 = -H**2 * c * (1 / n2 - 1 / n)
-        S5 = torch.where(torch.as_tensor(A) != 0, Ab / A * (S3 - asph * h**2 * hbar**2 + S4), torch.zeros(()))
+        S5 = torch.where(tensor_of(A) != 0, Ab / A * (S3 - asph * h**2 * hbar**2 + S4), 0.0)
         S5 = S5 + asph * h * hbar**3
-        terms = torch.broadcast_tensors(*(torch.as_tensor(t) for t in (S1, S2, S3, S4, S5)))
+        terms = torch.broadcast_tensors(*(tensor_of(t) for t in (S1, S2, S3, S4, S5)))
         step = torch.stack(terms, dim=-1)
         total = step if total is None else total + step
         h = h + surf.thickness_after_mm * u2

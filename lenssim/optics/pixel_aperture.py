@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from .psf_provider import DerivedPSF, PSFProvider
+from ..torch_utils import tensor_of
 
 __all__ = ["pixel_aperture_side_px", "pixel_aperture_mtf", "apply_pixel_aperture", "PixelAperturePSF"]
 
@@ -65,7 +66,7 @@ class PixelAperturePSF(DerivedPSF):
         return e + 2 if e else 0
 
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
-        e = torch.as_tensor(self.base.extents_px(rows, cols, optical_center)).to(torch.int64)
+        e = tensor_of(self.base.extents_px(rows, cols, optical_center)).to(torch.int64)
         return torch.where(e > 0, e + 2, e)
 
     def derivation(self) -> str:

@@ -39,7 +39,7 @@ from ..model.camera import Camera
 from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
-from ..torch_utils import as_tensor
+from ..torch_utils import HOST, as_tensor
 from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
@@ -90,8 +90,8 @@ def nice_fft_size(n: int, multiple: int = 16) -> int:
 
 @lru_cache(maxsize=8)
 def _polar_probe(n_r: int = 33, n_t: int = 72):
-    r = torch.linspace(0, 1, n_r, dtype=torch.float64)
-    t = torch.linspace(0, 2 * math.pi, n_t + 1, dtype=torch.float64)[:-1]
+    r = torch.linspace(0, 1, n_r, dtype=torch.float64, device=HOST)
+    t = torch.linspace(0, 2 * math.pi, n_t + 1, dtype=torch.float64, device=HOST)[:-1]
     R, T = torch.meshgrid(r, t, indexing="ij")
     return (R * torch.cos(T)).flatten(), (R * torch.sin(T)).flatten()
 
@@ -160,7 +160,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
         r_per_n = camera.pupil_radius_px(1, lam)  # pupil radius (samples) per unit N
         n_phase = G / (0.5 * fill) / r_per_n
         n_psf = 2 * camera.geometric_radius_px(G, lam) / fill + numerics.margin_px
-        nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype))
+        nk = torch.maximum(torch.maximum(n_phase, n_psf), torch.tensor(float(numerics.min_size), dtype=G.dtype, device=G.device))
         need = nk if need is None else torch.maximum(need, nk)
         needs.append(nk)
     if not bool(torch.isfinite(need).all()):
@@ -176,7 +176,7 @@ def fft_size(camera: Camera, coeffs: torch.Tensor, numerics: Numerics = DEFAULT_
     if per_wavelength:
         need = torch.stack(needs, dim=-1)
     sizes = sorted({nice_fft_size(int(math.ceil(v))) for v in need.flatten().tolist()})
-    table = torch.tensor(sizes, dtype=torch.float64)
+    table = torch.tensor(sizes, dtype=torch.float64, device=need.device)
     idx = torch.searchsorted(table, need.to(torch.float64).flatten().contiguous())
     return table[idx].to(torch.int64).reshape(need.shape)
 
@@ -197,7 +197,7 @@ def _coverage(yv: torch.Tensor, xv: torch.Tensor, radius: float, supersample: in
     rim = (r - radius).abs() < RIM_REACH
     if rim.any():
         iy, ix = torch.nonzero(rim, as_tuple=True)
-        sub = (torch.arange(supersample, dtype=torch.float64) + 0.5) / supersample - 0.5
+        sub = (torch.arange(supersample, dtype=torch.float64, device=yv.device) + 0.5) / supersample - 0.5
         py = yv[iy][:, None, None] + sub[None, :, None]
         px = xv[ix][:, None, None] + sub[None, None, :]
         amp[iy, ix] = ((py**2 + px**2) <= radius**2).to(torch.float64).mean(dim=(1, 2))
@@ -220,7 +220,7 @@ def _radius(camera: Camera, n: int, wavelength_um: float) -> float:
 @lru_cache(maxsize=4)
 def _pupil_cached(n: int, radius: float, supersample: int):
     """Anti-aliased pupil amplitude on the DFT grid (origin at index 0), float64 CPU ``(n, n)``."""
-    k = torch.arange(n, dtype=torch.float64)
+    k = torch.arange(n, dtype=torch.float64, device=HOST)
     x = torch.where(k < n / 2, k, k - n)
     return _coverage(x, x, radius, supersample), x
 
@@ -243,7 +243,7 @@ def pupil_amplitude(camera: Camera, n: int, wavelength_um: float | None = None, 
 def _pupil_box_cached(radius: float, supersample: int):
     """Anti-aliased pupil on its bounding box only: coordinates ``-m..m`` samples, ``m = ceil(R + 0.71)``."""
     m = int(math.ceil(radius + RIM_REACH))
-    x = torch.arange(-m, m + 1, dtype=torch.float64)
+    x = torch.arange(-m, m + 1, dtype=torch.float64, device=HOST)
     return _coverage(x, x, radius, supersample), x / radius
 
 
@@ -379,7 +379,7 @@ def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, 
     common = given[0].dtype if given else torch.float64
     for v in given[1:]:
         common = torch.promote_types(common, v.dtype)
-    x, y = (as_tensor(v, dtype=common) for v in (x_mm, y_mm))
+    x, y = (as_tensor(v, dtype=common, device=given[0].device if given else None) for v in (x_mm, y_mm))
     design = design.to(common)
     shape = torch.broadcast_shapes(x.shape, y.shape, design.shape)
     x, y = x.expand(shape), y.expand(shape)
@@ -426,8 +426,8 @@ def _quarter_basis_compute(n: int, radius: float, supersample: int, terms=None):
     h = n // 2
     ry = int(math.floor(radius + 0.5))
     cx = min(h, int(math.ceil(radius + RIM_REACH)))
-    yv = torch.arange(-ry, ry + 1, dtype=torch.float64)
-    xv = torch.arange(0, cx + 1, dtype=torch.float64)
+    yv = torch.arange(-ry, ry + 1, dtype=torch.float64, device=HOST)
+    xv = torch.arange(0, cx + 1, dtype=torch.float64, device=HOST)
     a = _coverage(yv, xv, radius, supersample)
     area = 2 * a.sum() - a[:, 0].sum()  # the x < 0 half mirrors x > 0
     basis = pupil_monomials((yv / radius)[:, None], (xv / radius)[None, :], *(() if terms is None else (terms,)))

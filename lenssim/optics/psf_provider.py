@@ -26,6 +26,7 @@ from ..model.camera import Camera
 from ..model.design import Design
 from ..model.geometry import FieldGeometry
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
+from ..torch_utils import HOST, tensor_of
 from .psf_bank import max_wavefront_slope, pedestal_fraction, spectral_coefficients
 from .wavefront_models import validate_wavefront_model
 
@@ -74,8 +75,9 @@ class PSFProvider:
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Diameter (px) of the PSF support at each position, ``(P,)`` int64 (0 if unknown): here
         :meth:`extent_px` everywhere; a provider that knows how its PSFs grow over the field says so."""
-        rows = torch.as_tensor(rows)
-        return torch.full((rows.numel(),), int(self.extent_px(rows, cols, optical_center)), dtype=torch.int64)
+        rows = tensor_of(rows)
+        return torch.full((rows.numel(),), int(self.extent_px(rows, cols, optical_center)), dtype=torch.int64,
+                          device=rows.device)
 
 
 class DerivedPSF(PSFProvider):
@@ -158,7 +160,7 @@ class _CameraPSF(PSFProvider):
     @staticmethod
     def _radius_px(cam: Camera, slopes: torch.Tensor) -> torch.Tensor:
         """The largest geometric radius (px) over ``cam``'s wavelengths for the wavefront slopes ``(P, K)``."""
-        lam = torch.tensor(cam.spectrum.wavelengths_um, dtype=torch.float64)
+        lam = torch.tensor(cam.spectrum.wavelengths_um, dtype=torch.float64, device=slopes.device)
         return cam.geometric_radius_px(slopes.to(torch.float64), lam).amax(dim=-1)
 
     def extent_px(self, rows, cols, optical_center) -> int:
@@ -197,8 +199,7 @@ class LensPSF(_CameraPSF):
         return self.design.map(lambda v: torch.full_like(t, float(v.reshape(()))))
 
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
-        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows).to(device), torch.as_tensor(cols).to(device),
-                                              optical_center)
+        x_mm, y_mm = self.geometry.offsets_mm(tensor_of(rows).to(device), tensor_of(cols).to(device), optical_center)
         return validate_wavefront_model(self.wavefront).psfs(self, x_mm, y_mm, n, centered, dtype)
 
     def fingerprint(self) -> str:
@@ -209,7 +210,7 @@ class LensPSF(_CameraPSF):
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """Geometric PSF diameter (px) at each position, ``(P,)`` int64: ``2 G lambda f / (y Delta)`` with ``G`` the
         largest wavefront slope over the pupil (largest over the wavelengths), rounded up, + the margin."""
-        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
+        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
         # the support depends on the field angle only: each angle once (a frame's mirror-image windows share theirs)
         a, inv = torch.unique(self.geometry.field_angle_deg(x_mm, y_mm).flatten(), return_inverse=True)
         half = torch.zeros_like(a, dtype=torch.float64)
@@ -239,7 +240,7 @@ class FunctionPSF(PSFProvider):
 
     def psf_at_pixels(self, rows, cols, optical_center, n, *, centered=True, dtype=None, device=None):
         x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
-        p = torch.as_tensor(self.fn(x_mm, y_mm, n))
+        p = tensor_of(self.fn(x_mm, y_mm, n))
         expect = (len(x_mm), n, n) if self.channels == 1 else (len(x_mm), self.channels, n, n)
         if tuple(p.shape) != expect:
             raise ValueError(f"PSF function returned shape {tuple(p.shape)}: expected {expect}")
@@ -282,7 +283,7 @@ class AsBuiltPSF(_CameraPSF):
         from .as_built import AS_BUILT_TERMS
         from .psf_bank import psf
 
-        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
+        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
         out = []
         for cam in self.quadrature_camera.channel_cameras():
             c, az = self._coeffs(cam, x_mm, y_mm)
@@ -301,8 +302,8 @@ class AsBuiltPSF(_CameraPSF):
         wavelength) + the margin, ``(P,)`` int64."""
         from .as_built import AS_BUILT_TERMS
 
-        x_mm, y_mm = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
-        half = torch.zeros(x_mm.numel(), dtype=torch.float64)
+        x_mm, y_mm = self.geometry.offsets_mm(rows, cols, optical_center)
+        half = torch.zeros(x_mm.numel(), dtype=torch.float64, device=HOST)  # as the coefficients (_coeffs)
         for cam in self._support_cameras():
             c, _ = self._coeffs(cam, x_mm, y_mm)  # (P, K, T)
             half = torch.maximum(half, self._radius_px(cam, max_wavefront_slope(c, AS_BUILT_TERMS)))

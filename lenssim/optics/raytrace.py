@@ -21,6 +21,7 @@ from ..model.lens import Lens
 from ..model.surface import Surface
 from ..model.surface_kinds import conic_intersection, sag_normal
 from ..model.surface_kinds.standard import conic_sag
+from ..torch_utils import HOST
 
 __all__ = ["trace_rays", "trace_rays_opl", "transverse_aberration", "surface_frame", "opd"]
 
@@ -46,15 +47,18 @@ def _refract(d, N, n1, n2):
     return mu * d + (torch.sqrt(k) - mu * cos_i) * N
 
 
-def surface_frame(surf: Surface, z_vertex_mm: float, dtype=torch.float64):
+def surface_frame(surf: Surface, z_vertex_mm: float, dtype=torch.float64, device=None):
     """``(origin (3,), R (3, 3))`` of a surface's own frame: a point ``X`` of the system is ``R^T (X - origin)``
     in the surface's frame. ``origin`` is the nominal vertex ``(0, 0, z)`` plus the decentre; ``R`` the tilt
-    (about x by ``tx``, then about y by ``ty``)."""
+    (about x by ``tx``, then about y by ``ty``); on ``device`` (default :data:`lenssim.torch_utils.HOST`)."""
     dx, dy = surf.decentre_mm
     tx, ty = (math.radians(v) for v in surf.tilt_deg)
-    rx = torch.tensor([[1, 0, 0], [0, math.cos(tx), -math.sin(tx)], [0, math.sin(tx), math.cos(tx)]], dtype=dtype)
-    ry = torch.tensor([[math.cos(ty), 0, math.sin(ty)], [0, 1, 0], [-math.sin(ty), 0, math.cos(ty)]], dtype=dtype)
-    return torch.tensor([dx, dy, z_vertex_mm], dtype=dtype), ry @ rx
+    device = device or HOST
+    rx = torch.tensor([[1, 0, 0], [0, math.cos(tx), -math.sin(tx)], [0, math.sin(tx), math.cos(tx)]], dtype=dtype,
+                      device=device)
+    ry = torch.tensor([[math.cos(ty), 0, math.sin(ty)], [0, 1, 0], [-math.sin(ty), 0, math.cos(ty)]], dtype=dtype,
+                      device=device)
+    return torch.tensor([dx, dy, z_vertex_mm], dtype=dtype, device=device), ry @ rx
 
 
 def trace_rays_opl(surfaces: list[Surface], starts: torch.Tensor, direction: torch.Tensor, n_object: float = 1.0):
@@ -74,7 +78,7 @@ def trace_rays_opl(surfaces: list[Surface], starts: torch.Tensor, direction: tor
     for surf in surfaces:
         c = torch.as_tensor(surf.curvature, dtype=P.dtype, device=P.device)
         kap = torch.as_tensor(surf.conic, dtype=P.dtype, device=P.device)
-        o, R = (v.to(device=P.device, dtype=P.dtype) for v in surface_frame(surf, z_v, P.dtype))
+        o, R = surface_frame(surf, z_v, P.dtype, P.device)
         Pl, dl = (P - o) @ R, d @ R  # into the surface's frame (rows times R = R^T applied)
         Xl, Nl, t = _intersect(Pl, dl, c, kap)
         dl = _refract(dl, Nl, n, surf.n_after)
@@ -103,7 +107,7 @@ def _beam(lens: Lens, alpha_deg: float, rho_r: torch.Tensor, rho_t: torch.Tensor
     y = lens.pupil_radius_mm if pupil_radius_mm is None else pupil_radius_mm
     a = math.radians(alpha_deg)
     starts = torch.stack([rho_t * y, rho_r * y, torch.zeros_like(rho_r)], dim=-1)
-    return starts, torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=rho_r.dtype)
+    return starts, torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=rho_r.dtype, device=rho_r.device)
 
 
 def transverse_aberration(lens: Lens, design: Design, alpha_deg: float, rho_r: torch.Tensor,
@@ -142,7 +146,7 @@ def opd(lens: Lens, design: Design, alpha_deg: float, rho_r: torch.Tensor, rho_t
     starts, direction = _beam(lens, alpha_deg, rho_r, rho_t, pupil_radius_mm)
     t_img = lens.image_distance_mm + float(design["focus_shift_um"]) * 1e-3
     surfs = lens.surfaces(design, wavelength_um) if surfaces is None else surfaces
-    zero = torch.zeros(1, 3, dtype=rho_r.dtype)
+    zero = torch.zeros(1, 3, dtype=rho_r.dtype, device=rho_r.device)
     Pc, dc, Lc = trace_rays_opl(surfs, zero, direction)
     Q = Pc[0] + ((t_img - Pc[0, 2]) / dc[0, 2]) * dc[0]  # the chief ray's image point
     R2 = ((Q - Pc[0]) ** 2).sum()

@@ -98,7 +98,7 @@ def third_order_coefficients(seq: SequentialLens, angles_deg, wavelengths_um) ->
             w111 = -tilt * (y - y0) * toward
             lam_mm = lam * 1e-3
             per.append(torch.stack([S[0] / 8, S[1] / 2, S[2] / 2, (S[2] + S[3]) / 4 + w020,
-                                    torch.tensor(w111, dtype=torch.float64)]) / lam_mm)
+                                    torch.tensor(w111, dtype=torch.float64, device=S.device)]) / lam_mm)
         rows.append(torch.stack(per))
     return torch.stack(rows)
 

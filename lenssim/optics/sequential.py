@@ -57,6 +57,7 @@ from ..model.prescription import Prescription, PrescriptionError
 from ..model.surface import Surface
 from ..model.surface_kinds import NEWTON_ITERATIONS
 from .paraxial import seidel_surface_sums
+from ..torch_utils import HOST
 
 __all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
            "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError"]
@@ -195,7 +196,7 @@ class SequentialLens:
             if dn:
                 offsets[i] = float(dn)
         self.index_offsets = dict(sorted(offsets.items()))
-        self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64)
+        self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64, device=HOST)
         moved = {}
         for i, m in dict(misalignments or {}).items():
             if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(self._glasses):
@@ -211,13 +212,13 @@ class SequentialLens:
         self.misalignments = dict(sorted(moved.items()))
         self._frames = {}  # surface index -> (A (3, 3), b (3,)), float64: a nominal point X goes to A X + b
         for i, m in self.misalignments.items():
-            A = torch.eye(3, dtype=torch.float64)
-            b = torch.zeros(3, dtype=torch.float64)
+            A = torch.eye(3, dtype=torch.float64, device=HOST)
+            b = torch.zeros(3, dtype=torch.float64, device=HOST)
             for one in (m,) if isinstance(m, Misalignment) else m:  # applied in order: X -> R (X - pivot) + pivot + dec
-                R = torch.tensor(one.rotation_matrix(), dtype=torch.float64)
+                R = torch.tensor(one.rotation_matrix(), dtype=torch.float64, device=HOST)
                 pivot = torch.tensor([0.0, 0.0, float(self._z[i]) if one.pivot_z_mm is None else one.pivot_z_mm],
-                                     dtype=torch.float64)
-                dec = torch.tensor([one.decentre_x_mm, one.decentre_y_mm, 0.0], dtype=torch.float64)
+                                     dtype=torch.float64, device=HOST)
+                dec = torch.tensor([one.decentre_x_mm, one.decentre_y_mm, 0.0], dtype=torch.float64, device=HOST)
                 A, b = R @ A, R @ (b - pivot) + pivot + dec
             self._frames[i] = (A, b)
 
@@ -403,7 +404,7 @@ class SequentialLens:
             n_before = 1.0 if i == 0 else surfs[i - 1].n_after
             h_i, u_i = hs[i], (u if i == 0 else us[i - 1])
             hb_i, ub_i = hbs[i], (ubar if i == 0 else ubs[i - 1])
-            t = lambda v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+            t = lambda v: torch.tensor(v, dtype=torch.float64, device=HOST)  # noqa: E731
             rows.append(seidel_surface_sums([surfs[i]], t(h_i), t(u_i), t(hb_i), t(ub_i), n_object=n_before))
         return torch.stack(rows)
 
@@ -434,7 +435,7 @@ class SequentialLens:
             d = dn2 / n2 - dn / n
             rows.append((A * hs[i] * d, Ab * hs[i] * d / ubar))
             n, dn = n2, dn2
-        return torch.tensor(rows, dtype=torch.float64)
+        return torch.tensor(rows, dtype=torch.float64, device=HOST)
 
     # -- real rays ---------------------------------------------------------------------------------------------------
     def _intersect(self, P, d, s, z_v, valid):
@@ -508,10 +509,10 @@ class SequentialLens:
         p = self.prescription
         if p.object_at_infinity:
             a = math.radians(field)
-            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64).expand(x.shape[0], 3)
+            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64, device=x.device).expand(x.shape[0], 3)
             P = torch.stack([x, y, torch.full_like(x, z_start)], dim=-1)
             return P, d, None
-        O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64)
+        O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64, device=x.device)
         target = torch.stack([x, y, torch.zeros_like(x)], dim=-1)
         d = target - O
         P = O.expand_as(d)
@@ -526,7 +527,7 @@ class SequentialLens:
         par = self.paraxial(lam)
         if self.prescription.stop_size == "paraxial":
             return par.stop_radius_mm
-        one = torch.ones(1, dtype=torch.float64)
+        one = torch.ones(1, dtype=torch.float64, device=HOST)
         P, d, o = self.aim(0.0, 0 * one, one, lam, method="paraxial")
         b = self.trace(P, d, lam, upto=self.prescription.stop_index, opl_start=o, vignette=False)
         if not bool(b.valid.all()):
@@ -619,7 +620,7 @@ class SequentialLens:
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         par = self.paraxial(lam)
         n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
-        zero = torch.zeros(1, dtype=torch.float64)
+        zero = torch.zeros(1, dtype=torch.float64, device=px.device)
         P0, d0, o0 = self.aim(field, zero, zero, lam, aim)
         chief = self.trace(P0, d0, lam, opl_start=o0)
         if not bool(chief.valid.all()):
@@ -636,7 +637,7 @@ class SequentialLens:
             if not math.isfinite(z_xp):
                 raise ValueError("reference_mm needs an exit pupil at a finite distance (this lens is telecentric in "
                                  "image space)")
-            Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64)
+            Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64, device=px.device)
         if math.isfinite(z_xp):
             E = cp + ((z_xp - cp[2]) / cd[2]) * cd
             R2 = ((Q - E) ** 2).sum()
@@ -692,7 +693,7 @@ class SequentialLens:
         real beam differs from the paraxial one (pupil aberration)."""
         p = self.prescription
         k = p.stop_index
-        t = torch.linspace(0, 2 * math.pi, AXIAL_RIM_RAYS + 1, dtype=torch.float64)[:-1]
+        t = torch.linspace(0, 2 * math.pi, AXIAL_RIM_RAYS + 1, dtype=torch.float64, device=HOST)[:-1]
         px, py = torch.cos(t), torch.sin(t)
         sd = p.surfaces[k].semi_diameter_mm
         stop_r = self.aimed_stop_radius_mm()
@@ -724,7 +725,7 @@ class SequentialLens:
 
 def pupil_grid(n: int, dtype=torch.float64):
     """Points of an ``n x n`` square grid inside the unit disc (equal area per point): ``(px, py)``."""
-    g = (torch.arange(n, dtype=dtype) + 0.5) / n * 2 - 1
+    g = (torch.arange(n, dtype=dtype, device=HOST) + 0.5) / n * 2 - 1
     Y, X = torch.meshgrid(g, g, indexing="ij")
     inside = X**2 + Y**2 <= 1
     return X[inside], Y[inside]

@@ -53,6 +53,7 @@ from ..model.spectrum import Spectrum, shared_quadrature, shared_wavelengths
 from .psf_bank import nice_fft_size
 from .psf_provider import PSFProvider
 from .sequential import SequentialLens
+from ..torch_utils import HOST, tensor_of
 
 __all__ = ["SequentialPSF", "WavefrontTable", "wavefront_table", "psfs_from_table", "image_scale_mm", "SAMPLINGS",
            "TABLE_GRID", "TABLE_TOLERANCE_WAVES", "MIN_PUPIL_RADIUS_SAMPLES", "chief_point_mm"]
@@ -97,7 +98,7 @@ def _meridional_grid(grid: int):
     """The table's pupil grid: ``grid`` samples from ``-e`` to ``e`` per axis, ``e`` a little beyond the unit disc so
     that interpolation at the rim has samples on both sides. Returns ``(coords (grid,), e)``."""
     e = 1.0 + 2.0 / (grid - 1) * 2
-    return torch.linspace(-e, e, grid, dtype=torch.float64), e
+    return torch.linspace(-e, e, grid, dtype=torch.float64, device=HOST), e
 
 
 def _inpaint(W: torch.Tensor, valid: torch.Tensor, sweeps: int = 3) -> torch.Tensor:
@@ -124,7 +125,7 @@ def _stencil(nodes: torch.Tensor, alpha: torch.Tensor, width: int = 4):
     w = min(width, A)
     j = torch.clamp(torch.searchsorted(nodes, alpha.contiguous(), right=True) - 1, 0, A - 1)
     first = torch.clamp(j - (w // 2 - 1), 0, A - w)
-    idx = first[:, None] + torch.arange(w)[None, :]
+    idx = first[:, None] + torch.arange(w, device=nodes.device)[None, :]
     x = nodes[idx]  # (P, w)
     wts = torch.ones_like(x)
     for i in range(w):
@@ -204,7 +205,7 @@ class WavefrontTable:
 def chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
     """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``(x, y)`` (mm; ``x`` is 0
     for a centred lens, and taken as exactly 0 there)."""
-    zero = torch.zeros(1, dtype=torch.float64)
+    zero = torch.zeros(1, dtype=torch.float64, device=HOST)
     w = seq.wavefront(alpha, zero, zero, lam)
     return (0.0 if seq.is_centred else float(w.chief_mm[0])), float(w.chief_mm[1])
 
@@ -221,13 +222,13 @@ def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: 
     out = []
     for lam in lams:
         w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(chief_x, chief), vignette=False)
-        W = torch.zeros(grid, grid, dtype=torch.float64)
-        V = torch.zeros(grid, grid, dtype=torch.bool)
-        T = torch.zeros(grid, grid, dtype=torch.bool)
+        W = torch.zeros(grid, grid, dtype=torch.float64, device=HOST)
+        V = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
+        T = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
         W[inside] = torch.nan_to_num(w.opd_waves, nan=0.0)
         V[inside] = w.valid
         T[inside] = ~torch.isnan(w.opd_waves)  # traced through the surfaces extended beyond their semi-diameters
-        ratio = torch.full((grid, grid), APERTURE_UNTRACED, dtype=torch.float64)
+        ratio = torch.full((grid, grid), APERTURE_UNTRACED, dtype=torch.float64, device=HOST)
         ratio[inside] = torch.where(T[inside], w.aperture_ratio, torch.full_like(w.aperture_ratio, APERTURE_UNTRACED))
         disc = V & (X**2 + Y**2 <= 1)
         if not bool(disc.any()):
@@ -245,7 +246,7 @@ def wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, i
     docstring); ``progress(k)`` is called with the number of traced maps as they are traced."""
     lams = tuple(float(v) for v in wavelengths_um)
     amax = float(max_angle_deg)
-    nodes = torch.linspace(0, amax, TABLE_INITIAL_NODES if amax > 0 else 1, dtype=torch.float64).tolist()
+    nodes = torch.linspace(0, amax, TABLE_INITIAL_NODES if amax > 0 else 1, dtype=torch.float64, device=HOST).tolist()
     maps: dict[float, tuple] = {}
 
     def trace(a):
@@ -263,9 +264,9 @@ def wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, i
     while todo and len(maps) < max_nodes:
         refine, left = [], 0.0
         for a0, a1 in todo:
-            known = torch.tensor(sorted(maps), dtype=torch.float64)
+            known = torch.tensor(sorted(maps), dtype=torch.float64, device=HOST)
             mid = (a0 + a1) / 2
-            idx, wts = _stencil(known, torch.tensor([mid], dtype=torch.float64))
+            idx, wts = _stencil(known, torch.tensor([mid], dtype=torch.float64, device=HOST))
             stencil = [float(known[i]) for i in idx[0]]
             m = trace(mid)
             e = 0.0
@@ -290,10 +291,10 @@ def wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, i
     K = len(lams)
     W = torch.stack([torch.stack([maps[a][0][k][0] for a in nodes]) for k in range(K)])
     V = torch.stack([torch.stack([maps[a][0][k][1] for a in nodes]) for k in range(K)])
-    spot = torch.tensor([[maps[a][0][k][2] for a in nodes] for k in range(K)], dtype=torch.float64)
-    dist = torch.tensor([maps[a][1] for a in nodes], dtype=torch.float64)
+    spot = torch.tensor([[maps[a][0][k][2] for a in nodes] for k in range(K)], dtype=torch.float64, device=HOST)
+    dist = torch.tensor([maps[a][1] for a in nodes], dtype=torch.float64, device=HOST)
     coords, e = _meridional_grid(grid)
-    return WavefrontTable(lams, torch.tensor(nodes, dtype=torch.float64), coords, e, W, V, spot, dist, err)
+    return WavefrontTable(lams, torch.tensor(nodes, dtype=torch.float64, device=HOST), coords, e, W, V, spot, dist, err)
 
 
 @dataclass(frozen=True)
@@ -452,8 +453,8 @@ class SequentialPSF(PSFProvider):
         from it is never wrong and a PSF it passes is checked again batch by batch (:meth:`check_fft_size`). The pupil
         points are CPU float64 tensors, as every ray of :class:`SequentialLens` (its surfaces are Python floats)."""
         n_rim = EXTENT_PUPIL_POINTS // 2
-        t = torch.arange(n_rim, dtype=torch.float64) * (2 * math.pi / n_rim)
-        g = torch.linspace(-1, 1, math.isqrt(EXTENT_PUPIL_POINTS - n_rim), dtype=torch.float64)
+        t = torch.arange(n_rim, dtype=torch.float64, device=HOST) * (2 * math.pi / n_rim)
+        g = torch.linspace(-1, 1, math.isqrt(EXTENT_PUPIL_POINTS - n_rim), dtype=torch.float64, device=HOST)
         gy, gx = torch.meshgrid(g, g, indexing="ij")
         inside = gx**2 + gy**2 < 1
         px = torch.cat([torch.cos(t), gx[inside]])
@@ -493,8 +494,8 @@ class SequentialPSF(PSFProvider):
     def extents_px(self, rows, cols, optical_center) -> torch.Tensor:
         """PSF diameter (px) at each position: twice the largest distance of a ray's image point from the pixel (every
         wavelength; distortion and lateral colour included), rounded up, + :meth:`margin_px`."""
-        x, y = self.geometry.offsets_mm(torch.as_tensor(rows), torch.as_tensor(cols), optical_center)
-        alpha = self.geometry.field_angle_deg(x, y).reshape(-1)
+        x, y = self.geometry.offsets_mm(rows, cols, optical_center)
+        alpha = self.geometry.field_angle_deg(x, y).reshape(-1).cpu()  # the table's device
         self._check_angles(alpha)
         r = self.table().spot_radius_at(alpha)
         return torch.ceil(2 * r / (self.sensor.pixel_pitch_um * 1e-3)).to(torch.int64) + self.margin_px()
@@ -518,8 +519,8 @@ class SequentialPSF(PSFProvider):
         ``n x n`` grid, a uniform pedestal as in today's model (:meth:`PSFProvider.pedestal_fractions`), so no light
         is lost or moved into the core; ``pedestal=False`` renormalises the support to unit sum instead.
         ``distortion=False``: each PSF about its chief ray's point, not the pixel (:func:`psfs_from_table`)."""
-        r = torch.as_tensor(rows).cpu()
-        c = torch.as_tensor(cols).cpu()
+        r = tensor_of(rows).cpu()
+        c = tensor_of(cols).cpu()
         x, y = self.geometry.offsets_mm(r, c, optical_center)
         x, y = x.reshape(-1), y.reshape(-1)
         alpha = self.geometry.field_angle_deg(x, y)
@@ -548,7 +549,7 @@ class SequentialPSF(PSFProvider):
             self.table() if table is None else table, self.quadrature()[1], alpha_deg, phi_rad, k, self.oversample(),
             self.check_fft_size(k), self.sensor.pixel_pitch_um, self.working_f_number, self.sampling,
             complex_dtype=complex_dtype, distortion=distortion)
-        out = torch.zeros(*small.shape[:-2], n, n, dtype=small.dtype)
+        out = torch.zeros(*small.shape[:-2], n, n, dtype=small.dtype, device=small.device)
         o = n // 2 - k // 2
         if pedestal:
             out += ((1 - captured) / (n * n))[..., None, None]
@@ -575,7 +576,7 @@ def _check_misaligned(phi_rad, distortion: bool) -> None:
     """A misaligned lens (not rotationally symmetric) has PSFs along its ``+y`` field only (image azimuth ``pi/2``;
     other azimuths are :meth:`SequentialLens.rotated`'s ``+y``), about the chief ray's point (its boresight shift is
     not a radial distortion)."""
-    phi = torch.as_tensor(phi_rad, dtype=torch.float64)
+    phi = tensor_of(phi_rad, torch.float64)
     if phi.numel() and bool(((phi - math.pi / 2).abs() > 1e-12).any()):
         raise ValueError("a decentred or tilted lens's PSFs are defined along its +y field only (image azimuth 90 "
                          "deg): take the other azimuths from SequentialLens.rotated")
@@ -612,28 +613,29 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
     P = alpha_deg.numel()
     C = len(channel_weights)
     real = torch.float64 if complex_dtype == torch.complex128 else torch.float32
-    out = torch.zeros(P, C, n, n, dtype=torch.float64)
-    held = torch.zeros(P, C, dtype=torch.float64)
+    dev = table.opd_waves.device
+    out = torch.zeros(P, C, n, n, dtype=torch.float64, device=dev)
+    held = torch.zeros(P, C, dtype=torch.float64, device=dev)
     fine = pitch_um / s
     half = N // 2
     per = max(1, CHUNK_BYTES // (N * N * (16 if complex_dtype == torch.complex128 else 8) * 3))
     lo = half - (n // 2) * s - s // 2
     if lo < 0:
         raise ValueError(f"FFT size {N} is smaller than the {n} px PSF at {s} samples per pixel")
-    rows = (torch.arange(n * s) + (lo - half)) % N  # the window's samples, frequency 0 at index 0
+    rows = (torch.arange(n * s, device=dev) + (lo - half)) % N  # the window's samples, frequency 0 at index 0
     for i0 in range(0, P, per):
         a = alpha_deg[i0:i0 + per].to(torch.float64)
         ph = phi_rad[i0:i0 + per].to(torch.float64)
         m = a.numel()
         dist_um = table.distortion_at(a) * 1e3 if distortion else torch.zeros_like(a)
-        acc = torch.zeros(m, C, n, n, dtype=torch.float64)
+        acc = torch.zeros(m, C, n, n, dtype=torch.float64, device=dev)
         for k, lam in enumerate(table.wavelengths_um):
             wk = [row[k] for row in channel_weights]
             if not any(wk):
                 continue
             R = N * fine / (2 * lam * working_f_number)
             h = int(math.ceil(R)) + 1
-            j = torch.arange(-h, h + 1, dtype=torch.float64) / R
+            j = torch.arange(-h, h + 1, dtype=torch.float64, device=dev) / R
             gy, gx = torch.meshgrid(j, j, indexing="ij")  # pupil [row, col] = [py, px], image-plane frame
             sp, cp = torch.sin(ph)[:, None, None], torch.cos(ph)[:, None, None]
             mx = gx * sp - gy * cp  # the meridional frame of each PSF's azimuth (field along +y)
@@ -658,7 +660,7 @@ def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, 
             for c, w in enumerate(wk):
                 if w:
                     acc[:, c] += w * pix
-        wsum = torch.tensor([sum(row) for row in channel_weights], dtype=torch.float64)
+        wsum = torch.tensor([sum(row) for row in channel_weights], dtype=torch.float64, device=dev)
         inside = acc.sum(dim=(-2, -1))
         held[i0:i0 + m] = inside / wsum
         out[i0:i0 + m] = acc / inside[..., None, None]

@@ -37,6 +37,8 @@ import torch
 
 from lenssim import PSFProvider, image_psd
 
+from lenssim.torch_utils import HOST
+
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
 from ..camera_chain import NoiseModel
 from ..checks import check_image
@@ -143,7 +145,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
         return out  # spectrum: apply_windowed inverse transforms only the core
 
     core = scheme.core
-    levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64).log()
+    levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64, device=HOST).log()  # scalars read one at a time
 
     def restore_per_pixel(patches, otf):
         from kornia.filters import box_blur

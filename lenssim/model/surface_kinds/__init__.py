@@ -27,6 +27,7 @@ import math
 import torch
 
 from ...registry import Registry, import_plugins
+from ...torch_utils import HOST
 
 __all__ = ["SurfaceKind", "SURFACE_KINDS", "register", "ZemaxParmError", "sag_normal", "conic_intersection",
            "NEWTON_ITERATIONS", "INTERSECTION_TOLERANCE_MM", "finite_number"]
@@ -137,7 +138,7 @@ class SurfaceKind:
 
     def sag_mm(self, s, r_mm: float) -> float:
         """The sag (mm) at one height (float64: the prescription's own checks)."""
-        return float(self.sag(s, torch.tensor(float(r_mm) ** 2, dtype=torch.float64))[0])
+        return float(self.sag(s, torch.tensor(float(r_mm) ** 2, dtype=torch.float64, device=HOST))[0])
 
     def intersect(self, s, P, d, valid):
         """Rays from ``P`` along unit ``d`` (``(R, 3)``, the vertex at the origin) onto the surface: ``(X, N, t, ok,
