@@ -87,7 +87,7 @@ def test_sweep_never_overwrites_foreign_files(tiny_cfg, tmp_path):
     [
         ("[grid]\ns = [1, 0, 0.1]\n", "stop=0.0 is below start=1.0"),
         ("[grid]\ns = [0, 1]\n", r"\[start, stop, step\]"),
-        ("[grid]\nq = [0, 1, 0.1]\n", "design parameter 'q' is not known; valid: s, Q_back"),
+        ("[grid]\nq = [0, 1, 0.1]\n", "design parameter 'q' is not known; valid: s .alias E1.bending., Q_back .alias Q, S2.conic."),
         ("[lens]\nrefractive_index = 0.9\n", "refractive_index=0.9"),
         ("[lens]\ncolour = 1\n", "colour"),
         ("[numerics]\nfil = 0.5\n", "unknown key"),

@@ -33,8 +33,9 @@ def test_the_exact_model_takes_every_otf_criterion_from_the_exact_wavefront():
     exact = WAVEFRONT_MODELS["exact"].evaluate(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
     ref = exact_criteria(PAPER_CAMERA, E2E, [27.6], rho0=PAPER_RHO0, numerics=FAST_NUMERICS)
     for k, c in lens_criteria().items():
-        if c.from_otf is not None:
-            torch.testing.assert_close(exact[k], ref[k], rtol=0, atol=0)
+        if c.from_otf is not None or k == "rms_w":  # RMS_W: the exact wavefront's too (a fit of its own: lstsq's
+            # last bit varies between calls)
+            torch.testing.assert_close(exact[k], ref[k].to(exact[k].dtype), rtol=0 if k != "rms_w" else 1e-12, atol=0)
             assert not torch.equal(exact[k], third[k])  # off axis the two wavefronts differ
         else:
             torch.testing.assert_close(exact[k], third[k], rtol=0, atol=0)
