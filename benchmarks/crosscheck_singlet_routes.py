@@ -31,11 +31,10 @@ from pathlib import Path
 import torch
 
 from lenssim import Design
-from lenssim.metrics import exact_criteria
+from lenssim.metrics import evaluate_sequential, exact_criteria
 from lenssim.model.numerics import DEFAULT_NUMERICS
 from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.wavefront_models import validate_wavefront_model
-from lenssim.sequential_metrics import evaluate_sequential
 from lenssim_studies.lens_tradeoff import sequential_provider
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 

@@ -39,7 +39,7 @@ from .optics.exact_wavefront import EXACT_TERMS, lens_exact_coefficients
 from .optics.lens_solves import solve_design
 from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
 from .optics.sequential import SequentialLens
-from .sequential_third_order import third_order_camera
+from .metrics import third_order_camera
 from .torch_utils import tensor_of
 
 __all__ = ["LensThirdOrderCriterion", "LensExactCriterion", "GRADIENT_CRITERIA", "FD_STEP", "F_NUMBER_TOLERANCE"]

@@ -4,7 +4,7 @@
 radius, thickness, conic and index per surface, the image plane's despace; each copy focused at assembly unless
 switched off, :func:`manufactured_lens`) and evaluates each on the nominal lens's sensor, at a few field angles
 (:data:`TOLERANCE_ANGLES`, from the axis to the largest, evenly) with
-:func:`lenssim.sequential_metrics.evaluate_sequential`:
+:func:`lenssim.metrics.evaluate_sequential`:
 
 * ``mse_r``: Wiener-restored with the copy's own PSFs (a camera calibrated per unit);
 * ``mse_r_nominal``: restored with the Wiener filter designed for the nominal lens (a camera that knows only the
@@ -40,7 +40,7 @@ from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, 
                                        perturbed_prescription)
 from .optics.sequential import SequentialLens
 from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
-from .sequential_metrics import evaluate_sequential, evaluation_angles
+from .metrics import evaluate_sequential, evaluation_angles
 from .torch_utils import HOST, tensor_of
 
 __all__ = ["manufactured_lens", "copy_provider", "nominal_criteria", "copy_criteria", "tolerance_angles",

@@ -240,7 +240,7 @@ def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: in
 
 
 def cmd_evaluate_lens(args) -> int:
-    """``lenssim evaluate --lens LENS``: every criterion of any lens (:func:`lenssim.sequential_metrics.evaluate_sequential`)
+    """``lenssim evaluate --lens LENS``: every criterion of any lens (:func:`lenssim.metrics.evaluate_sequential`)
     over its field, on a sensor of ``--pixel-pitch`` (default: the Nyquist pitch ``lambda N_w / 2`` at the primary
     wavelength, point samples, as the paper's camera)."""
     import time
@@ -248,7 +248,7 @@ def cmd_evaluate_lens(args) -> int:
     from lenssim import select_device
     from lenssim.criteria import CRITERIA
     from lenssim.io.files import json_text
-    from lenssim.sequential_metrics import EVALUATION_FIELDS, evaluate_sequential
+    from lenssim.metrics import EVALUATION_FIELDS, evaluate_sequential
     from lenssim_studies.paper import PAPER_RHO0
 
     from .common import numerics_from_args, table

@@ -309,12 +309,11 @@ def score_optima(run: LensGradientRun, res: dict) -> list[dict | None]:
     """Every criterion (the run's wavefront model, each SNR of the run) at each level's optimum and then the
     unconstrained one: ``{"rms_w", "mse_s": [...], "mse_r": [...], "strehl", "mtf50", "cost"}`` (None where no start
     succeeded), as the grid route and ``evaluate`` score: third order with the FFT sizes
-    :func:`lenssim.sequential_third_order.evaluate_third_order` chooses; exact by
-    :func:`lenssim.sequential_metrics.evaluate_sequential` (the real-ray PSF tables, point samples, at the file's
+    :func:`lenssim.metrics.evaluate_third_order` chooses; exact by
+    :func:`lenssim.metrics.evaluate_sequential` (the real-ray PSF tables, point samples, at the file's
     angles). Each optimum's ``value`` in ``res`` becomes that score (the descent's own, on the FFT sizes it fixed at
     its start and, for exact, on the degree-8 fit of the OPD over the full pupil, is kept as ``descent_value``)."""
-    from lenssim.sequential_metrics import evaluate_sequential
-    from lenssim.sequential_third_order import evaluate_third_order
+    from lenssim.metrics import evaluate_sequential, evaluate_third_order
 
     from .lens_tradeoff import TRADEOFF_CRITERIA, sequential_provider
 

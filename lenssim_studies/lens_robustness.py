@@ -21,7 +21,7 @@ from pathlib import Path
 
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
-from lenssim.sequential_metrics import evaluation_angles
+from lenssim.metrics import evaluation_angles
 from lenssim.sequential_tolerance import summarise_lens_tolerance
 
 from .chunks import finished_result

@@ -4,7 +4,7 @@ free parameters, every criterion against the asphere cost, and the optima per co
 A :class:`LensTradeoffRun` names the lens, the free parameters (:mod:`lenssim.model.lens_parameters`) with their
 grid values (up to :data:`MAX_GRID_PARAMETERS`), what the design holds (:mod:`lenssim.optics.lens_solves`), the
 sensor and the SNRs. Every design of the grid is solved, checked (its axial beam through every surface) and scored
-by :func:`lenssim.sequential_metrics.evaluate_sequential` (real-ray wavefronts: ``rms_w``, ``mse_s`` and ``mse_r``
+by :func:`lenssim.metrics.evaluate_sequential` (real-ray wavefronts: ``rms_w``, ``mse_s`` and ``mse_r``
 per SNR, ``strehl``, ``mtf50``) and priced by :func:`lenssim.optics.cost.prescription_costs` (``cost``: the sum over
 its aspheric surfaces of the paper's RMS slope departure). A design that cannot be made (crossing surfaces, a solve
 that cannot hold, a beam that misses a surface) is kept, marked invalid with the reason, and never scored.
@@ -39,8 +39,7 @@ from lenssim.model.spectrum import Spectrum
 from lenssim.optics.lens_solves import solve_design
 from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
-from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
-from lenssim.sequential_third_order import evaluate_third_order
+from lenssim.metrics import evaluate_sequential, evaluate_third_order, evaluation_angles
 from lenssim.validate import ModelValidityWarning, check_distinct, check_snr_db
 
 from .chunks import (finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch, resume_chunks,
@@ -147,8 +146,8 @@ class LensTradeoffRun:
     levels: int = 30
     angles: int = TRADEOFF_ANGLES
     wavefront: str = "exact"
-    """``exact`` (real-ray OPD, :func:`lenssim.sequential_metrics.evaluate_sequential`, at :attr:`angles` field angles
-    evenly) or ``third_order`` (the Seidel wavefront, :func:`lenssim.sequential_third_order.evaluate_third_order`, at
+    """``exact`` (real-ray OPD, :func:`lenssim.metrics.evaluate_sequential`, at :attr:`angles` field angles
+    evenly) or ``third_order`` (the Seidel wavefront, :func:`lenssim.metrics.evaluate_third_order`, at
     the prescription's own field angles, point samples: the paper's route)."""
 
     def __post_init__(self):
@@ -240,7 +239,7 @@ class LensTradeoffRun:
         reason."""
         from lenssim.optics.aberrations import TERMS
         from lenssim.optics.psf_bank import fft_size
-        from lenssim.sequential_third_order import third_order_camera
+        from lenssim.metrics import third_order_camera
         from lenssim.validate import ResourceLimitError
 
         seq = SequentialLens(self.prescription)
@@ -264,7 +263,7 @@ def check_psf_sampling(psf: SequentialPSF, numerics: Numerics) -> None:
     """Refuse the pixels of ``psf`` if an aberration-free PSF on them (its diffraction alone) needs more than
     ``numerics.max_fft_size``: its pixel grid, or the finer grid an area sample is computed on (a
     :class:`lenssim.validate.ResourceLimitError`; cheap: no ray is traced)."""
-    from lenssim.sequential_metrics import _grid_size
+    from lenssim.metrics import _grid_size
     from lenssim.validate import ResourceLimitError
 
     n = _grid_size(psf, psf.margin_px(), numerics)

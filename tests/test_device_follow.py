@@ -125,7 +125,7 @@ def cooke_triplet_psfs():
 @case
 def lens_provider_and_criteria():
     """A provider as the explorer holds one, its wavefront table traced (the tracing is :func:`cooke_triplet_psfs`'s)."""
-    from lenssim.sequential_metrics import evaluate_sequential
+    from lenssim.metrics import evaluate_sequential
     from lenssim_studies.lens_tradeoff import sequential_provider
 
     p, seq = _lens(TEST_SINGLET)

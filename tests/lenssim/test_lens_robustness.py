@@ -16,7 +16,7 @@ from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
-from lenssim.sequential_metrics import evaluation_angles
+from lenssim.metrics import evaluation_angles
 from lenssim.sequential_tolerance import run_lens_tolerance
 from lenssim_studies.lens_robustness import robust_front, robustness_figure
 from lenssim_studies.lens_tradeoff import (LensTradeoffRun, design_prescription, run_lens_tradeoff,

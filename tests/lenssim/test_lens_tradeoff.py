@@ -17,7 +17,7 @@ from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
 from lenssim.optics.lens_solves import solve_design
 from lenssim.optics.sequential import SequentialLens
-from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
+from lenssim.metrics import evaluate_sequential, evaluation_angles
 from lenssim_cli.design import parse_vary
 from lenssim_cli.main import main
 from lenssim_studies.lens_tradeoff import (LensTradeoffRun, front, run_lens_tradeoff, sequential_provider,

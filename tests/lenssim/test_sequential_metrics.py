@@ -1,4 +1,4 @@
-"""The paper's criteria for any lens (lenssim.sequential_metrics), checked against closed forms and against today's
+"""The paper's criteria for any lens (lenssim.metrics.evaluate_sequential), checked against closed forms and against today's
 exact (ray-traced) criteria of the thin singlet."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from lenssim.model.spectrum import Spectrum
 from lenssim.optics.image_model import image_psd, noise_variance
 from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.sequential_psf import SequentialPSF
-from lenssim.sequential_metrics import evaluate_sequential, evaluation_angles
+from lenssim.metrics import evaluate_sequential, evaluation_angles
 
 LAM = 0.55
 N_GLASS = 1.5

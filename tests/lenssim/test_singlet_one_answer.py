@@ -2,7 +2,7 @@
 
 Two routes evaluate the same singlet: the named design's exact route (:func:`lenssim.metrics.exact_criteria`: the
 real-ray OPD of :func:`lenssim.optics.raytrace.opd` fitted by the polynomials of ``EXACT_TERMS``, each PSF by FFT of an
-anti-aliased pupil) and the prescription's (:func:`lenssim.sequential_metrics.evaluate_sequential`: the real-ray OPD of
+anti-aliased pupil) and the prescription's (:func:`lenssim.metrics.evaluate_sequential`: the real-ray OPD of
 :class:`lenssim.optics.sequential.SequentialLens` traced into a table and interpolated, each PSF by FFT of a
 hard-edged pupil, windowed). Asked for the same model they agree:
 
@@ -29,13 +29,12 @@ import torch
 
 from lenssim import Design
 from lenssim.io.prescription_file import read_lens
-from lenssim.metrics import exact_criteria
+from lenssim.metrics import evaluate_sequential, exact_criteria
 from lenssim.model.lens_parameters import apply_parameters, parse_parameter
 from lenssim.model.prescription import PrescriptionSurface
 from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
 from lenssim.optics.psf_bank import fft_size as choose_fft_size
 from lenssim.optics.sequential import SequentialLens
-from lenssim.sequential_metrics import evaluate_sequential
 from lenssim_studies.lens_tradeoff import sequential_provider
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 

@@ -1,4 +1,4 @@
-"""The third-order route for any lens (lenssim.optics.seidel_wavefront, lenssim.sequential_third_order; issue 30):
+"""The third-order route for any lens (lenssim.optics.seidel_wavefront, lenssim.metrics.evaluate_third_order; issue 30):
 checked against the paper's closed-form thin-lens model, against real-ray wavefronts of a slow lens, and against a
 numerical integration of the wavefront over the pupil."""
 
@@ -13,12 +13,11 @@ import torch
 
 from lenssim import Design
 from lenssim.io.prescription_file import read_lens
-from lenssim.metrics import evaluate
+from lenssim.metrics import evaluate, evaluate_third_order
 from lenssim.model.numerics import FAST_NUMERICS
 from lenssim.optics.aberrations import TERMS, rms_wavefront
 from lenssim.optics.seidel_wavefront import SEIDEL_TERMS, equivalent_thin_lens, third_order_coefficients
 from lenssim.optics.sequential import SequentialLens, pupil_grid
-from lenssim.sequential_third_order import evaluate_third_order
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 
 SNR = [21.6, 27.6, 33.6]

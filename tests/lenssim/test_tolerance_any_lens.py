@@ -20,7 +20,7 @@ from lenssim.model.surface_tolerances import (SURFACE_GRADES, SurfaceTolerances,
                                               lens_surfaces, perturbed_prescription)
 from lenssim.model.tolerances import GRADES
 from lenssim.optics.sequential import SequentialLens
-from lenssim.sequential_metrics import evaluate_sequential
+from lenssim.metrics import evaluate_sequential
 from lenssim.sequential_tolerance import copy_provider, manufactured_lens, run_lens_tolerance
 from lenssim_cli.lens import lens_provider
 from lenssim_cli.main import main
