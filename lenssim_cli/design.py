@@ -1,5 +1,5 @@
 """``lenssim tradeoff --lens LENS --vary NAME=LO:HI[:STEP] ...``: the paper's cost-performance trade-off on any lens
-(:mod:`lenssim_studies.lens_tradeoff`)."""
+(:mod:`lenssim_studies.tradeoff`)."""
 
 from __future__ import annotations
 
@@ -92,8 +92,8 @@ def cmd_tradeoff(args) -> int:
     from lenssim.torch_utils import select_device
     from lenssim_studies.html import image, markdown, table, write_page
     from lenssim_studies.chunks import finished_result
-    from lenssim_studies.lens_tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
-                                               tradeoff_mismatch, write_design_files)
+    from lenssim_studies.tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
+                                          tradeoff_mismatch, write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
     vary = [parse_vary(v) for v in args.vary]
@@ -269,12 +269,12 @@ def register(sub) -> None:
 
 
 def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, levels) -> int:
-    """``tradeoff --optimise``: the front by iso-cost projected gradient descent (:mod:`lenssim_studies.lens_gradient`)."""
+    """``tradeoff --optimise``: the front by iso-cost projected gradient descent (:mod:`lenssim_studies.tradeoff`)."""
     from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.torch_utils import select_device
     from lenssim_studies.html import image, markdown, table, write_page
-    from lenssim_studies.lens_gradient import (LensGradientRun, gradient_figure, gradient_json, run_lens_gradient,
-                                               score_optima, write_gradient_designs)
+    from lenssim_studies.tradeoff import (LensGradientRun, gradient_figure, gradient_json, run_lens_gradient,
+                                          score_optima, write_design_files)
     from lenssim_studies.paper import PAPER_RHO0
 
     bounds = []
@@ -297,7 +297,7 @@ def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, lev
         res["scores"] = score_optima(run, res)  # every criterion at each optimum
         res |= {"lens": p.name or str(args.lens), "snr_db": list(snr), "hold": list(hold), "pixel_pitch_um": pitch,
                 "sampling": "point", "wavefront": args.wavefront, "angles_deg": list(p.fields)}
-        res["design_files"] = write_gradient_designs(run, res, out / "designs")
+        res["design_files"] = write_design_files(run, res, out / "designs")
         atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Gradient trade-off of {p.name or args.lens}: {args.optimise} over {', '.join(run.names)}"
         fig = gradient_figure(run, res, out, title)

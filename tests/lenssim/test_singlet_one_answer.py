@@ -36,7 +36,7 @@ from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coeffici
 from lenssim.optics.psf_bank import fft_size as choose_fft_size
 from lenssim.optics.sequential import SequentialLens
 from lenssim.sequential_metrics import evaluate_sequential
-from lenssim_studies.lens_tradeoff import sequential_provider
+from lenssim_studies.tradeoff import sequential_provider
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 
 ANGLES = (0.0, 7.0, 14.0)
