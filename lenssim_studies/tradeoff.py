@@ -10,25 +10,15 @@ interpolated from the sweep grid with bicubic splines along the curve (sampled e
 is refined by a parabola through the three best samples (see ``docs/reproduction.md``). The "minimal cost for a given
 quality" view is the same set of curves read the other way: :func:`min_cost_for_quality`.
 
-**Any lens** (issue 30, item 4; ``lenssim tradeoff --lens``): a :class:`LensTradeoffRun` names the lens, the free
-parameters (:mod:`lenssim.model.lens_parameters`) with their grid values (up to :data:`MAX_GRID_PARAMETERS`), what
-the design holds (:mod:`lenssim.optics.lens_solves`), the sensor and the SNRs. Every design of the grid is solved,
-checked (its axial beam through every surface), scored (real-ray wavefronts, or the third-order one: :func:`_evaluate`)
-and priced by :func:`lenssim.optics.cost.prescription_costs` (``cost``: the sum over its aspheric surfaces of the
-paper's RMS slope departure). A design that cannot be made (crossing surfaces, a solve that cannot hold, a beam that
-misses a surface) is kept, marked invalid with the reason, and never scored. The optima per cost level
-(:func:`front`): for each level ``C`` (``levels`` of them, from 0 to the largest valid cost, evenly) the best valid
-design of the grid whose cost is at most ``C`` (where the unconstrained optimum costs more than ``C``, the paper's
-iso-cost optimum to the grid's resolution). For more free parameters than a grid holds, a :class:`LensGradientRun`
-(``tradeoff --optimise``) runs the paper's iso-cost projected gradient descent
-(:func:`lenssim.design_opt.optimise_on_iso_cost`) per cost level from several starts. Both runs are resumable, in
-checksummed chunks (:func:`lenssim_studies.chunks.run_resumable`): a killed run resumes and verifies what it kept.
-
-Reading a trade-off of any lens (``lenssim optimum``, :func:`find_lens_optimum`): the best valid design for one
-criterion, unconstrained or at most a cost, named as ``tradeoff.json`` names them: ``rms_w``, ``mse_s``, ``mse_r``,
-``strehl``, ``mtf50`` and ``cost`` (``mse_s`` and ``mse_r`` at an SNR of the run: the first by default, ``NAME@SNR``
-for another). Ties go to the first design in the grid's order (C order, the last parameter fastest), everywhere, so
-the unconstrained optimum is the one ``tradeoff.json`` lists and ``designs/NAME.toml`` holds.
+**Any lens** (issue 30, item 4; ``lenssim tradeoff --lens``): a :class:`LensTradeoffRun` scores every design of a
+grid of a prescription's free parameters (:func:`_evaluate`: real rays or third order) and prices it
+(:func:`lenssim.optics.cost.prescription_costs`); a design that cannot be made is kept invalid, with the reason.
+Its optima per cost level (:func:`front`) are the best valid designs costing at most each level (the paper's iso-cost
+optimum to the grid's resolution). For more free parameters than a grid holds, a :class:`LensGradientRun`
+(``--optimise``) runs the paper's iso-cost descent (:func:`lenssim.design_opt.optimise_on_iso_cost`) per level from
+several starts. Both runs resume from checksummed chunks (:func:`lenssim_studies.chunks.run_resumable`).
+:func:`find_lens_optimum` reads a trade-off back (``lenssim optimum``). Ties go to the first design in the grid's order
+(C order), everywhere, so the unconstrained optimum is the one ``tradeoff.json`` lists and ``designs/NAME.toml`` holds.
 """
 
 from __future__ import annotations
@@ -71,7 +61,7 @@ __all__ = [
     "PAPER_COST_LEVELS", "iso_cost_curve", "iso_cost_curves", "criteria_of", "tradeoff", "min_cost_for_quality",
     "TradeoffPoint", "find_optimum",
     # any lens: the grid, its front, reading it back
-    "LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json", "tradeoff_figure",
+    "LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json",
     "design_prescription", "write_design_files", "TRADEOFF_CRITERIA", "tradeoff_mismatch", "check_psf_sampling",
     "sequential_provider", "photo_field", "PhotoFieldError", "MAX_GRID_PARAMETERS", "MAX_GRID_DESIGNS",
     "CHUNK_DESIGNS", "TRADEOFF_ANGLES", "WAVEFRONTS", "TRADEOFF_TITLE", "TRADEOFF_FILE", "OPTIMUM_CRITERIA",
@@ -79,7 +69,7 @@ __all__ = [
     "check_max_cost", "resolve_criterion", "find_lens_optimum", "design_file_name", "tradeoff_run_from_dict",
     "rebuild_run", "write_optimum_lens",
     # any lens: the gradient route
-    "LensGradientRun", "run_lens_gradient", "gradient_json", "score_optima", "gradient_figure", "STOP_REASONS",
+    "LensGradientRun", "run_lens_gradient", "gradient_json", "score_optima", "STOP_REASONS",
     "MAX_STARTS", "MAX_STEPS", "TYPICAL_STEPS",
 ]
 
@@ -152,10 +142,11 @@ def iso_cost_curves(lens: Lens, levels, s_values, Q_range=(-10.0, 1.2), *, cost_
     return out
 
 
-def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
+def criteria_of(ds: xr.Dataset, criteria=None, *, first_bare: bool = False) -> dict[str, xr.DataArray]:
     """The sweep's quality criteria as design-space landscapes, ``NAME`` or ``NAME@SNR`` (e.g. ``rms_w``,
     ``mse_s@27.6``): ``criteria`` (names, in that order), default every registered criterion whose role is
-    quality and that the sweep holds."""
+    quality and that the sweep holds. ``first_bare``: a per-SNR criterion at the first SNR is named ``NAME`` (as
+    ``tradeoff.json`` and ``lenssim optimum`` name a trade-off's of any lens)."""
     names = [k for k in quality_criteria() if k in ds] if criteria is None else list(criteria)
     out = {}
     for name in names:
@@ -166,8 +157,8 @@ def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
         if name not in ds:
             raise ValueError(f"criterion {name!r} is not in this sweep; it holds {', '.join(k for k in CRITERIA if k in ds)}")
         if c.per_snr:
-            for snr in ds["snr"].values:
-                out[f"{name}@{snr:g}"] = ds[name].sel(snr=snr)
+            for j, snr in enumerate(ds["snr"].values):
+                out[name if first_bare and j == 0 else f"{name}@{snr:g}"] = ds[name].sel(snr=snr)
         else:
             out[name] = ds[name]
     return out
@@ -176,6 +167,11 @@ def criteria_of(ds: xr.Dataset, criteria=None) -> dict[str, xr.DataArray]:
 def _sense(key: str) -> float:
     """+1 or -1: the sign that makes the landscape ``key`` (``NAME`` or ``NAME@SNR``) one to minimise."""
     return CRITERIA[key.split("@")[0]].sign
+
+
+def _sense_name(key: str) -> str:
+    """``min`` or ``max``: the sense of the landscape ``key`` (``NAME`` or ``NAME@SNR``)."""
+    return CRITERIA[key.split("@")[0]].sense
 
 
 @dataclass
@@ -334,10 +330,7 @@ def find_optimum(ds: xr.Dataset, criterion: str, snr: float | None = None, max_c
     at = dict(zip(dims, idx))
     design = {d: float(ds[d].values[i]) for d, i in at.items()}
     out = {"criterion": criterion, "snr_db": snr, "design": design, "value": float(da.values[idx])}
-    for k, c in lens_criteria().items():
-        if k in ds:
-            v = ds[k][at]
-            out[k] = {f"{s:g}": float(v.sel(snr=s)) for s in ds["snr"].values} if "snr" in v.dims else float(v)
+    out |= _criteria_at(ds, at, [k for k in lens_criteria() if k in ds])
     out["on_grid_boundary"] = bool(any(i in (0, ds.sizes[d] - 1) for d, i in at.items()))
     return out
 
@@ -361,6 +354,15 @@ def check_max_cost(max_cost) -> float | None:
 def _within(cost, limit: float, tolerance=COST_TOLERANCE):
     rel, tol = tolerance
     return cost <= limit * (1 + rel) + tol
+
+
+def _criteria_at(ds: xr.Dataset, at: dict, names) -> dict:
+    """Each criterion of ``names`` at the grid point ``at`` (``{dim: index}``): a number, or ``{"SNR": number}``."""
+    out = {}
+    for k in names:
+        v = ds[k].isel(at)
+        out[k] = {f"{float(s):g}": float(v.sel(snr=s)) for s in ds["snr"].values} if "snr" in v.dims else float(v)
+    return out
 
 
 def _first_best(score: np.ndarray, mask: np.ndarray) -> int:
@@ -488,6 +490,16 @@ class _LensRun:
         return solve_design(self.prescription, {self.parameter(k): v for k, v in design.items()}, hold=self.hold,
                             image=self.image)
 
+    def lens_at(self, design: dict) -> SequentialLens:
+        """The lens of the design ``{name: value}``, its solves applied."""
+        q, shift = self.solve(design)
+        return SequentialLens(q, image_shift_mm=shift)
+
+    def _check_names(self, given) -> None:
+        names = [self.parameter(n).name for n in given]
+        if len(set(names)) != len(names):
+            raise ValueError(f"a free parameter is named twice: {', '.join(names)}")
+
 
 def _evaluate(run: _LensRun, seq: SequentialLens) -> dict:
     """Every criterion of :data:`OPTIMUM_CRITERIA` of the lens ``seq`` as ``run`` scores its designs (its SNRs, pixels,
@@ -575,9 +587,7 @@ class LensTradeoffRun(_LensRun):
         if not 1 <= len(self.vary) <= MAX_GRID_PARAMETERS:
             raise ValueError(f"{len(self.vary)} free parameters are not allowed in a grid sweep: 1 to "
                              f"{MAX_GRID_PARAMETERS}")
-        names = [self.parameter(n).name for n, _ in self.vary]
-        if len(set(names)) != len(names):
-            raise ValueError(f"a free parameter is named twice: {', '.join(names)}")
+        self._check_names(n for n, _ in self.vary)
         for n, v in self.vary:
             if not v or not all(math.isfinite(x) for x in v):
                 raise ValueError(f"--vary {n}: its values must be finite numbers, at least one")
@@ -676,8 +686,7 @@ def _score(run: LensTradeoffRun, i: int) -> dict:
     nan = {"rms_w": math.nan, "mse_s": [math.nan] * S, "mse_r": [math.nan] * S, "strehl": math.nan,
            "mtf50": math.nan, "cost": math.nan, "efl_mm": math.nan}
     try:
-        q, shift = run.solve(run.design(i))
-        seq = SequentialLens(q, image_shift_mm=shift)
+        seq = run.lens_at(run.design(i))
         seq.check_aperture()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ModelValidityWarning)
@@ -817,17 +826,7 @@ def tradeoff_mismatch(ds: xr.Dataset) -> str | None:
 def _criteria_columns(ds: xr.Dataset) -> dict[str, tuple[np.ndarray, str]]:
     """``{name: (values over the grid, flattened; sense)}``: ``rms_w``, ``mse_s`` and ``mse_r`` at each SNR (named
     ``mse_r@27.6`` beyond the first SNR, as ``lenssim optimum`` names them), ``strehl``, ``mtf50``."""
-    out = {}
-    snr = [float(v) for v in ds["snr"].values]
-    for k in TRADEOFF_CRITERIA:
-        v = ds[k].values
-        sense = CRITERIA[k].sense
-        if "snr" in ds[k].dims:
-            for j, s in enumerate(snr):
-                out[k if j == 0 else f"{k}@{s:g}"] = (v[..., j].reshape(-1), sense)
-        else:
-            out[k] = (v.reshape(-1), sense)
-    return out
+    return {k: (v.values.reshape(-1), _sense_name(k)) for k, v in criteria_of(ds, TRADEOFF_CRITERIA, first_bare=True).items()}
 
 
 def _grid_designs(ds: xr.Dataset):
@@ -906,67 +905,6 @@ def tradeoff_json(ds: xr.Dataset, levels: int) -> dict:
     reasons = ds["reason"].values.reshape(-1)
     res["invalid_designs"] = [{"design": design(i), "reason": str(reasons[i])} for i in np.flatnonzero(reasons != "")]
     return res
-
-
-def _cost_figure(panels: list[dict], out_dir: Path, title: str, figsize) -> Path:
-    """Criteria against the asphere cost (png, svg, named ``tradeoff``), one axes per panel ``{"name": the criterion's
-    base name, "snr": its SNR text or None, "sense", "points": (costs, values, label, size), "front": (costs, values,
-    label, step: a staircase), "unconstrained": (cost, value, marker, size) or None, "note": the title's ending}``;
-    the legend on the first."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .figures import _save
-
-    ncol = min(3, len(panels))
-    nrow = math.ceil(len(panels) / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=figsize(nrow, ncol), squeeze=False)
-    for ax, p in zip(axes.flat, panels):
-        c, v, label, size = p["points"]
-        ax.scatter(c, v, s=size, color="0.6", label=label)
-        c, v, label, step = p["front"]
-        if step:
-            ax.step(c, v, where="post", color="C1", label=label)
-        else:
-            ax.plot(c, v, "o-", color="C1", label=label)
-        if p["unconstrained"] is not None:
-            c, v, marker, size = p["unconstrained"]
-            ax.plot([c], [v], marker, ms=size, color="C3", label="unconstrained optimum")
-        unit = CRITERIA[p["name"]].units
-        label = p["name"] if p["snr"] is None else f"{p['name']} at {p['snr']} dB"
-        ax.set_xlabel("asphere cost C_a (RMS slope departure)")
-        ax.set_ylabel(label if unit.startswith("1") else f"{label} ({unit})")
-        ax.set_title(("lower" if p["sense"] == "min" else "higher") + " is better" + p["note"], fontsize=8)
-        ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(panels):]:
-        ax.axis("off")
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return _save(fig, out_dir, "tradeoff")
-
-
-def tradeoff_figure(ds: xr.Dataset, res: dict, out_dir: Path, title: str) -> Path:
-    """Every criterion against the cost: each valid design a dot, the optima per cost level a line (png, svg)."""
-    cost = ds["cost"].values.reshape(-1)
-    valid = ds["valid"].values.reshape(-1)
-    panels = []
-    for name, (v, sense) in _criteria_columns(ds).items():
-        ok = valid & np.isfinite(v)
-        order = np.argsort(cost[ok], kind="stable")
-        c_sorted, v_sorted = cost[ok][order], v[ok][order]
-        best = np.minimum.accumulate(v_sorted) if sense == "min" else np.maximum.accumulate(v_sorted)
-        u = res["unconstrained"][name]
-        base, _, at = name.partition("@")
-        if CRITERIA[base].per_snr:  # the first SNR's column carries the bare name (as lenssim optimum names it)
-            at = at or f"{float(ds['snr'].values[0]):g}"
-        panels.append({"name": base, "snr": at or None, "sense": sense, "note": "",
-                       "points": (cost[valid], v[valid], "grid designs", 8),
-                       "front": (c_sorted, best, "best design at cost <= C_a (the front)", True),
-                       "unconstrained": None if u is None else (u["cost"], u["value"], "o", None)})
-    return _cost_figure(panels, out_dir, title, lambda nrow, ncol: (4.2 * ncol, 3.3 * nrow))
 
 
 # -- any lens: reading a trade-off file back ----------------------------------------------------------------------
@@ -1127,9 +1065,7 @@ def find_lens_optimum(ds: xr.Dataset, criterion: str, snr_db: float | None = Non
     design = {d: float(ds[d].values[k]) for d, k in at.items()}
     out = {"criterion": base, "snr_db": snr, "name": name, "value": float(value.reshape(-1)[i]),
            "cost": float(flat_cost[i]), "design": design, "max_cost": max_cost}
-    for k in OPTIMUM_CRITERIA:
-        v = ds[k].isel(at)
-        out[k] = ({f"{float(s):g}": float(v.sel(snr=s)) for s in ds["snr"].values} if "snr" in v.dims else float(v))
+    out |= _criteria_at(ds, at, OPTIMUM_CRITERIA)
     edge = [d for d, k in at.items() if ds.sizes[d] > 1 and k in (0, ds.sizes[d] - 1)]
     out["on_grid_boundary"] = bool(edge)
     out["boundary_parameters"] = edge
@@ -1257,9 +1193,7 @@ class LensGradientRun(_LensRun):
     def __post_init__(self):
         if not self.bounds:
             raise ValueError("the gradient route needs at least one free parameter")
-        names = [self.parameter(n).name for n, _, _ in self.bounds]
-        if len(set(names)) != len(names):
-            raise ValueError(f"a free parameter is named twice: {', '.join(names)}")
+        self._check_names(n for n, _, _ in self.bounds)
         for n, lo, hi in self.bounds:
             if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
                 raise ValueError(f"--vary {n}: the gradient route needs a range LO:HI with finite LO < HI")
@@ -1491,25 +1425,9 @@ def score_optima(run: LensGradientRun, res: dict) -> list[dict | None]:
         if o is None:
             out.append(None)
             continue
-        q, shift = run.solve(o["design"])
-        r = _evaluate(run, SequentialLens(q, image_shift_mm=shift))
+        r = _evaluate(run, run.lens_at(o["design"]))
         sc = {k: torch.as_tensor(r[k], dtype=torch.float64).tolist() for k in OPTIMUM_CRITERIA}
         out.append(sc)
         v = sc[run.criterion]
         o["descent_value"], o["value"] = o["value"], float(v[0] if isinstance(v, list) else v)
     return out
-
-
-def gradient_figure(run: LensGradientRun, res: dict, out_dir: Path, title: str) -> Path:
-    """The optimised criterion against the asphere cost: every start's end point per level (grey), the best per level
-    (the front, a line), the unconstrained optimum (png, svg)."""
-    ends = [c for c in res["convergence"] if "value" in c]
-    front = [o for o in res["optima"][run.criterion] if o is not None]
-    u = res["unconstrained"][run.criterion]
-    panel = {"name": run.criterion, "snr": f"{run.snr_db[0]:g}" if CRITERIA[run.criterion].per_snr else None,
-             "sense": CRITERIA[run.criterion].sense,
-             "note": "; " + ("real-ray" if run.wavefront == "exact" else "third-order") + " wavefront",
-             "points": ([c["cost"] for c in ends], [c["value"] for c in ends], "each start's end point", 12),
-             "front": ([o["cost"] for o in front], [o["value"] for o in front], "best per cost level", False),
-             "unconstrained": None if u is None else (u["cost"], u["value"], "*", 12)}
-    return _cost_figure([panel], out_dir, title, lambda nrow, ncol: (5.6, 4.0))
