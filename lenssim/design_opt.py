@@ -60,10 +60,6 @@ LENS_PARAMETERS = ("s", "Q_back")
 """The thin lens's two design parameters: the default optimisation vector."""
 
 
-def _scale(names) -> torch.Tensor:
-    return torch.tensor([PARAMETERS[n].step for n in names], dtype=torch.float64, device=HOST)
-
-
 class DifferentiableCriterion:
     """An OTF criterion of :mod:`lenssim.criteria` (field average at one SNR) as a differentiable
     function of ``x``, the values of the design parameters ``names``."""
@@ -159,7 +155,9 @@ def _cost(quality, x, points):
 
 def _scale_of(quality) -> torch.Tensor:
     """Each coordinate's typical step: the quality's own ``scale`` where it has one, else the singlet's grid steps."""
-    return quality.scale if hasattr(quality, "scale") else _scale(quality.names)
+    if hasattr(quality, "scale"):
+        return quality.scale
+    return torch.tensor([PARAMETERS[n].step for n in quality.names], dtype=torch.float64, device=HOST)
 
 
 def _project_to_level(quality, x, level, points, iters=6):
