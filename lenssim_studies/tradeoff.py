@@ -59,7 +59,7 @@ from .sweep import SweepConfig, design_dims
 __all__ = [
     # the singlet's sweep
     "PAPER_COST_LEVELS", "iso_cost_curve", "iso_cost_curves", "criteria_of", "tradeoff", "min_cost_for_quality",
-    "TradeoffPoint", "find_optimum",
+    "find_optimum",
     # any lens: the grid, its front, reading it back
     "LensTradeoffRun", "run_lens_tradeoff", "front", "end_to_end_gain", "tradeoff_json",
     "design_prescription", "write_design_files", "TRADEOFF_CRITERIA", "tradeoff_mismatch", "check_psf_sampling",
@@ -172,15 +172,6 @@ def _sense(key: str) -> float:
 def _sense_name(key: str) -> str:
     """``min`` or ``max``: the sense of the landscape ``key`` (``NAME`` or ``NAME@SNR``)."""
     return CRITERIA[key.split("@")[0]].sense
-
-
-@dataclass
-class TradeoffPoint:
-    criterion: str
-    level: float
-    s: float
-    Q: float
-    value: float
 
 
 def _spline(da: xr.DataArray, dims) -> RectBivariateSpline:
