@@ -5,7 +5,7 @@ angles) run side by side in the same process.
 
     python benchmarks/bench_lens_gradient.py [--starts 4] [--steps 10] [--repeats 3] [--exact-steps 8] [--dense 3]
 
-Then the real-ray route (``tradeoff --optimise --wavefront exact``, :class:`lenssim.lens_design_opt.LensExactCriterion`)
+Then the real-ray route (``tradeoff --optimise --wavefront exact``, :class:`lenssim.design_opt.LensExactCriterion`)
 on the same lens: one gradient timed beside the third-order one, and an unconstrained descent over 4 free parameters
 (E1 and E2 bendings, S7's conic, the focus) from the file's design, its end point checked against a dense grid about
 it (``--dense`` points per parameter over +-1 typical step, every combination): no grid point may be lower.
@@ -23,7 +23,7 @@ import torch
 
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
 from lenssim.io.prescription_file import read_lens
-from lenssim.lens_design_opt import LensExactCriterion, LensThirdOrderCriterion
+from lenssim.design_opt import LensExactCriterion, LensThirdOrderCriterion
 from lenssim.model.lens_parameters import parameter_values, parse_parameter
 from lenssim.model.numerics import FAST_NUMERICS
 from lenssim.optics.sequential import SequentialLens

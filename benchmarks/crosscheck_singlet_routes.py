@@ -35,7 +35,7 @@ from lenssim.metrics import evaluate_sequential, exact_criteria
 from lenssim.model.numerics import DEFAULT_NUMERICS
 from lenssim.optics.sequential import SequentialLens
 from lenssim.optics.wavefront_models import validate_wavefront_model
-from lenssim_studies.lens_tradeoff import sequential_provider
+from lenssim_studies.tradeoff import sequential_provider
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 
 NAMES = ("rms_w", "mse_s", "mse_r", "mtf50", "strehl")

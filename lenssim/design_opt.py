@@ -9,31 +9,55 @@ design, so they carry no gradient). The optimisation vector ``x`` holds the desi
 named in ``names`` (default the paper's ``s``, ``Q_back``); coordinates are scaled by each
 parameter's typical step (:data:`lenssim.model.design.PARAMETERS`: the paper's grid steps, 0.025 in s,
 0.1 in Q) so all parameters move comparably.
+
+
+Any lens (issue 30, item 4: more free parameters than a grid can hold): :class:`LensThirdOrderCriterion` is the same
+criterion of a prescription as a function of the values of its free parameters (:mod:`lenssim.model.lens_parameters`),
+with the solves the designer holds (:mod:`lenssim.optics.lens_solves`). Its chain has two parts:
+
+* ``x -> wavefront coefficients`` (the solves, the paraxial rays, the Seidel sums:
+  :func:`lenssim.optics.seidel_wavefront.third_order_coefficients`): closed-form arithmetic on the prescription's
+  numbers, milliseconds a design. Its Jacobian is taken by central differences (steps of
+  :data:`FD_STEP` of each parameter's typical step; the sums are smooth rational functions of the parameters, so the
+  truncation error is about ``FD_STEP^2`` relative and the rounding error about ``1e-16 / FD_STEP``);
+* ``coefficients -> pupil -> PSF -> OTF -> criterion``: the FFTs, where the work is; differentiated by autograd, the
+  singlet's code (:class:`DifferentiableCriterion`, of which it is a subclass).
+
+The cost ``C_a`` (:func:`lenssim.optics.cost.prescription_costs`, summed over the aspheric surfaces) is
+differentiated by central differences likewise, and :func:`optimise_on_iso_cost` runs on it unchanged. The PSF's
+scale (the working F-number) must not move with ``x``: a design that changes it is refused (hold the focal length:
+``hold=("efl",)``). :class:`LensExactCriterion` is the same chain on the real rays' wavefront (``tradeoff --optimise
+--wavefront exact``): the first part is a real-ray trace and a degree-8 fit per field angle and wavelength (tenths of
+a second a design), its Jacobian by central differences of whole traces.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import torch
 
 from .model.camera import Camera
-from .optics.cost import slope_departure_cost
+from .model.prescription import Prescription
+from .optics.cost import prescription_costs, slope_departure_cost
 from .criteria import OTFContext, quarter_weights, validate_criterion
 from .model.design import PARAMETERS, Design, parameter_name
 from .optics.image_model import image_psd_quarter, noise_variance
 from .model.numerics import DEFAULT_NUMERICS, Numerics
+from .optics.exact_wavefront import EXACT_TERMS, lens_exact_coefficients
+from .optics.lens_solves import solve_design
 from .optics.psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
+from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
+from .optics.sequential import SequentialLens
+from .metrics import third_order_camera
 from .torch_utils import HOST, tensor_of
 
-__all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost"]
+__all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost", "LensThirdOrderCriterion",
+           "LensExactCriterion", "GRADIENT_CRITERIA", "FD_STEP", "F_NUMBER_TOLERANCE"]
 
 LENS_PARAMETERS = ("s", "Q_back")
 """The thin lens's two design parameters: the default optimisation vector."""
-
-
-def _scale(names) -> torch.Tensor:
-    return torch.tensor([PARAMETERS[n].step for n in names], dtype=torch.float64, device=HOST)
 
 
 class DifferentiableCriterion:
@@ -123,7 +147,7 @@ MAX_PROJECTION_STEP = 2.0
 
 def _cost(quality, x, points):
     """``C_a`` at ``x``, differentiable: the quality's own ``cost(x, points)`` where it has one (any lens,
-    :mod:`lenssim.lens_design_opt`), else the singlet's :func:`lenssim.optics.cost.slope_departure_cost`."""
+    :class:`LensThirdOrderCriterion`), else the singlet's :func:`lenssim.optics.cost.slope_departure_cost`."""
     if hasattr(quality, "cost"):
         return quality.cost(x, points)
     return slope_departure_cost(quality.lens, quality.design(x), points)
@@ -131,7 +155,9 @@ def _cost(quality, x, points):
 
 def _scale_of(quality) -> torch.Tensor:
     """Each coordinate's typical step: the quality's own ``scale`` where it has one, else the singlet's grid steps."""
-    return quality.scale if hasattr(quality, "scale") else _scale(quality.names)
+    if hasattr(quality, "scale"):
+        return quality.scale
+    return torch.tensor([PARAMETERS[n].step for n in quality.names], dtype=torch.float64, device=HOST)
 
 
 def _project_to_level(quality, x, level, points, iters=6):
@@ -231,3 +257,125 @@ def optimise_on_iso_cost(quality: DifferentiableCriterion, x0, level: float | No
         v = float(quality(x))
     return IsoCostResult(dict(zip(quality.names, (float(t) for t in x))), v, _cost(quality, x, cost_points).item(),
                          level, it, quality.evaluations, history, stopped, rel)
+
+
+FD_STEP = 1e-4
+"""Central-difference step of the paraxial part's Jacobian, in each parameter's typical step."""
+F_NUMBER_TOLERANCE = 1e-9
+"""Largest relative change of the working F-number (the PSF's scale) a design may make."""
+
+
+class _Paraxial(torch.autograd.Function):
+    """``y = f(x)`` for a float function ``f`` of the parameters (forward exact, backward by central differences)."""
+
+    @staticmethod
+    def forward(ctx, x, f, steps):
+        ctx.f, ctx.steps = f, steps
+        ctx.save_for_backward(x)
+        return f(x.detach())
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        x = x.detach()
+        out = torch.zeros_like(x)
+        for i in range(x.numel()):
+            e = torch.zeros_like(x)
+            e[i] = ctx.steps[i]
+            d = (ctx.f(x + e) - ctx.f(x - e)) / (2 * ctx.steps[i])
+            out[i] = (grad.to(d.dtype) * d).sum()
+        return out, None, None
+
+
+class LensThirdOrderCriterion(DifferentiableCriterion):
+    """The criterion ``criterion`` at ``snr_db`` (dB) of the lens ``prescription`` with the free ``parameters``
+    (:class:`lenssim.model.lens_parameters.LensParameter` s), ``hold`` and ``image`` solves, pixels of ``pitch_um``
+    (um, point samples), field angles ``angles_deg`` (deg), image model ``rho0``, as a differentiable function of
+    ``x`` (see the module docstring). ``scale``: each parameter's typical step (its unit), the optimiser's
+    coordinate scale. ``image`` is ``file`` or ``paraxial`` (best focus is a search: no gradient)."""
+
+    terms = SEIDEL_TERMS
+
+    def __init__(self, prescription: Prescription, parameters, snr_db: float, criterion: str, *, rho0: float,
+                 pitch_um: float, angles_deg, scale, hold=(), image: str = "file", psd_model: str = "discrete",
+                 numerics: Numerics = DEFAULT_NUMERICS.replace(oversample=1), dtype=torch.float64):
+        parameters = tuple(parameters)
+        self._check_parameters(parameters)
+        if image not in ("file", "paraxial"):
+            raise ValueError(f"image plane {image!r} is not allowed with the gradient route: file or paraxial (best "
+                             "focus is a search, without a gradient)")
+        self.prescription, self.parameters, self.hold, self.image = prescription, parameters, tuple(hold), image
+        self.angles = tuple(float(a) for a in angles_deg)
+        seq = SequentialLens(prescription)
+        super().__init__(third_order_camera(seq, pitch_um, self.angles), snr_db, criterion, rho0=rho0,
+                         psd_model=psd_model, names=(), numerics=numerics, dtype=dtype)
+        self.names = tuple(p.name for p in parameters)
+        self.scale = tensor_of(scale, torch.float64).reshape(-1)
+        if self.scale.numel() != len(parameters) or not bool((self.scale > 0).all() & torch.isfinite(self.scale).all()):
+            raise ValueError(f"scale must hold one typical step > 0 per free parameter ({len(parameters)})")
+        self.steps = (self.scale * FD_STEP).tolist()
+        self.f_number = seq.paraxial().working_f_number
+        if self.terms is SEIDEL_TERMS and len(self.camera.spectrum) == 1:  # one wavelength: the paper's four terms
+            # exactly (no lateral colour)
+            self.terms = SEIDEL_TERMS[:4]
+
+    def lens_at(self, x) -> SequentialLens:
+        """The lens at design ``x`` (floats), its solves applied; a ``ValueError`` saying why a design cannot be made."""
+        values = {p: float(v) for p, v in zip(self.parameters, tensor_of(x).tolist())}
+        q, shift = solve_design(self.prescription, values, hold=self.hold, image=self.image)
+        return SequentialLens(q, image_shift_mm=shift)
+
+    def _check_parameters(self, parameters) -> None:
+        check_third_order_parameters(parameters)
+
+    def _checked_lens(self, x: torch.Tensor) -> SequentialLens:
+        """The lens at ``x``; a ``ValueError`` if it moves the working F-number (the PSF's scale)."""
+        seq = self.lens_at(x)
+        n = seq.paraxial().working_f_number
+        if not math.isclose(n, self.f_number, rel_tol=F_NUMBER_TOLERANCE):
+            raise ValueError(f"the design {self.design(x)} changes the working F-number ({self.f_number:.6g} -> "
+                             f"{n:.6g}), the PSF's scale: hold the focal length (hold efl)")
+        return seq
+
+    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        seq = self._checked_lens(x)
+        c = third_order_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)
+        return c[..., :len(self.terms)]
+
+    def _cost(self, x: torch.Tensor, points: int) -> torch.Tensor:
+        q = self.lens_at(x).prescription
+        return torch.tensor(sum(v["cost"] for v in prescription_costs(q, points).values()), dtype=torch.float64,
+                            device=x.device)
+
+    def design(self, x) -> dict:
+        return {n: float(v) for n, v in zip(self.names, tensor_of(x).reshape(-1).tolist())}
+
+    def coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        return _Paraxial.apply(x.to(torch.float64), self._coefficients, self.steps)
+
+    def cost(self, x: torch.Tensor, points: int) -> torch.Tensor:
+        """``C_a`` at ``x`` (the sum over the aspheric surfaces of their RMS slope departure over ``points`` radii),
+        differentiable (central differences)."""
+        return _Paraxial.apply(x.to(torch.float64), lambda v: self._cost(v, int(points)), self.steps)
+
+
+class LensExactCriterion(LensThirdOrderCriterion):
+    """:class:`LensThirdOrderCriterion` on the real rays' wavefront: ``x -> coefficients`` is the real-ray OPD of the
+    lens at ``x`` projected on :data:`lenssim.optics.exact_wavefront.EXACT_TERMS` (degree 8,
+    :func:`lenssim.optics.exact_wavefront.lens_exact_coefficients`: rays aimed at the stop, the pupil the full disc,
+    the PSF about the primary wavelength's chief ray), its Jacobian by central differences of whole real-ray traces
+    (:data:`FD_STEP`), the rest (pupil -> PSF -> OTF -> criterion) by autograd, as the third-order route. Any free
+    parameter of the lens may move (no third-order restriction); the working F-number must not."""
+
+    terms = EXACT_TERMS
+
+    def _check_parameters(self, parameters) -> None:
+        pass
+
+    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        seq = self._checked_lens(x)
+        return lens_exact_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)
+
+
+GRADIENT_CRITERIA = {"third_order": LensThirdOrderCriterion, "exact": LensExactCriterion}
+"""The gradient route's criterion per wavefront model (``tradeoff --optimise --wavefront``)."""

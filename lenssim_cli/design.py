@@ -1,5 +1,5 @@
 """``lenssim tradeoff --lens LENS --vary NAME=LO:HI[:STEP] ...``: the paper's cost-performance trade-off on any lens
-(:mod:`lenssim_studies.lens_tradeoff`)."""
+(:mod:`lenssim_studies.tradeoff`)."""
 
 from __future__ import annotations
 
@@ -90,10 +90,10 @@ def cmd_tradeoff(args) -> int:
     from lenssim.optics.lens_solves import HOLDS
     from lenssim.optics.sequential import SequentialLens
     from lenssim.torch_utils import select_device
-    from lenssim_studies.html import image, markdown, table, write_page
+    from lenssim_studies.html import image, markdown, table
     from lenssim_studies.chunks import finished_result
-    from lenssim_studies.lens_tradeoff import (LensTradeoffRun, run_lens_tradeoff, tradeoff_figure, tradeoff_json,
-                                               tradeoff_mismatch, write_design_files)
+    from lenssim_studies.figures import tradeoff_figure
+    from lenssim_studies.tradeoff import LensTradeoffRun, run_lens_tradeoff, tradeoff_json, tradeoff_mismatch
     from lenssim_studies.paper import PAPER_RHO0
 
     vary = [parse_vary(v) for v in args.vary]
@@ -147,14 +147,7 @@ def cmd_tradeoff(args) -> int:
               f"{', '.join(run.names)})", file=sys.stderr)
         ds = run_lens_tradeoff(run, out / "tradeoff.nc", show_progress=not args.quiet)
         res = tradeoff_json(ds, run.levels)
-        res["lens"] = p.name or str(args.lens)
-        res["snr_db"] = list(snr)
-        res["hold"] = list(hold)
-        res["pixel_pitch_um"] = pitch
-        res["sampling"] = sampling
-        res["wavefront"] = args.wavefront
-        res["angles_deg"] = list(run.evaluation_angles)
-        res["design_files"] = write_design_files(run, res, out / "designs")  # --lens on inspect, tolerance, ...
+        _record(run, res, args, p, sampling, run.evaluation_angles, out)
         title = f"Trade-off of {p.name or args.lens}: {', '.join(run.names)}"
         extra = []
         if tol is not None:  # the as-built Monte Carlo at each optimum of mse_r along the front (resumable)
@@ -163,7 +156,7 @@ def cmd_tradeoff(args) -> int:
             res["robustness"] = robust = robust_front(run, res, tol, copies=args.robust, seed=args.seed,
                                                       out_dir=out / "robust", show_progress=not args.quiet)
             rfig = robustness_figure(robust, out, f"As built along the front: {p.name or args.lens}")
-            rrows = [[f"{d['cost']:.4g}", ", ".join(f"{k} = {v:.6g}" for k, v in d["design"].items()),
+            rrows = [[f"{d['cost']:.4g}", _design_text(d["design"]),
                       f"{d['nominal']:.5g}", f"{d['mean']:.5g}", f"{d['p90']:.5g}",
                       f"{d['nominal_restoration_mean']:.4g}"] for d in robust["designs"]]
             n, r = robust["designs"][robust["nominal_optimum"]], robust["designs"][robust["robust_optimum"]]
@@ -175,11 +168,8 @@ def cmd_tradeoff(args) -> int:
                            rrows, "as built along the front")]
         atomic_write_text(out / "tradeoff.json", json_text(res))
         fig = tradeoff_figure(ds, res, out, title)
-        rows = []
-        for name, u in res["unconstrained"].items():
-            if u is not None:
-                rows.append([name, f"{u['value']:.5g}", f"{u['cost']:.4g}",
-                             ", ".join(f"{k} = {v:.6g}" for k, v in u["design"].items())])
+        rows = [[name, f"{u['value']:.5g}", f"{u['cost']:.4g}", _design_text(u["design"])]
+                for name, u in res["unconstrained"].items() if u is not None]
         text = (f"{res['designs']} designs, {res['invalid']} invalid (reasons in tradeoff.json); SNR "
                 f"{', '.join(f'{s:g}' for s in snr)} dB; pixels {pitch:.4g} um ({sampling} samples); holds: "
                 f"{', '.join(hold) or 'none'}; wavefront {args.wavefront} at {len(run.evaluation_angles)} field "
@@ -194,15 +184,10 @@ def cmd_tradeoff(args) -> int:
         if capped:
             text += (f" MTF50 of {capped} design(s) is a lower bound (their MTF stays above 0.5 up to the sensor's "
                      "Nyquist frequency at some field angle; mtf50_capped in tradeoff.nc).")
-        write_page(out / "index.html", title, [markdown(text), image(fig, "each criterion against the asphere cost: "
-                                                                        "grid designs, the best at each cost level"),
-                                               table(["criterion", "best value", "cost", "design"], rows,
-                                                     "unconstrained optima")] + extra)
-        print(text)
-        if extra:
-            print(rtext)
-        for r in rows:
-            print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
+        _publish(out, title, text, [image(fig, "each criterion against the asphere cost: grid designs, the best at "
+                                             "each cost level"),
+                                    table(["criterion", "best value", "cost", "design"], rows, "unconstrained optima")]
+                 + extra, rows, rtext if extra else None)
     print(f"wrote {args.out}/ (tradeoff.nc, tradeoff.json, tradeoff.png/.svg, index.html, designs/*.toml: each "
           "optimum as a lens file for --lens) in "
           f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
@@ -269,12 +254,12 @@ def register(sub) -> None:
 
 
 def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, levels) -> int:
-    """``tradeoff --optimise``: the front by iso-cost projected gradient descent (:mod:`lenssim_studies.lens_gradient`)."""
+    """``tradeoff --optimise``: the front by iso-cost projected gradient descent (:mod:`lenssim_studies.tradeoff`)."""
     from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.torch_utils import select_device
-    from lenssim_studies.html import image, markdown, table, write_page
-    from lenssim_studies.lens_gradient import (LensGradientRun, gradient_figure, gradient_json, run_lens_gradient,
-                                               score_optima, write_gradient_designs)
+    from lenssim_studies.html import image, table
+    from lenssim_studies.figures import gradient_figure
+    from lenssim_studies.tradeoff import LensGradientRun, gradient_json, run_lens_gradient, score_optima
     from lenssim_studies.paper import PAPER_RHO0
 
     bounds = []
@@ -295,9 +280,7 @@ def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, lev
         ds = run_lens_gradient(run, out / "gradient.nc", show_progress=not args.quiet)
         res = gradient_json(run, ds)
         res["scores"] = score_optima(run, res)  # every criterion at each optimum
-        res |= {"lens": p.name or str(args.lens), "snr_db": list(snr), "hold": list(hold), "pixel_pitch_um": pitch,
-                "sampling": "point", "wavefront": args.wavefront, "angles_deg": list(p.fields)}
-        res["design_files"] = write_gradient_designs(run, res, out / "designs")
+        _record(run, res, args, p, "point", p.fields, out)
         atomic_write_text(out / "tradeoff.json", json_text(res))
         title = f"Gradient trade-off of {p.name or args.lens}: {args.optimise} over {', '.join(run.names)}"
         fig = gradient_figure(run, res, out, title)
@@ -313,16 +296,40 @@ def _gradient_tradeoff(args, p, vary, hold, snr, aspherize, pitch, numerics, lev
                 f"{'real-ray' if args.wavefront == 'exact' else 'third-order'} wavefront at {len(p.fields)} field angles.")
         u = res["unconstrained"][args.optimise]
         rows = [[("unconstrained" if lv is None else f"{lv:.4g}"), f"{o['value']:.5g}", f"{o['cost']:.4g}",
-                 ", ".join(f"{k} = {v:.6g}" for k, v in o["design"].items())]
+                 _design_text(o["design"])]
                 for lv, o in list(zip(res["levels"], res["optima"][args.optimise])) + [(None, u)] if o is not None]
-        write_page(out / "index.html", title, [
-            markdown(text), image(fig, f"{args.optimise} against the asphere cost: each start's end point, the best "
-                                       "per cost level"),
+        _publish(out, title, text, [
+            image(fig, f"{args.optimise} against the asphere cost: each start's end point, the best per cost level"),
             table(["level C_a", args.optimise, "cost", "design"], rows, "optima"),
-            table(["level", "start", "stopped", "steps", "evaluations", args.optimise, "cost"], conv, "convergence")])
-        print(text)
-        for r in rows:
-            print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")
+            table(["level", "start", "stopped", "steps", "evaluations", args.optimise, "cost"], conv, "convergence")],
+            rows)
     print(f"wrote {args.out}/ (gradient.nc, tradeoff.json, tradeoff.png/.svg, index.html, designs/*.toml) in "
           f"{time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
+
+
+def _design_text(design: dict) -> str:
+    return ", ".join(f"{k} = {v:.6g}" for k, v in design.items())
+
+
+def _record(run, res: dict, args, p, sampling: str, angles, out) -> None:
+    """The run's settings into ``res`` (``tradeoff.json``), and each optimum as a lens file (``designs/``: ``--lens``
+    on inspect, tolerance, ...)."""
+    from lenssim_studies.tradeoff import write_design_files
+
+    res |= {"lens": p.name or str(args.lens), "snr_db": list(args.snr), "hold": list(run.hold),
+            "pixel_pitch_um": run.pitch_um, "sampling": sampling, "wavefront": args.wavefront,
+            "angles_deg": list(angles)}
+    res["design_files"] = write_design_files(run, res, out / "designs")
+
+
+def _publish(out, title: str, text: str, parts: list, rows: list, more: str | None = None) -> None:
+    """``index.html`` (``text``, then ``parts``), and on stdout ``text``, ``more`` and each optimum of ``rows``."""
+    from lenssim_studies.html import markdown, write_page
+
+    write_page(out / "index.html", title, [markdown(text)] + parts)
+    print(text)
+    if more:
+        print(more)
+    for r in rows:
+        print(f"  {r[0]}: {r[1]} at cost {r[2]} ({r[3]})")

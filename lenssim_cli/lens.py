@@ -184,7 +184,7 @@ def lens_psf_from_args(args, shape, *, progress=None):
     the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
     and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
     field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
-    from lenssim_studies.lens_tradeoff import PhotoFieldError, photo_field
+    from lenssim_studies.tradeoff import PhotoFieldError, photo_field
 
     p = check_lens_arguments(args)
     seq, _ = refocused_lens(p, args.refocus or "file")
@@ -225,7 +225,7 @@ def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: in
     sensor (its noise and full wells) with pixels of ``pitch_um``, in the lens's own wavelengths (equal weights) or the
     colour channels of ``--spectrum``, traced out to ``max_field_deg``."""
     from lenssim.model.spectrum import channel_spectra
-    from lenssim_studies.lens_tradeoff import sequential_provider
+    from lenssim_studies.tradeoff import sequential_provider
 
     from .common import DEFAULT_ILLUMINANT
 

@@ -133,7 +133,7 @@ def cmd_optimum(args) -> int:
     import xarray as xr
 
     from lenssim.io.files import check_input_file
-    from lenssim_studies.lens_optimum import TRADEOFF_FILE, check_max_cost, is_lens_tradeoff
+    from lenssim_studies.tradeoff import TRADEOFF_FILE, check_max_cost, is_lens_tradeoff
 
     max_cost = check_max_cost(args.max_cost)
     if args.write_lens is not None:
@@ -157,7 +157,7 @@ def cmd_optimum(args) -> int:
         raise ValueError(f"{str(path)!r} is not a sweep file or a trade-off (NetCDF written by `lenssim sweep` or "
                          "`lenssim tradeoff`)") from None
     if is_lens_tradeoff(ds):
-        from lenssim_studies.lens_optimum import verify_lens_tradeoff
+        from lenssim_studies.tradeoff import verify_lens_tradeoff
 
         verify_lens_tradeoff(ds, path)  # its checksum and its sense, before any number of it is read
         return _tradeoff_optimum(args, ds, path, folder if folder is not None else path.parent, max_cost)
@@ -166,11 +166,11 @@ def cmd_optimum(args) -> int:
     if args.write_lens is not None:
         raise ValueError("--write-lens takes a trade-off of any lens (`lenssim tradeoff --lens`): a sweep's designs "
                          "are the paper's singlet, not a prescription")
-    from lenssim_studies.lens_optimum import find_sweep_optimum
+    from lenssim_studies.tradeoff import find_optimum
     from lenssim_studies.sweep import verify_sweep
 
     verify_sweep(ds, path)
-    r = find_sweep_optimum(ds, args.criterion, args.snr, max_cost)
+    r = find_optimum(ds, args.criterion, args.snr, max_cost) | {"max_cost": max_cost}
     if args.json:
         print(json_text(r))
     else:
@@ -199,8 +199,8 @@ def _check_lens_output(path) -> None:
 
 
 def _tradeoff_optimum(args, ds, path: Path, folder: Path, max_cost) -> int:
-    """``lenssim optimum`` of a trade-off of any lens (:mod:`lenssim_studies.lens_optimum`)."""
-    from lenssim_studies.lens_optimum import OPTIMUM_CRITERIA, find_lens_optimum, write_optimum_lens
+    """``lenssim optimum`` of a trade-off of any lens (:mod:`lenssim_studies.tradeoff`)."""
+    from lenssim_studies.tradeoff import OPTIMUM_CRITERIA, find_lens_optimum, write_optimum_lens
 
     r = find_lens_optimum(ds, args.criterion, args.snr, max_cost, folder=folder)
     written = None

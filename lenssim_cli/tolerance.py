@@ -118,7 +118,7 @@ def cmd_tolerance_lens(args) -> int:
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
     from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES, lens_tolerance_report, summarise_lens_tolerance
     from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
-    from lenssim_studies.lens_tradeoff import check_psf_sampling
+    from lenssim_studies.tradeoff import check_psf_sampling
     from lenssim.torch_utils import select_device
     from lenssim_studies.paper import PAPER_RHO0
 

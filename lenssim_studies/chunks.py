@@ -21,7 +21,7 @@ from lenssim.torch_utils import HOST
 
 __all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
            "read_stamped_chunk", "finished_result", "dataset_checksum", "stamp_result", "verify_result",
-           "result_mismatch", "is_netcdf", "damaged_netcdf"]
+           "result_mismatch", "is_netcdf", "damaged_netcdf", "run_resumable"]
 
 
 @contextmanager
@@ -319,3 +319,30 @@ def finish_resumable(out: Path, ds, part: Path) -> None:
     stamp_result(ds)  # verified when the result is read back (finished_result, lenssim optimum)
     atomic_write(out, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
     shutil.rmtree(part)
+
+
+def run_resumable(run, out, *, output: str, kind: str, check, refusal: str, build, prepare=None):
+    """A resumable run's frame, for a ``run`` with ``digest()`` and ``to_dict()``: ``out`` (NetCDF) checked and, if it is
+    this run's finished result, returned verified (:func:`open_resumable`; ``output``, ``kind`` and ``check`` as
+    there); else ``prepare()`` (checks before any file is made), then ``build(part)`` in the run's chunk folder
+    (:func:`partial_folder`, ``refusal`` what a folder of another run holds) gives the dataset, whose ``attrs`` get the
+    run record (``config``, ``config_digest``, ``lenssim_version``), and it is finished (:func:`finish_resumable`).
+    ``build`` returns None where it stopped early: so does this."""
+    from lenssim import __version__
+
+    out = Path(out)
+    done = open_resumable(out, run.digest(), output, kind, check=check)
+    if done is not None:
+        return done
+    if prepare is not None:
+        prepare()
+    part = out.with_name(out.name + ".partial")
+    with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
+                        f"{str(part)!r} holds {refusal}; remove it or choose another output"):
+        ds = build(part)
+        if ds is None:
+            return None
+        ds.attrs |= {"lenssim_version": __version__, "config": json.dumps(run.to_dict(), sort_keys=True, default=str),
+                     "config_digest": run.digest()}
+        finish_resumable(out, ds, part)
+        return ds

@@ -29,7 +29,7 @@ from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from lenssim.model.prescription import Prescription
 
 from .explore import MAP_CRITERIA, Explorer, Slider, _CachedPSF, psf_mtf_figure
-from .lens_tradeoff import (MAX_GRID_PARAMETERS, LensTradeoffRun, _score, design_prescription, photo_field,
+from .tradeoff import (MAX_GRID_PARAMETERS, LensTradeoffRun, _score, design_prescription, photo_field,
                             sequential_provider)
 
 __all__ = ["LensExplorer", "LensControls", "FreeParameter", "LENS_MAP_VALUES", "LENS_PSF_FIELDS",

@@ -1,23 +1,26 @@
-"""The paper's Figures 3-6 and Table 1 from a sweep and its trade-off (matplotlib, headless).
+"""The paper's Figures 3-6 and Table 1 from a sweep and its trade-off, and the trade-off of any lens against its cost
+(matplotlib, headless).
 
 Every function writes ``NAME.png`` and ``NAME.svg`` into ``out_dir`` and returns the PNG path.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from lenssim.criteria import CRITERIA
 from lenssim.model.design import PARAMETERS
 from lenssim.io.files import atomic_write, atomic_write_text
 from .paper import PAPER_COST_LEVELS, REFERENCE_SNR_DB
 from .sweep import design_dims
-from .tradeoff import find_optimum
+from .tradeoff import _criteria_columns, find_optimum
 
 __all__ = ["fig3_cost", "fig4_landscapes", "fig5_tradeoff_configs", "fig6_performance_vs_cost", "table1",
-           "all_figures"]
+           "all_figures", "tradeoff_figure", "gradient_figure"]
 
 
 def _plt():
@@ -191,3 +194,76 @@ def all_figures(ds: xr.Dataset, trade: xr.Dataset, out_dir: Path) -> list[Path]:
     ref = trade.attrs.get("reference_snr_db", REFERENCE_SNR_DB)
     return [fig3_cost(ds, out_dir), fig4_landscapes(ds, out_dir, ref), fig5_tradeoff_configs(ds, trade, out_dir),
             fig6_performance_vs_cost(trade, out_dir)]
+
+
+# -- the trade-off of any lens --------------------------------------------------------------------------------------
+def _cost_figure(panels: list[dict], out_dir: Path, title: str, figsize) -> Path:
+    """Criteria against the asphere cost (png, svg, named ``tradeoff``), one axes per panel ``{"name": the criterion's
+    base name, "snr": its SNR text or None, "sense", "points": (costs, values, label, size), "front": (costs, values,
+    label, step: a staircase), "unconstrained": (cost, value, marker, size) or None, "note": the title's ending}``;
+    the legend on the first."""
+    plt = _plt()
+    ncol = min(3, len(panels))
+    nrow = math.ceil(len(panels) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=figsize(nrow, ncol), squeeze=False)
+    for ax, p in zip(axes.flat, panels):
+        c, v, label, size = p["points"]
+        ax.scatter(c, v, s=size, color="0.6", label=label)
+        c, v, label, step = p["front"]
+        if step:
+            ax.step(c, v, where="post", color="C1", label=label)
+        else:
+            ax.plot(c, v, "o-", color="C1", label=label)
+        if p["unconstrained"] is not None:
+            c, v, marker, size = p["unconstrained"]
+            ax.plot([c], [v], marker, ms=size, color="C3", label="unconstrained optimum")
+        unit = CRITERIA[p["name"]].units
+        label = p["name"] if p["snr"] is None else f"{p['name']} at {p['snr']} dB"
+        ax.set_xlabel("asphere cost C_a (RMS slope departure)")
+        ax.set_ylabel(label if unit.startswith("1") else f"{label} ({unit})")
+        ax.set_title(("lower" if p["sense"] == "min" else "higher") + " is better" + p["note"], fontsize=8)
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, out_dir, "tradeoff")
+
+
+def tradeoff_figure(ds: xr.Dataset, res: dict, out_dir: Path, title: str) -> Path:
+    """Every criterion of a trade-off of any lens (:func:`lenssim_studies.tradeoff.run_lens_tradeoff`) against the cost:
+    each valid design a dot, the optima per cost level a line (png, svg)."""
+    cost = ds["cost"].values.reshape(-1)
+    valid = ds["valid"].values.reshape(-1)
+    panels = []
+    for name, (v, sense) in _criteria_columns(ds).items():
+        ok = valid & np.isfinite(v)
+        order = np.argsort(cost[ok], kind="stable")
+        c_sorted, v_sorted = cost[ok][order], v[ok][order]
+        best = np.minimum.accumulate(v_sorted) if sense == "min" else np.maximum.accumulate(v_sorted)
+        u = res["unconstrained"][name]
+        base, _, at = name.partition("@")
+        if CRITERIA[base].per_snr:  # the first SNR's column carries the bare name (as lenssim optimum names it)
+            at = at or f"{float(ds['snr'].values[0]):g}"
+        panels.append({"name": base, "snr": at or None, "sense": sense, "note": "",
+                       "points": (cost[valid], v[valid], "grid designs", 8),
+                       "front": (c_sorted, best, "best design at cost <= C_a (the front)", True),
+                       "unconstrained": None if u is None else (u["cost"], u["value"], "o", None)})
+    return _cost_figure(panels, out_dir, title, lambda nrow, ncol: (4.2 * ncol, 3.3 * nrow))
+
+
+def gradient_figure(run, res: dict, out_dir: Path, title: str) -> Path:
+    """The criterion a gradient run (:class:`lenssim_studies.tradeoff.LensGradientRun`) optimised against the asphere
+    cost: every start's end point per level (grey), the best per level (the front, a line), the unconstrained optimum
+    (png, svg)."""
+    ends = [c for c in res["convergence"] if "value" in c]
+    front = [o for o in res["optima"][run.criterion] if o is not None]
+    u = res["unconstrained"][run.criterion]
+    panel = {"name": run.criterion, "snr": f"{run.snr_db[0]:g}" if CRITERIA[run.criterion].per_snr else None,
+             "sense": CRITERIA[run.criterion].sense,
+             "note": "; " + ("real-ray" if run.wavefront == "exact" else "third-order") + " wavefront",
+             "points": ([c["cost"] for c in ends], [c["value"] for c in ends], "each start's end point", 12),
+             "front": ([o["cost"] for o in front], [o["value"] for o in front], "best per cost level", False),
+             "unconstrained": None if u is None else (u["cost"], u["value"], "*", 12)}
+    return _cost_figure([panel], out_dir, title, lambda nrow, ncol: (5.6, 4.0))

@@ -26,7 +26,7 @@ from lenssim.sequential_tolerance import summarise_lens_tolerance
 
 from .chunks import finished_result
 from .lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
-from .lens_tradeoff import LensTradeoffRun, design_prescription, sequential_provider
+from .tradeoff import LensTradeoffRun, design_prescription, sequential_provider
 
 __all__ = ["robust_front", "robustness_figure", "design_tolerance_run", "MAX_ROBUST_COPIES"]
 

@@ -126,7 +126,7 @@ def cooke_triplet_psfs():
 def lens_provider_and_criteria():
     """A provider as the explorer holds one, its wavefront table traced (the tracing is :func:`cooke_triplet_psfs`'s)."""
     from lenssim.metrics import evaluate_sequential
-    from lenssim_studies.lens_tradeoff import sequential_provider
+    from lenssim_studies.tradeoff import sequential_provider
 
     p, seq = _lens(TEST_SINGLET)
     prov = sequential_provider(p, seq, pitch_um=4.0, sampling="area", max_field_deg=3.0, coarse=True)

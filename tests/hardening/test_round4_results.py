@@ -27,9 +27,8 @@ import pytest
 import torch
 import xarray as xr
 
-import lenssim_studies.lens_gradient
 import lenssim_studies.lens_tolerance
-import lenssim_studies.lens_tradeoff
+import lenssim_studies.tradeoff
 import lenssim_studies.study
 import lenssim_studies.sweep
 import lenssim_studies.tolerance
@@ -304,9 +303,9 @@ def test_a_damaged_chunk_is_computed_again(tmp_path, monkeypatch):
     is the uninterrupted run's."""
     from lenssim.io.prescription_file import read_lens
     from lenssim.model.numerics import FAST_NUMERICS
-    from lenssim_studies.lens_tradeoff import LensTradeoffRun, run_lens_tradeoff
+    from lenssim_studies.tradeoff import LensTradeoffRun, run_lens_tradeoff
 
-    monkeypatch.setattr(lenssim_studies.lens_tradeoff, "CHUNK_DESIGNS", 1)  # two designs, two chunks
+    monkeypatch.setattr(lenssim_studies.tradeoff, "CHUNK_DESIGNS", 1)  # two designs, two chunks
     run = LensTradeoffRun(read_lens(LENS_FILE), LENS_FILE, (("S1.conic", (-1.0, 0.0)),), (27.6,), 0.937, 1.0, "point",
                           FAST_NUMERICS, levels=2, wavefront="third_order")
     out = tmp_path / "t.nc"
@@ -377,7 +376,7 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
     from lenssim.optics.sequential import SequentialLens
     from lenssim.sequential_tolerance import CRITERIA
     from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
-    from lenssim_studies.lens_tradeoff import sequential_provider
+    from lenssim_studies.tradeoff import sequential_provider
 
     rng = np.random.default_rng(5)
 
@@ -412,14 +411,14 @@ def test_a_gradient_result_is_verified_before_it_is_reused(tmp_path, monkeypatch
     file read back)."""
     from lenssim.io.prescription_file import read_lens
     from lenssim.model.numerics import FAST_NUMERICS
-    from lenssim_studies.lens_gradient import LensGradientRun, run_lens_gradient
+    from lenssim_studies.tradeoff import LensGradientRun, run_lens_gradient
 
     def descend(run, level, j):
         return {"design": np.full(1, -0.5), "start_design": run.start_points()[j].numpy(), "value": np.float64(1 + j),
                 "cost": np.float64(0.1 * (j + 1)), "iterations": np.int64(3), "evaluations": np.int64(9),
                 "stopped": np.int64(0), "gradient": np.float64(1e-9)}
 
-    monkeypatch.setattr(lenssim_studies.lens_gradient, "_descend", descend)
+    monkeypatch.setattr(lenssim_studies.tradeoff, "_descend", descend)
     run = LensGradientRun(read_lens(LENS_FILE), LENS_FILE, (("S1.conic", -1.0, 0.0),), "mse_r", (27.6,), 0.937, 1.0,
                           FAST_NUMERICS, levels=2, starts=2)
     out = tmp_path / "gradient.nc"
@@ -479,8 +478,8 @@ HOSTILE = ("nan", "inf", "-inf", "1e9", "-1e9", "1e-320", "")
 @pytest.fixture
 def no_grid(monkeypatch):
     """Every grid's evaluation replaced by one that raises GridStarted."""
-    monkeypatch.setattr(lenssim_studies.lens_tradeoff, "_score", _grid_raises)
-    monkeypatch.setattr(lenssim_studies.lens_gradient, "_descend", _grid_raises)
+    monkeypatch.setattr(lenssim_studies.tradeoff, "_score", _grid_raises)
+    monkeypatch.setattr(lenssim_studies.tradeoff, "_descend", _grid_raises)
     monkeypatch.setattr(lenssim_studies.tolerance, "_compute_chunk", _grid_raises)
     monkeypatch.setattr(lenssim_studies.lens_tolerance, "nominal_criteria", _grid_raises)
     monkeypatch.setattr(lenssim_studies.sweep, "_compute_chunk", _grid_raises)

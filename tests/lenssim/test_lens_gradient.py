@@ -1,4 +1,4 @@
-"""The gradient route of the trade-off on any lens (lenssim.lens_design_opt, lenssim_studies.lens_gradient; issue 30):
+"""The gradient route of the trade-off on any lens (lenssim.design_opt, lenssim_studies.tradeoff; issue 30):
 its gradients against the paper model's full autograd, its iso-cost optima against a dense scan of the iso-cost
 curve, and the command."""
 
@@ -14,7 +14,7 @@ import torch
 from lenssim import DEFAULT_NUMERICS, Camera, Design, slope_departure_cost
 from lenssim.design_opt import DifferentiableCriterion, optimise_on_iso_cost
 from lenssim.io.prescription_file import read_lens, write_prescription_toml
-from lenssim.lens_design_opt import LensThirdOrderCriterion
+from lenssim.design_opt import LensThirdOrderCriterion
 from lenssim.model.lens_parameters import parse_parameter
 from lenssim_studies.paper import PAPER_LENS, PAPER_RHO0, PAPER_SENSOR, PAPER_SPECTRUM
 from lenssim_studies.tradeoff import iso_cost_curve

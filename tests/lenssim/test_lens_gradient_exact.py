@@ -14,7 +14,7 @@ import torch
 
 from lenssim import DEFAULT_NUMERICS, Design
 from lenssim.io.prescription_file import read_lens
-from lenssim.lens_design_opt import LensExactCriterion
+from lenssim.design_opt import LensExactCriterion
 from lenssim.model.lens_parameters import parameter_values, parse_parameter
 from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients, lens_exact_coefficients
 from lenssim.optics.sequential import SequentialLens

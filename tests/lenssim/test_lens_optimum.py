@@ -18,8 +18,8 @@ from lenssim.model.numerics import Numerics
 from lenssim.optics.sequential import SequentialLens
 from lenssim_cli.main import main
 from lenssim_studies.chunks import stamp_result
-from lenssim_studies.lens_optimum import find_lens_optimum, rebuild_run, tradeoff_run_from_dict
-from lenssim_studies.lens_tradeoff import LensTradeoffRun, front, run_lens_tradeoff, tradeoff_json, write_design_files
+from lenssim_studies.tradeoff import find_lens_optimum, rebuild_run, tradeoff_run_from_dict
+from lenssim_studies.tradeoff import LensTradeoffRun, front, run_lens_tradeoff, tradeoff_json, write_design_files
 
 LENS_FILE = str(Path(__file__).parents[1] / "data" / "lenses" / "test_singlet.toml")
 SMALL = Numerics(min_size=64, oversample=1)

@@ -19,7 +19,7 @@ from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluation_angles
 from lenssim.sequential_tolerance import run_lens_tolerance
 from lenssim_studies.lens_robustness import robust_front, robustness_figure
-from lenssim_studies.lens_tradeoff import (LensTradeoffRun, design_prescription, run_lens_tradeoff,
+from lenssim_studies.tradeoff import (LensTradeoffRun, design_prescription, run_lens_tradeoff,
                                            sequential_provider, tradeoff_json)
 
 LENS_FILE = str(Path(__file__).parents[1] / "data" / "lenses" / "test_singlet.toml")

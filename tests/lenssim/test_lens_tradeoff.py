@@ -20,7 +20,7 @@ from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluate_sequential, evaluation_angles
 from lenssim_cli.design import parse_vary
 from lenssim_cli.main import main
-from lenssim_studies.lens_tradeoff import (LensTradeoffRun, front, run_lens_tradeoff, sequential_provider,
+from lenssim_studies.tradeoff import (LensTradeoffRun, front, run_lens_tradeoff, sequential_provider,
                                            tradeoff_json)
 
 LENS_FILE = str(Path(__file__).parents[1] / "data" / "lenses" / "test_singlet.toml")
@@ -154,7 +154,7 @@ def test_the_end_to_end_gain_is_brute_force():
     import numpy as np
     import xarray as xr
 
-    from lenssim_studies.lens_tradeoff import end_to_end_gain
+    from lenssim_studies.tradeoff import end_to_end_gain
 
     rng = np.random.default_rng(3)
     shape, snr = (6, 7), [21.6, 27.6]

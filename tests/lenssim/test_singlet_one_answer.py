@@ -35,7 +35,7 @@ from lenssim.model.prescription import PrescriptionSurface
 from lenssim.optics.exact_wavefront import EXACT_TERMS, exact_wavefront_coefficients
 from lenssim.optics.psf_bank import fft_size as choose_fft_size
 from lenssim.optics.sequential import SequentialLens
-from lenssim_studies.lens_tradeoff import sequential_provider
+from lenssim_studies.tradeoff import sequential_provider
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_RHO0
 
 ANGLES = (0.0, 7.0, 14.0)

@@ -198,7 +198,7 @@ def test_a_psf_whose_fft_exceeds_the_limit_is_refused_with_the_flag_that_raises_
 def test_a_pixel_pitch_beyond_the_lens_field_says_what_fits(tmp_path, capsys):
     """Issue 43: a pitch putting the photo's corners where the chief ray no longer passes was a ray-trace error deep in
     the work; now one line, before any work, with the pitch that fits, which does."""
-    from lenssim_studies.lens_tradeoff import photo_field
+    from lenssim_studies.tradeoff import photo_field
 
     assert main(["simulate", "skimage:camera", "--lens", "cooke_triplet", "--pixel-pitch", "400", "--crop", "64",
                  "--angles", "0", "--out", str(tmp_path / "o")]) == 2
