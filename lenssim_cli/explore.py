@@ -179,18 +179,17 @@ def _lens_arguments(args) -> dict:
 
 
 def _start_design(name):
-    """The sliders' first values: a named design's (checked), or the explorer's default."""
-    from lenssim_studies.explore import DesignControls
-
+    """The sliders' first values: a named design's (checked), or None (the explorer's default)."""
     if name is None:
-        return DesignControls()
+        return None
+    from lenssim_studies.explore import Controls
+
     from .common import designs
 
     named = designs(None)
     if name not in named:
         raise ValueError(f"--design {name!r} is not known; choose from {', '.join(sorted(named))}")
-    v = named[name].complete().floats()
-    return DesignControls(v["s"], v["Q_back"], v.get("Q_front", 0.0), v.get("focus_shift_um", 0.0))
+    return Controls(tuple(named[name].complete().floats().items()))
 
 
 def _load_sweep(path):

@@ -20,17 +20,11 @@ The lens is one description, its free parameters the sliders (:class:`FreeParame
   ``Q_back``, ``Q_front``, ``focus_shift_um``; their lens names ``E1.bending``, ``S2.conic``, ... are the same
   parameters), its glass a control, and its numbers the batched closed forms, the fast path (:func:`lenssim.evaluate`,
   :class:`lenssim.LensPSF`; the map over the paper's (s, Q_back) plane, or a ``lenssim sweep``'s);
-* any lens (``lenssim explore --lens LENS --vary NAME=LO:HI ...``: a shipped name, a TOML or a Zemax file) with the
-  free parameters the user names as ``lenssim tradeoff --lens`` names them, every number the command line's for the
-  same design: the criteria are :func:`lenssim_studies.lens_tradeoff._score`'s (real-ray wavefronts at its field
-  angles, its sensor: the nominal lens's Nyquist pitch, point samples, or ``pixel_pitch_um``'s area samples; its fast
-  numerics); the map is a grid of those over the first two free parameters (the others at their first values); the
-  photo is simulated as ``lenssim simulate --lens`` does (the photo spans the lens's largest field at its corners, or
-  ``pixel_pitch_um``; the lens's own wavelengths, area samples), so the exported command (with the design written as a
-  lens file, :meth:`Explorer.lens_toml`) reproduces the panel; the restoration lab's manufactured lens is a copy drawn
-  from the per-surface grade (:mod:`lenssim.model.surface_tolerances`: radii, thicknesses, conics, indices and the
-  despace, focus compensated; its decentres and tilts left out: a decentred lens's PSFs are known along one azimuth,
-  not over a photo).
+* any lens (``lenssim explore --lens LENS --vary NAME=LO:HI ...``) with the free parameters named as ``lenssim
+  tradeoff --lens`` names them, every number the command line's for the same design (docs/explore.md): the criteria and
+  the map ``tradeoff --lens``'s (:func:`lenssim_studies.lens_tradeoff._score`), the photo ``simulate --lens``'s (the
+  exported command names the design's lens file, :meth:`Explorer.lens_toml`), the restoration lab's manufactured lens
+  a centred copy drawn from the per-surface grade (a decentred lens's PSFs are known along one azimuth only).
 
 PSF providers are cached by design (and lens sample), simulated crops by everything they depend on, so a control
 changes only what depends on it.
@@ -387,13 +381,12 @@ class Explorer:
     """The explorer's state and caches for one lens, one camera and one photo (linear ``(1, C, H, W)``, or a
     :class:`pipeline.photo.Photo`; None: the generated scene is made at the sensor's size on first use).
 
-    The lens (see the module docstring): no ``prescription``, the paper's singlet (``camera``'s lens) with the sliders
-    ``free`` (:data:`SINGLET_FREE` by default) starting at ``start`` (the paper's end-to-end design by default); else
-    the lens ``prescription`` (as the user named it: ``lens``) with the free parameters ``free`` (1 to
-    :data:`lenssim_studies.lens_tradeoff.MAX_GRID_PARAMETERS`; the sliders start at the file's design), the solves
-    ``hold`` and ``image`` and the surfaces made even aspheres (``aspherize``, 1-based) as ``lenssim tradeoff --lens``
-    takes them; ``pixel_pitch_um``: the sensor's pitch (um) instead of the defaults. ``map_values``: values per axis of
-    the cost map (:data:`SINGLET_MAP_VALUES`, :data:`LENS_MAP_VALUES` by default)."""
+    No ``prescription``: the paper's singlet (``camera``'s lens) with the sliders ``free`` (:data:`SINGLET_FREE` by
+    default) at ``start`` (:class:`DesignControls` by default). Else the lens ``prescription`` (named ``lens`` by the
+    user) with the free parameters ``free`` (1 to :data:`lenssim_studies.lens_tradeoff.MAX_GRID_PARAMETERS`; the
+    sliders start at the file's design), the solves ``hold``, ``image`` and the even aspheres ``aspherize`` (1-based)
+    as ``lenssim tradeoff --lens`` takes them, and ``pixel_pitch_um`` the sensor's pitch (um) instead of the defaults.
+    ``map_values``: values per axis of the cost map (:data:`SINGLET_MAP_VALUES`, :data:`LENS_MAP_VALUES` by default)."""
 
     camera: Camera = PAPER_CAMERA
     photo: object = None
@@ -491,7 +484,7 @@ class Explorer:
         """The ranges of the map's (horizontal, vertical) parameters (:attr:`map_axes`: slider keys, also the keys of
         :attr:`map_data`), as their sliders give them (the map is drawn over these from the start, before it is
         computed)."""
-        ranges = {sl.key: (sl.start, sl.end) for sl in self.sliders()}
+        ranges = {f.name: (f.start, f.end) for f in self.free}
         return tuple(ranges.get(k, (-0.5, 0.5)) for k in self.map_axes)
 
     def map_point(self, controls: Controls) -> tuple[float, float]:
@@ -667,10 +660,9 @@ class Explorer:
         xn, yn = self.map_axes
         for iy, yv in enumerate(ys):
             for ix, xv in enumerate(xs):
-                d = Design({yn: float(yv), xn: float(xv)})
-                try:
-                    self.camera.lens.check_design(d.to(torch.float64))
-                    r = evaluate(self.camera, d, self.snr_db, rho0=self.rho0)
+                try:  # the paper's glass
+                    r = evaluate(self.camera, self.check(Controls(((xn, float(xv)), (yn, float(yv))))), self.snr_db,
+                                 rho0=self.rho0)
                 except ValueError:
                     r = None
                 yield iy, ix, r
@@ -889,66 +881,60 @@ class Explorer:
         pert = centred.sample(q, 1, seed=int(lens_seed))
         return self._provider(controls, manufactured_lens(seq, pert, 0), shape)
 
-    def photo_panel(self, controls: DesignControls, pc: PhotoControls, *, photo: ShownPhoto | None = None,
+    def _crops(self, shown: ShownPhoto, pc: PhotoControls, cancel: threading.Event | None):
+        """``(box, run)``: the crop box of ``pc`` on ``shown`` and ``run(provider, method, restoration_psf=None)``, its
+        crop blurred, noised through ``pc``'s chain and restored: ``(result, method's name)`` (``cancel`` set before:
+        :class:`Cancelled`)."""
+        from pipeline.simulate import simulate_crops
+
+        chain = self._chain(pc)
+        fw = self._full_well(pc, chain, shown.shape)
+        box = self.crop_box(pc.center, shown.shape)
+        sensor = chain or self.sensor_for(shown.shape)
+
+        def run(prov, method, restoration_psf=None):
+            _stop_if(cancel)
+            (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
+                                  restoration_psf=restoration_psf, blur_cache=_Tagged(prov.blurred, shown.tag),
+                                  blur_zones="auto")
+            return r, r.methods[0]
+        return box, run
+
+    def photo_panel(self, controls: Controls, pc: PhotoControls, *, photo: ShownPhoto | None = None,
                     cancel: threading.Event | None = None) -> dict:
         """The crop at ``pc.center`` of ``photo`` (the explorer's own by default) through the design and the chain:
         ``{"box", "field_deg", "png": {"ideal", "sensor", "restored"}, "scores": {"sensor", "restored"}}`` (PSNR dB
         and SSIM in sRGB). ``cancel`` set before the crop is simulated: :class:`Cancelled`."""
-        from pipeline.simulate import simulate_crops
-
         shown = photo or self.shown_photo
 
         def make():
-            chain = self._chain(pc)
-            fw = self._full_well(pc, chain, shown.shape)
-            box = self.crop_box(pc.center, shown.shape)
-            prov = self._provider(controls, shape=shown.shape)
-            _stop_if(cancel)
-            (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                  sensor=chain or self.sensor_for(shown.shape),
-                                  blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")
-            name = r.methods[0]
+            box, run = self._crops(shown, pc, cancel)
+            r, name = run(self._provider(controls, shape=shown.shape), pc.restore)
             return {"box": box, "field_deg": r.field_deg,
                     "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
                     "scores": {"sensor": r.scores["sensor"], "restored": r.scores[name]}}
         return self._cache("photo").get_or((shown.tag, controls.key(), pc), make)
 
-    def restoration_lab(self, controls: DesignControls, pc: PhotoControls, method_a: str, method_b: str,
+    def restoration_lab(self, controls: Controls, pc: PhotoControls, method_a: str, method_b: str,
                         grade: str = "commercial", lens_seed: int = 0, *, photo: ShownPhoto | None = None,
                         cancel: threading.Event | None = None) -> dict:
         """Two restorations of the same noisy crop of ``photo`` (the explorer's own by default; ``method_a``,
         ``method_b``: ``NAME[:key=value,...]``), and one manufactured lens (drawn from ``grade`` with ``lens_seed``)
         restored with the nominal PSFs and with its own: ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``,
         ``nominal``, ``own``. ``cancel`` is checked before each of its four simulations (:class:`Cancelled`)."""
-        from pipeline.simulate import simulate_crops
-
         self.check_grade(grade)
         shown = photo or self.shown_photo
 
         def make():
-            chain = self._chain(pc)
-            fw = self._full_well(pc, chain, shown.shape)
-            box = self.crop_box(pc.center, shown.shape)
-            sensor = chain or self.sensor_for(shown.shape)
+            box, run = self._crops(shown, pc, cancel)
             nominal = self._provider(controls, shape=shown.shape)
-
-            def run(prov, method, restoration_psf=None):
-                _stop_if(cancel)
-                return simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
-                                      restoration_psf=restoration_psf,
-                                      blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")[0]
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
-            ra, rb = run(nominal, method_a), run(nominal, method_b)
-            a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
-            sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
+            runs = {"a": run(nominal, method_a), "b": run(nominal, method_b)}
             _stop_if(cancel)
             built = self._built_provider(controls, grade, lens_seed, shown.shape)
-            runs = {tag: run(built, pc.restore, prov) for tag, prov in (("nominal", nominal), ("own", built))}
-            out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
-            for tag, r in runs.items():
-                m = r.methods[0]
-                out["png"][tag], out["scores"][tag] = _png(r.images[m]), r.scores[m]
-            return out
+            runs.update({tag: run(built, pc.restore, prov) for tag, prov in (("nominal", nominal), ("own", built))})
+            return {"png": {tag: _png(r.images[m]) for tag, (r, m) in runs.items()},
+                    "scores": {tag: r.scores[m] for tag, (r, m) in runs.items()}}
         return self._cache("lab").get_or((shown.tag, controls.key(), pc, method_a, method_b, grade, lens_seed), make)
 
     # ---- export ---------------------------------------------------------------------------------------------------
