@@ -357,7 +357,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from lenssim.io.sensor_file import sensor_names
     from lenssim.model.glass import load_glasses
     from lenssim.model.tolerances import GRADES
-    from lenssim_studies.explore import MAP_CRITERIA, Cancelled, PhotoControls, command_line
+    from lenssim_studies.explore import MAP_CRITERIA, Cancelled, PhotoControls, command_line, figure_png
     from pipeline.camera_chain import DEMOSAIC_METHODS
     from pipeline.cfa import CFA_PATTERNS
 
@@ -697,10 +697,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
 
     # ---- export: what the panels show (computed already: nothing long runs here) ----------------------------------
     def _save(fig):
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=100)
-        buf.seek(0)
-        return buf
+        return io.BytesIO(figure_png(fig, dpi=100))
 
     def panel_png():
         """The photo panel as a PNG: ideal, sensor and restored crops with their scores, what made them."""

@@ -60,9 +60,9 @@ from .lens_tradeoff import (MAX_GRID_PARAMETERS, LensTradeoffRun, _score, design
 from .paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
 
 __all__ = ["Explorer", "Controls", "DesignControls", "FreeParameter", "PhotoControls", "Slider", "ShownPhoto",
-           "Cancelled", "command_line", "psf_window_px", "ensquared_half_width", "EXPLORE_CROP_PX", "SINGLET_FREE",
-           "SINGLET_MAP_VALUES", "LENS_MAP_VALUES", "PSF_ANGLES_DEG", "LENS_PSF_FIELDS", "LENS_EXPORT_FILE",
-           "SLIDER_STEPS", "CACHE_ENTRIES"]
+           "Cancelled", "command_line", "figure_png", "psf_window_px", "ensquared_half_width", "EXPLORE_CROP_PX",
+           "SINGLET_FREE", "SINGLET_MAP_VALUES", "LENS_MAP_VALUES", "PSF_ANGLES_DEG", "LENS_PSF_FIELDS",
+           "LENS_EXPORT_FILE", "SLIDER_STEPS", "CACHE_ENTRIES"]
 
 EXPLORE_CROP_PX = 256
 """Side (px) of the photo panel's crop."""
@@ -367,12 +367,13 @@ def psf_mtf_figure(psfs, angles_deg, pitch_um: float, title: str) -> bytes:
     axes[-1].tick_params(labelsize=7)
     fig.suptitle(f"{title}\nwindow +-{e:.3g} um (each PSF's {PSF_WINDOW_ENERGY:.0%} energy square inside, "
                  f"x{PSF_WINDOW_MARGIN:g}); one colour scale", fontsize=9)
-    return _figure_png(fig)
+    return figure_png(fig)
 
 
-def _figure_png(fig) -> bytes:
+def figure_png(fig, dpi: int = 90) -> bytes:
+    """PNG bytes of a matplotlib figure (``dpi``: dots per inch)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
 
 
@@ -727,7 +728,7 @@ class Explorer:
             done, total = self.map_progress
             ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
             ax.set_axis_off()
-            return _figure_png(fig)
+            return figure_png(fig)
         z, logscale = layer["z"], layer["log10"]
         x, y = layer["x"], layer["y"]
         im = ax.pcolormesh(x, y, z, shading="nearest", cmap="viridis")
@@ -747,7 +748,7 @@ class Explorer:
         ax.set_ylabel(self.axis_label(layer["y_name"]))
         ax.set_title("criterion over the design plane; white: iso-cost curves", fontsize=9)
         ax.legend(fontsize=7, loc="lower left")
-        return _figure_png(fig)
+        return figure_png(fig)
 
     # ---- photo -----------------------------------------------------------------------------------------------------
     def new_photo(self, photo, source: str) -> ShownPhoto:
