@@ -21,7 +21,7 @@ from dataclasses import replace
 def main() -> None:
     import argparse
 
-    from lenssim_studies.explore import DesignControls, Explorer, PhotoControls
+    from lenssim_studies.explore import Explorer, PhotoControls
     from lenssim_studies.paper import PAPER_CAMERA
     from pipeline.photo import open_photo
 
@@ -36,26 +36,19 @@ def main() -> None:
     if a.lens:
         from lenssim.io.prescription_file import read_lens
         from lenssim_cli.explore import parse_slider
-        from lenssim_studies.explore_lens import LensExplorer
 
-        free = tuple(parse_slider(v) for v in a.vary)
-        ex = LensExplorer(photo=photo.load(), photo_source=photo.source, prescription=read_lens(a.lens), lens=a.lens,
-                          free=free)
-        d = ex.start
-        first = free[0]
-
-        def new_design(k):
-            v = d.as_dict()
-            v[first.name] = min(max(v[first.name] - first.step * (k + 1), first.start), first.end)
-            return ex.controls_from(v)
-        label = f"{first.name} slider (new design)"
+        ex = Explorer(photo=photo.load(), photo_source=photo.source, prescription=read_lens(a.lens), lens=a.lens,
+                      free=tuple(parse_slider(v) for v in a.vary))
     else:
         ex = Explorer(photo=photo, photo_source=photo.source)
-        d = DesignControls()
+    d = ex.start
+    first = next(f for f in ex.free if f.name == ex.map_axes[0])  # the singlet's Q_back, a lens's first
 
-        def new_design(k):
-            return replace(d, Q_back=d.Q_back - 0.1 * (k + 1))
-        label = "Q_back slider (new design)"
+    def new_design(k):
+        v = d.as_dict()
+        v[first.name] = min(max(v[first.name] - first.step * (k + 1), first.start), first.end)
+        return ex.controls_from(v, d.glass)
+    label = f"{first.name} slider (new design)"
     pc = PhotoControls(center=(H // 3, W // 3))
     t0 = time.perf_counter()
     ex.criteria(d), ex.optics_figure(d), ex.photo_panel(d, pc)

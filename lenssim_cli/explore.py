@@ -111,7 +111,8 @@ def cmd_explore(args) -> int:
             raise ValueError(f"{', '.join(given)} describe(s) the paper's singlet; leave them out with --lens")
         if not args.vary:
             raise ValueError("--lens needs its free parameters: --vary NAME=LO:HI (e.g. --vary E1.bending=0.3:1.3)")
-    start = None if args.lens else _start_design(args.design)
+    # the lens: any lens with its --vary sliders, or the paper's singlet from --design (each checked before serving)
+    kind = _lens_arguments(args) if args.lens else {"start": _start_design(args.design)}
     try:
         import panel  # noqa: F401
     except ImportError:
@@ -124,10 +125,7 @@ def cmd_explore(args) -> int:
     for extra in args.photos:
         _check_photo_arg(extra)
     photo, source = _open_photo(args.photo)
-    if args.lens is not None:
-        explorer = _lens_explorer(args, photo, source)
-    else:
-        explorer = Explorer(photo=photo, photo_source=source)
+    explorer = Explorer(photo=photo, photo_source=source, **kind)
     photos = ([args.photo] if args.photo else []) + [p for p in args.photos if p != args.photo]
     if ds is not None:
         explorer.load_map(ds)
@@ -138,14 +136,14 @@ def cmd_explore(args) -> int:
     if args.host not in LOOPBACK_HOSTS:
         print(f"warning: --host {args.host}: the explorer is reachable from other machines; it has no login",
               file=sys.stderr)
-    serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, start=start,
-          photos=photos, allow_origins=allow_origins)
+    serve(explorer, args.photo, host=args.host, port=args.port, max_upload_mb=args.max_upload_mb, photos=photos,
+          allow_origins=allow_origins)
     return 0
 
 
 def parse_slider(text: str):
-    """``NAME=LO:HI[:STEP]`` -> :class:`lenssim_studies.explore_lens.FreeParameter` (one-line ``ValueError``)."""
-    from lenssim_studies.explore_lens import SLIDER_STEPS, FreeParameter
+    """``NAME=LO:HI[:STEP]`` -> :class:`lenssim_studies.explore.FreeParameter` (one-line ``ValueError``)."""
+    from lenssim_studies.explore import SLIDER_STEPS, FreeParameter
 
     name, sep, spec = text.partition("=")
     parts = spec.split(":")
@@ -160,11 +158,11 @@ def parse_slider(text: str):
     return FreeParameter(name.strip(), lo, hi, step)
 
 
-def _lens_explorer(args, photo, source):
-    """The explorer on ``--lens`` with its ``--vary`` sliders, checked (the lens, names, solves) before serving."""
+def _lens_arguments(args) -> dict:
+    """The explorer's lens from ``--lens`` and its ``--vary`` sliders, ``--hold``, ``--image``, ``--aspherize`` and
+    ``--pixel-pitch`` (the file read and the arguments checked; the names and solves are checked by the explorer)."""
     from lenssim.io.prescription_file import read_lens
     from lenssim.optics.lens_solves import HOLDS
-    from lenssim_studies.explore_lens import LensExplorer
 
     free = tuple(parse_slider(v) for v in args.vary)
     hold = tuple(h.strip() for h in (args.hold or "").split(",") if h.strip())
@@ -176,23 +174,22 @@ def _lens_explorer(args, photo, source):
     for k, v in zip(aspherize, args.aspherize or ()):
         if not 1 <= k <= len(p.surfaces):
             raise ValueError(f"--aspherize {v} is not allowed: surfaces S1 to S{len(p.surfaces)}")
-    return LensExplorer(photo=photo, photo_source=source, prescription=p, lens=str(args.lens), free=free, hold=hold,
-                        image=args.image, aspherize=aspherize, pixel_pitch_um=args.pixel_pitch)
+    return dict(prescription=p, lens=str(args.lens), free=free, hold=hold, image=args.image, aspherize=aspherize,
+                pixel_pitch_um=args.pixel_pitch)
 
 
 def _start_design(name):
-    """The sliders' first values: a named design's (checked), or the explorer's default."""
-    from lenssim_studies.explore import DesignControls
-
+    """The sliders' first values: a named design's (checked), or None (the explorer's default)."""
     if name is None:
-        return DesignControls()
+        return None
+    from lenssim_studies.explore import Controls
+
     from .common import designs
 
     named = designs(None)
     if name not in named:
         raise ValueError(f"--design {name!r} is not known; choose from {', '.join(sorted(named))}")
-    v = named[name].complete().floats()
-    return DesignControls(v["s"], v["Q_back"], v.get("Q_front", 0.0), v.get("focus_shift_um", 0.0))
+    return Controls(tuple(named[name].complete().floats().items()))
 
 
 def _load_sweep(path):
@@ -343,7 +340,7 @@ JOB_LABELS = {"open": "opening the photo", "design": "the criteria and PSFs", "p
 """What the busy line calls each kind of job."""
 
 
-def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, start=None, photos=()):
+def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UPLOAD_MB, photos=()):
     """The page (a Panel layout) over ``explorer`` (its design sliders are the explorer's: the paper's singlet or any
     lens); ``photos``: the photos offered besides the generated scene and scikit-image's samples. Its widgets are
     reachable as ``app.widgets`` for tests.
@@ -360,16 +357,16 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     from lenssim.io.sensor_file import sensor_names
     from lenssim.model.glass import load_glasses
     from lenssim.model.tolerances import GRADES
-    from lenssim_studies.explore import MAP_CRITERIA, Cancelled, PhotoControls, command_line
+    from lenssim_studies.explore import MAP_CRITERIA, Cancelled, PhotoControls, command_line, figure_png
     from pipeline.camera_chain import DEMOSAIC_METHODS
     from pipeline.cfa import CFA_PATTERNS
 
     pn.config.loading_indicator = True
-    sliders = explorer.sliders(start)
+    sliders = explorer.sliders()  # at the explorer's start
     w = {sl.key: pn.widgets.FloatSlider(label=sl.label, start=sl.start, end=sl.end, step=sl.step, value=sl.value,
                                         format=_slider_format(sl.step)) for sl in sliders}
     w["glass"] = pn.widgets.Select(label="glass (catalogue)", options=list(load_glasses()),
-                                   value="paper" if start is None else start.glass, visible=explorer.has_glass)
+                                   value=explorer.start.glass, visible=explorer.prescription is None)
     shown = [photo_arg or GENERATED] + [p for p in photos if p != photo_arg]
     offered = list(dict.fromkeys(shown + [GENERATED, *SAMPLE_PHOTOS]))
     w.update({
@@ -700,10 +697,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
 
     # ---- export: what the panels show (computed already: nothing long runs here) ----------------------------------
     def _save(fig):
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=100)
-        buf.seek(0)
-        return buf
+        return io.BytesIO(figure_png(fig, dpi=100))
 
     def panel_png():
         """The photo panel as a PNG: ideal, sensor and restored crops with their scores, what made them."""
@@ -752,8 +746,8 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
     design_download = pn.widgets.FileDownload(callback=design_png, filename="lenssim_design.png",
                                               label="download the design panel as PNG", color="default", disabled=True)
     exports = [download]
-    if hasattr(explorer, "lens_toml"):  # any lens: the design as a lens file, which the command line names
-        from lenssim_studies.explore_lens import LENS_EXPORT_FILE
+    if explorer.prescription is not None:  # any lens: the design as a lens file, which the command line names
+        from lenssim_studies.explore import LENS_EXPORT_FILE
 
         def lens_file():
             if state["panel"] is None:
@@ -977,13 +971,13 @@ def _print_now(line: str) -> None:
     print(line, flush=True)  # at once: a script reading the address (--port 0) waits for it
 
 
-def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=_print_now, start=None,
-          photos=(), allow_origins=()):
+def serve(explorer, photo_arg, *, host: str, port: int, max_upload_mb: float, show_address=_print_now, photos=(),
+          allow_origins=()):
     """Serve the app until interrupted; prints its address. Only requests for the address it was started for (and
     ``allow_origins``, :func:`parse_allowed_origin`'s pairs) are answered (:func:`lock_down`), on every port."""
     import panel as pn
 
-    server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, start=start, photos=photos),
+    server = pn.serve(lambda: build_app(explorer, photo_arg, max_upload_mb=max_upload_mb, photos=photos),
                       address=host,
                       port=port,
                       show=False, start=False,

@@ -2,18 +2,29 @@
 controls' values, with caches, so that the web page (:mod:`lenssim_cli.explore`) only lays them out and so that they
 are tested and timed without a browser.
 
-An :class:`Explorer` holds one camera (the paper's, or ``camera``) and one photo; its update functions return plain
-data and PNG bytes:
+An :class:`Explorer` holds one lens, one camera and one photo; its update functions return plain data and PNG bytes:
 
 * :meth:`Explorer.criteria`: the design's criteria (MSE_R per SNR, MSE_S, RMS_W, Strehl, MTF50, cost),
 * :meth:`Explorer.optics_figure`: PSFs across the field (log scale, axes in um) and MTF curves per field angle,
-* :meth:`Explorer.cost_map`: a criterion over the paper's (s, Q_back) plane with iso-cost curves, the named designs and
-  the selected one (the map from a sweep file, or computed once on a coarse grid, :meth:`Explorer.compute_map`),
+* :meth:`Explorer.cost_map`: a criterion over the plane of two free parameters with iso-cost curves, the named designs
+  and the selected one (the map from a sweep file, or computed once on a coarse grid, :meth:`Explorer.compute_map`),
 * :meth:`Explorer.photo_panel`: a crop of the photo at a clicked position through the chosen camera chain: ideal, sensor
   image and restored image with PSNR/SSIM,
 * :meth:`Explorer.restoration_lab`: two restoration methods side by side on the same noisy crop, and a manufactured
   lens restored with the nominal PSFs and with its own,
 * :func:`command_line`: the ``lenssim simulate`` command that reproduces the photo panel.
+
+The lens is one description, its free parameters the sliders (:class:`FreeParameter`, a design :class:`Controls`):
+
+* the paper's singlet (no ``prescription``): its free parameters are :class:`lenssim.model.design.Design`'s (``s``,
+  ``Q_back``, ``Q_front``, ``focus_shift_um``; their lens names ``E1.bending``, ``S2.conic``, ... are the same
+  parameters), its glass a control, and its numbers the batched closed forms, the fast path (:func:`lenssim.evaluate`,
+  :class:`lenssim.LensPSF`; the map over the paper's (s, Q_back) plane, or a ``lenssim sweep``'s);
+* any lens (``lenssim explore --lens LENS --vary NAME=LO:HI ...``) with the free parameters named as ``lenssim
+  tradeoff --lens`` names them, every number the command line's for the same design (docs/explore.md): the criteria and
+  the map ``tradeoff --lens``'s (:func:`lenssim_studies.tradeoff._score`), the photo ``simulate --lens``'s (the
+  exported command names the design's lens file, :meth:`Explorer.lens_toml`), the restoration lab's manufactured lens
+  a centred copy drawn from the per-surface grade (a decentred lens's PSFs are known along one azimuth only).
 
 PSF providers are cached by design (and lens sample), simulated crops by everything they depend on, so a control
 changes only what depends on it.
@@ -37,21 +48,39 @@ import numpy as np
 import torch
 
 from lenssim import AsBuiltPSF, Camera, Design, LensPSF, PSFProvider, evaluate
-from lenssim.optics.psf_provider import DerivedPSF
+from lenssim.model.design import PARAMETERS, parameter_name
+from lenssim.model.numerics import FAST_NUMERICS, Numerics
+from lenssim.model.prescription import Prescription
 from lenssim.model.tolerances import GRADES
+from lenssim.optics.psf_provider import DerivedPSF
 from pipeline.photo import Photo
 
+from .tradeoff import (MAX_GRID_PARAMETERS, LensTradeoffRun, _score, design_prescription, photo_field,
+                       sequential_provider)
 from .paper import PAPER, PAPER_CAMERA, PAPER_DESIGNS
 
-__all__ = ["Explorer", "DesignControls", "PhotoControls", "Slider", "ShownPhoto", "Cancelled", "command_line",
-           "psf_window_px", "ensquared_half_width", "EXPLORE_CROP_PX", "MAP_GRID", "PSF_ANGLES_DEG", "CACHE_ENTRIES"]
+__all__ = ["Explorer", "Controls", "DesignControls", "FreeParameter", "PhotoControls", "Slider", "ShownPhoto",
+           "Cancelled", "command_line", "figure_png", "psf_window_px", "ensquared_half_width", "EXPLORE_CROP_PX",
+           "SINGLET_FREE", "SINGLET_MAP_VALUES", "LENS_MAP_VALUES", "PSF_ANGLES_DEG", "LENS_PSF_FIELDS",
+           "LENS_EXPORT_FILE", "SLIDER_STEPS", "CACHE_ENTRIES"]
 
 EXPLORE_CROP_PX = 256
 """Side (px) of the photo panel's crop."""
-MAP_GRID = {"s": (-2.0, 1.0, 13), "Q_back": (-10.0, 1.2, 15)}
-"""The coarse grid (start, stop, count) of the cost map when no sweep file is given: 195 designs, ~1 min once."""
+SINGLET_MAP_VALUES = {"Q_back": 15, "s": 13}
+"""Values per axis of the singlet's cost map over its sliders' ranges when no sweep file is given: 195 designs, ~1 min
+once."""
+LENS_MAP_VALUES = 9
+"""Values per axis of a lens's cost map (9 x 9 = 81 designs, computed once in the background)."""
 PSF_ANGLES_DEG = (0.0, 4.0, 8.0, 12.0)
-"""Field angles (deg) of the PSF and MTF panel."""
+"""Field angles (deg) of the singlet's PSF and MTF panel."""
+LENS_PSF_FIELDS = (0.0, 1 / 3, 2 / 3, 1.0)
+"""Field angles of a lens's PSF and MTF panel, as fractions of the lens's largest."""
+SLIDER_STEPS = 100
+"""Steps across a free parameter's range when its step is not given."""
+LENS_EXPORT_FILE = "explored_lens.toml"
+"""The name the exported command gives a lens's design file (downloaded from the page)."""
+NO_AXIS = "(one free parameter)"
+"""The map's vertical axis when the lens has one free parameter."""
 PSF_WINDOW_ENERGY = 0.99
 """Fraction of each PSF's energy inside the square window the PSF panels share (sized to the widest PSF shown)."""
 PSF_WINDOW_MARGIN = 1.5
@@ -168,23 +197,63 @@ class Slider:
 
 
 @dataclass(frozen=True)
-class DesignControls:
-    """The design the sliders select: the paper's parameters (s, Q_back, Q_front, focus shift um) and the lens's glass
-    (a catalogue name, ``configs/glasses.toml``; ``"paper"``: the paper's non-dispersive n = 1.5)."""
+class FreeParameter:
+    """A free parameter of the lens and its slider: its name (made canonical by the explorer: the singlet's
+    :data:`lenssim.model.design.PARAMETERS` names, any lens's :func:`lenssim.model.lens_parameters.parse_parameter`
+    names), range ``start`` .. ``end`` and ``step`` in the parameter's unit; the slider's ``label`` and the map axis's
+    ``description`` and ``unit`` ("": the parameter's own)."""
 
-    s: float = PAPER_DESIGNS["end_to_end_paper"].values["s"].item()
-    Q_back: float = PAPER_DESIGNS["end_to_end_paper"].values["Q_back"].item()
-    Q_front: float = 0.0
-    focus_shift_um: float = 0.0
+    name: str
+    start: float
+    end: float
+    step: float
+    label: str = ""
+    description: str = ""
+    unit: str = ""
+
+    def __post_init__(self):
+        if not (math.isfinite(self.start) and math.isfinite(self.end) and self.start < self.end):
+            raise ValueError(f"--vary {self.name}={self.start:g}:{self.end:g} is not allowed: finite LO < HI")
+        if not (math.isfinite(self.step) and 0 < self.step <= self.end - self.start):
+            raise ValueError(f"--vary {self.name}: step {self.step:g} is not allowed: more than 0 and at most HI - LO")
+
+
+SINGLET_FREE = (
+    FreeParameter("s", -2.0, 1.0, PARAMETERS["s"].step, "s (bending)", "bending"),
+    FreeParameter("Q_back", -10.0, 1.2, PARAMETERS["Q_back"].step, "Q_back (back conic)"),
+    FreeParameter("Q_front", -10.0, 10.0, PARAMETERS["Q_front"].step, "Q_front (front conic)"),
+    FreeParameter("focus_shift_um", -500.0, 500.0, PARAMETERS["focus_shift_um"].step, "focus shift [um]"))
+"""The paper's singlet's sliders, its :class:`lenssim.model.design.Design` parameters over the ranges the page offers
+(the map's plane: s from -2 to 1, Q_back from -10 to 1.2), each by its registry's step."""
+PAPER_PLANE = ("Q_back", "s")
+"""The singlet's cost map's (horizontal, vertical) parameters: the paper's plane."""
+
+
+@dataclass(frozen=True)
+class Controls:
+    """The design the sliders select: ``((name, value), ...)`` of the lens's free parameters, and the singlet's glass (a
+    catalogue name, ``configs/glasses.toml``; ``"paper"``: the paper's non-dispersive n = 1.5; a lens file names its own
+    glasses)."""
+
+    values: tuple[tuple[str, float], ...]
     glass: str = "paper"
 
-    def design(self) -> Design:
-        return Design(s=float(self.s), Q_back=float(self.Q_back), Q_front=float(self.Q_front),
-                      focus_shift_um=float(self.focus_shift_um))
+    def as_dict(self) -> dict[str, float]:
+        return {n: float(v) for n, v in self.values}
 
     def key(self) -> tuple:
-        return (round(self.s, 9), round(self.Q_back, 9), round(self.Q_front, 9), round(self.focus_shift_um, 9),
-                self.glass)
+        return tuple((n, round(float(v), 12)) for n, v in self.values) + (self.glass,)
+
+
+class DesignControls(Controls):
+    """The singlet's controls by its parameters' names (by default the paper's end-to-end design, a spherical front
+    surface, the paraxial focus and the paper's glass)."""
+
+    def __init__(self, s: float = PAPER_DESIGNS["end_to_end_paper"].values["s"].item(),
+                 Q_back: float = PAPER_DESIGNS["end_to_end_paper"].values["Q_back"].item(), Q_front: float = 0.0,
+                 focus_shift_um: float = 0.0, glass: str = "paper"):
+        super().__init__((("s", float(s)), ("Q_back", float(Q_back)), ("Q_front", float(Q_front)),
+                          ("focus_shift_um", float(focus_shift_um))), glass)
 
 
 @dataclass(frozen=True, eq=False)
@@ -298,19 +367,27 @@ def psf_mtf_figure(psfs, angles_deg, pitch_um: float, title: str) -> bytes:
     axes[-1].tick_params(labelsize=7)
     fig.suptitle(f"{title}\nwindow +-{e:.3g} um (each PSF's {PSF_WINDOW_ENERGY:.0%} energy square inside, "
                  f"x{PSF_WINDOW_MARGIN:g}); one colour scale", fontsize=9)
-    return _figure_png(fig)
+    return figure_png(fig)
 
 
-def _figure_png(fig) -> bytes:
+def figure_png(fig, dpi: int = 90) -> bytes:
+    """PNG bytes of a matplotlib figure (``dpi``: dots per inch)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
 
 
 @dataclass
 class Explorer:
-    """The explorer's state and caches for one camera and one photo (linear ``(1, C, H, W)``, or a
-    :class:`pipeline.photo.Photo`; None: the generated scene is made at the sensor's size on first use)."""
+    """The explorer's state and caches for one lens, one camera and one photo (linear ``(1, C, H, W)``, or a
+    :class:`pipeline.photo.Photo`; None: the generated scene is made at the sensor's size on first use).
+
+    No ``prescription``: the paper's singlet (``camera``'s lens) with the sliders ``free`` (:data:`SINGLET_FREE` by
+    default) at ``start`` (:class:`DesignControls` by default). Else the lens ``prescription`` (named ``lens`` by the
+    user) with the free parameters ``free`` (1 to :data:`lenssim_studies.tradeoff.MAX_GRID_PARAMETERS`; the
+    sliders start at the file's design), the solves ``hold``, ``image`` and the even aspheres ``aspherize`` (1-based)
+    as ``lenssim tradeoff --lens`` takes them, and ``pixel_pitch_um`` the sensor's pitch (um) instead of the defaults.
+    ``map_values``: values per axis of the cost map (:data:`SINGLET_MAP_VALUES`, :data:`LENS_MAP_VALUES` by default)."""
 
     camera: Camera = PAPER_CAMERA
     photo: object = None
@@ -318,70 +395,132 @@ class Explorer:
     snr_db: tuple = tuple(PAPER.snr_db)
     rho0: float = PAPER.rho0
     map_data: dict | None = None
+    prescription: Prescription | None = None
+    lens: str = ""
+    free: tuple[FreeParameter, ...] = ()
+    start: Controls | None = None
+    hold: tuple[str, ...] = ()
+    image: str = "file"
+    aspherize: tuple[int, ...] = ()
+    pixel_pitch_um: float | None = None
+    numerics: Numerics = FAST_NUMERICS
+    map_values: int | None = None
     _caches: dict = field(default_factory=dict, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
     map_progress: tuple = (0, 0)
     _shown: ShownPhoto | None = field(default=None, repr=False)
     _photo_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    def __post_init__(self):
+        if self.map_values is not None and not 2 <= self.map_values <= 101:
+            raise ValueError(f"map_values={self.map_values} is not allowed: 2 to 101 values per axis")
+        if self.prescription is None:
+            self.free = tuple(self._described(f) for f in self.free or SINGLET_FREE)
+            self.start = DesignControls() if self.start is None else self.start
+            self.named = {name: d.floats() for name, d in PAPER_DESIGNS.items()}
+            self.map_axes = PAPER_PLANE
+            return
+        from lenssim.model.lens_parameters import parameter_values
+        from lenssim.optics.sequential import SequentialLens
+
+        if not 1 <= len(self.free) <= MAX_GRID_PARAMETERS:
+            raise ValueError(f"{len(self.free)} free parameters are not allowed: 1 to {MAX_GRID_PARAMETERS} (--vary)")
+        if self.pixel_pitch_um is not None and not (math.isfinite(self.pixel_pitch_um) and self.pixel_pitch_um > 0):
+            raise ValueError(f"--pixel-pitch {self.pixel_pitch_um:g} is not allowed: a pixel pitch in um, > 0")
+        seq = SequentialLens(self.prescription)
+        seq.check_aperture()
+        if self.pixel_pitch_um is None and max(self.prescription.fields) <= 0:
+            raise ValueError(f"--lens {self.lens} has only the axial field: give --pixel-pitch UM for the sensor")
+        self.free = tuple(self._described(f) for f in self.free)
+        file_values = parameter_values(self.prescription, [self._parameter(f.name) for f in self.free])
+        # the sliders start at the file's design (each value kept inside its range)
+        self.file_values = {f.name: float(file_values[f.name]) for f in self.free}
+        self.start = Controls(tuple((f.name, min(max(self.file_values[f.name], f.start), f.end)) for f in self.free))
+        self.named = {"the file's design": self.file_values}
+        self.map_axes = (self.free[0].name, self.free[1].name if len(self.free) > 1 else NO_AXIS)
+        if self.pixel_pitch_um is None:  # tradeoff's sensor: the nominal lens's Nyquist pitch, point samples
+            pitch = self.prescription.primary_wavelength_um * seq.paraxial().working_f_number / 2
+            self._criteria_pitch, self._sampling = pitch, "point"
+        else:
+            self._criteria_pitch, self._sampling = float(self.pixel_pitch_um), "area"
+        self.tradeoff_run(self.start)  # checks the solves and the image plane (one line each)
+
     def _cache(self, name: str) -> _LRU:
         return self._caches.setdefault(name, _LRU())
 
+    def _parameter(self, name: str):
+        """The free parameter ``name`` of the lens (its canonical name, description and unit; a one-line
+        ``ValueError`` listing the valid names otherwise)."""
+        if self.prescription is None:
+            return PARAMETERS[parameter_name(name)]
+        from lenssim.model.lens_parameters import parse_parameter
+
+        return parse_parameter(self.prescription, name, aspherize=self.aspherize)
+
+    def _described(self, f: FreeParameter) -> FreeParameter:
+        p = self._parameter(f.name)
+        return replace(f, name=p.name, description=f.description or p.description, unit=f.unit or p.unit)
+
+    def tradeoff_run(self, controls: Controls, grid: dict | None = None) -> LensTradeoffRun:
+        """Any lens: the one-design trade-off run of ``controls`` (``grid``: ``{name: values}`` instead for those
+        parameters), whose :func:`lenssim_studies.tradeoff._score` gives the criteria."""
+        vals = controls.as_dict()
+        vary = tuple((f.name, tuple(grid[f.name]) if grid and f.name in grid else (vals[f.name],)) for f in self.free)
+        return LensTradeoffRun(self.prescription, self.lens, vary, tuple(self.snr_db), self.rho0, self._criteria_pitch,
+                               self._sampling, self.numerics, hold=self.hold, image=self.image,
+                               aspherize=self.aspherize, coarse=True)
+
     # ---- what the page's design controls are ---------------------------------------------------------------------
-    has_glass = True
-    """Whether the lens's glass is a control (the paper's singlet: a catalogue glass or the paper's n = 1.5)."""
+    def sliders(self, start: Controls | None = None) -> list[Slider]:
+        """The design sliders, at ``start``'s values (the explorer's :attr:`start` otherwise)."""
+        s = (self.start if start is None else start).as_dict()
+        return [Slider(f.name, f.label or (f"{f.name} [{f.unit}]" if f.unit not in ("", "1") else f.name), f.start,
+                       f.end, f.step, s[f.name]) for f in self.free]
 
-    def sliders(self, start: DesignControls | None = None) -> list[Slider]:
-        """The design sliders, at ``start``'s values (the explorer's default design otherwise)."""
-        d = DesignControls() if start is None else start
-        return [Slider("s", "s (bending)", -2.0, 1.0, 0.025, d.s),
-                Slider("Q_back", "Q_back (back conic)", -10.0, 1.2, 0.1, d.Q_back),
-                Slider("Q_front", "Q_front (front conic)", -10.0, 10.0, 0.1, d.Q_front),
-                Slider("focus", "focus shift [um]", -500.0, 500.0, 5.0, d.focus_shift_um)]
-
-    def controls_from(self, values: dict, glass: str = "paper") -> DesignControls:
-        """The design of the sliders' ``{key: value}`` (keys of :meth:`sliders`)."""
-        return DesignControls(values["s"], values["Q_back"], values["Q_front"], values["focus"], glass)
-
-    @property
-    def map_axes(self) -> tuple[str, str]:
-        """The cost map's (horizontal, vertical) axes: slider keys, also the keys of :attr:`map_data`."""
-        return ("Q_back", "s")
+    def controls_from(self, values: dict, glass: str = "paper") -> Controls:
+        """The design of the sliders' ``{key: value}`` (keys of :meth:`sliders`) and the glass (the singlet's)."""
+        return Controls(tuple((f.name, float(values[f.name])) for f in self.free), glass)
 
     def map_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        """The ranges of the map's (horizontal, vertical) parameters, as their sliders give them (the map is drawn
-        over these from the start, before it is computed)."""
-        ranges = {sl.key: (sl.start, sl.end) for sl in self.sliders()}
+        """The ranges of the map's (horizontal, vertical) parameters (:attr:`map_axes`: slider keys, also the keys of
+        :attr:`map_data`), as their sliders give them (the map is drawn over these from the start, before it is
+        computed)."""
+        ranges = {f.name: (f.start, f.end) for f in self.free}
         return tuple(ranges.get(k, (-0.5, 0.5)) for k in self.map_axes)
 
-    def map_point(self, controls) -> tuple[float, float]:
+    def map_point(self, controls: Controls) -> tuple[float, float]:
         """Where ``controls`` sits on the map (horizontal, vertical)."""
-        return (controls.Q_back, controls.s)
+        v = controls.as_dict()
+        x, y = self.map_axes
+        return (v[x], v.get(y, 0.0))
 
     def named_points(self) -> dict[str, tuple[float, float]]:
         """The named designs marked on the map: ``{name: (horizontal, vertical)}``."""
-        return {name: (float(d.values["Q_back"]), float(d.values["s"])) for name, d in PAPER_DESIGNS.items()}
+        x, y = self.map_axes
+        return {name: (v[x], v.get(y, 0.0)) for name, v in self.named.items()}
 
     def axis_label(self, key: str) -> str:
         """A map axis's label."""
-        return {"Q_back": "Q_back (conic constant of the back surface)", "s": "s (bending)"}.get(key, key)
+        f = next((f for f in self.free if f.name == key), None)
+        if f is None:
+            return key
+        return f"{key} ({f.description}" + (f", {f.unit})" if f.unit not in ("", "1") else ")")
 
     def map_note(self) -> str:
         """What the map's designs hold fixed (shown under the map)."""
-        return "the paper's glass, n = 1.5"
+        if self.prescription is None:
+            return "the paper's glass, n = 1.5"
+        rest = [f"{n} = {v:.6g}" for n, v in self.start.values[2:]]
+        return f"{self.lens}" + (f"; {', '.join(rest)}" if rest else "")
 
-    def design_label(self, controls) -> str:
-        glass = "" if controls.glass == "paper" else f", {controls.glass}"
-        return controls.design().label() + glass
-
-    @property
-    def sensor(self):
-        """The sensor the photo is simulated on (its pixels, noise and ISO table)."""
-        return self.camera.sensor
+    def design_label(self, controls: Controls) -> str:
+        if self.prescription is None:
+            return Design(controls.as_dict()).label() + ("" if controls.glass == "paper" else f", {controls.glass}")
+        return f"{self.lens}: " + ", ".join(f"{n} = {v:.5g}" for n, v in controls.values)
 
     # ---- design ---------------------------------------------------------------------------------------------------
-    def camera_for(self, controls: DesignControls) -> Camera:
-        """The camera with the lens made of ``controls.glass`` (the explorer's own camera for ``"paper"``)."""
+    def camera_for(self, controls: Controls) -> Camera:
+        """The singlet's camera with the lens made of ``controls.glass`` (the explorer's own camera for ``"paper"``)."""
         if controls.glass == "paper":
             return self.camera
 
@@ -392,78 +531,160 @@ class Explorer:
             return replace(self.camera, lens=lens)
         return self._cache("camera").get_or(controls.glass, make)
 
-    def check(self, controls: DesignControls) -> Design:
-        """The design of ``controls``, checked against the lens (one-line ``ValueError`` otherwise)."""
-        d = controls.design()
-        self.camera_for(controls).lens.check_design(d.to(torch.float64))
-        return d
+    def check(self, controls: Controls):
+        """The design of ``controls``, checked (a one-line ``ValueError`` when it cannot be made): the singlet's
+        :class:`lenssim.model.design.Design`, any lens's solved ``(prescription, SequentialLens)``."""
+        if self.prescription is None:
+            d = Design(controls.as_dict())
+            self.camera_for(controls).lens.check_design(d.to(torch.float64))
+            return d
 
-    def criteria(self, controls: DesignControls) -> dict:
-        """``{label: value}``: MSE_R at each SNR, MSE_S at the reference SNR, RMS_W (waves), Strehl, MTF50
-        (cycles/mm) and the cost C_a, averaged over the field as :func:`lenssim.evaluate` does."""
         def make():
-            d = self.check(controls)
-            r = evaluate(self.camera_for(controls), d, self.snr_db, rho0=self.rho0)
+            from lenssim.optics.lens_solves import solve_design
+            from lenssim.optics.sequential import SequentialLens
+
+            values = {self._parameter(n): v for n, v in controls.values}
+            q, shift = solve_design(self.prescription, values, hold=self.hold, image=self.image)
+            seq = SequentialLens(q, image_shift_mm=shift)
+            seq.check_aperture()
+            return q, seq
+        return self._cache("solved").get_or(controls.key(), make)
+
+    def criteria(self, controls: Controls) -> dict:
+        """``{label: value}``: MSE_R at each SNR, MSE_S at the reference SNR, RMS_W (waves), Strehl, MTF50
+        (cycles/mm) and the cost C_a, averaged over the field: the singlet's as :func:`lenssim.evaluate` gives them, any
+        lens's as ``lenssim tradeoff --lens`` does (with its focal length, mm)."""
+        def make():
+            if self.prescription is None:
+                r = evaluate(self.camera_for(controls), self.check(controls), self.snr_db, rho0=self.rho0)
+            else:
+                self.check(controls)
+                r = _score(self.tradeoff_run(controls), 0)
+                if r["reason"]:
+                    raise ValueError(f"this design is refused: {r['reason']}")
             out = {f"MSE_R at {s:g} dB": float(v) for s, v in zip(self.snr_db, r["mse_r"])}
             ref = min(range(len(self.snr_db)), key=lambda i: abs(self.snr_db[i] - PAPER.reference_snr_db))
             out[f"MSE_S at {self.snr_db[ref]:g} dB"] = float(r["mse_s"][ref])
             out.update({"RMS_W [waves]": float(r["rms_w"]), "Strehl": float(r["strehl"]),
                         "MTF50 [cycles/mm]": float(r["mtf50"]), "cost C_a": float(r["cost"])})
+            if self.prescription is not None:
+                out["EFL [mm]"] = float(r["efl_mm"])
             return out
         return self._cache("criteria").get_or(controls.key(), make)
 
-    def optics_figure(self, controls: DesignControls, angles=PSF_ANGLES_DEG) -> bytes:
-        """PNG: the PSF at each field angle of ``angles`` (along the sensor's diagonal, log10 scale, axes in um) and
-        the MTF (radial and tangential) at each angle, against spatial frequency in cycles/mm."""
-        def make():
-            from lenssim import psf_at
+    def optics_figure(self, controls: Controls, angles=None) -> bytes:
+        """PNG: the PSF (log10, axes in um) at each field angle of ``angles`` (deg; the singlet's
+        :data:`PSF_ANGLES_DEG` along the sensor's diagonal, a lens's :data:`LENS_PSF_FIELDS` of its largest field along
+        the image's x axis, on the criteria's sensor) and the MTFs (x and y) there against cycles/mm."""
+        if angles is None:
+            angles = (PSF_ANGLES_DEG if self.prescription is None
+                      else tuple(f * max(self.prescription.fields) for f in LENS_PSF_FIELDS))
+        angles = tuple(angles)
 
-            d = self.check(controls)
-            cam = self.camera_for(controls)
-            pitch = cam.sensor.pixel_pitch_um
-            azi = math.atan2(cam.sensor.height_px, cam.sensor.width_px)
-            psfs = []
-            for a in angles:
-                r = float(cam.geometry.image_height_mm(a))
-                psfs.append(psf_at(cam, d, r * math.cos(azi), r * math.sin(azi))[0])
-            glass = "" if controls.glass == "paper" else f", {controls.glass}"
-            return psf_mtf_figure(psfs, angles, pitch, f"{d.label()}{glass}: PSFs (log10, {pitch:g} um pixels) and MTFs")
-        return self._cache("optics").get_or(controls.key() + tuple(angles), make)
+        def make():
+            psfs, shown, pitch, samples = (self._singlet_psfs if self.prescription is None
+                                           else self._lens_psfs)(controls, angles)
+            return psf_mtf_figure(psfs, shown, pitch, f"{self.design_label(controls)}: PSFs (log10, {samples}) and MTFs")
+        return self._cache("optics").get_or(controls.key() + angles, make)
+
+    def _singlet_psfs(self, controls: Controls, angles) -> tuple:
+        """The singlet's PSFs at ``angles`` along the sensor's diagonal, those angles, the pitch (um) and its words."""
+        from lenssim import psf_at
+
+        d = self.check(controls)
+        cam = self.camera_for(controls)
+        pitch = cam.sensor.pixel_pitch_um
+        azi = math.atan2(cam.sensor.height_px, cam.sensor.width_px)
+        psfs = []
+        for a in angles:
+            r = float(cam.geometry.image_height_mm(a))
+            psfs.append(psf_at(cam, d, r * math.cos(azi), r * math.sin(azi))[0])
+        return psfs, angles, pitch, f"{pitch:g} um pixels"
+
+    def _lens_psfs(self, controls: Controls, angles) -> tuple:
+        """A lens's PSFs on the criteria's sensor at the whole pixels nearest ``angles`` along the image's x axis, the
+        angles they are at, the pitch (um) and its words."""
+        from lenssim.optics.sequential_psf import image_scale_mm
+
+        q, seq = self.check(controls)
+        pitch = self._criteria_pitch
+        scale = image_scale_mm(seq)
+        cols = [round(scale * math.tan(math.radians(a)) / (pitch * 1e-3)) for a in angles]
+        rows = [0] * len(cols)
+        shown = [math.degrees(math.atan(c * pitch * 1e-3 / scale)) for c in cols]  # at whole pixels
+        prov = sequential_provider(q, seq, pitch_um=pitch, sampling=self._sampling,
+                                   max_field_deg=max(max(shown) * (1 + 1e-9), 1e-9), numerics=self.numerics,
+                                   coarse=True)
+        n = int(prov.extent_px(torch.tensor(rows), torch.tensor(cols), (0.0, 0.0)))
+        n = max(32, n + n % 2)
+        psfs = prov.psf_at_pixels(torch.tensor(rows), torch.tensor(cols), (0.0, 0.0), n, dtype=torch.float64)
+        psfs = psfs.reshape(len(angles), -1, n, n).mean(1)
+        kind = "point samples" if self._sampling == "point" else "pixels"
+        return list(psfs), shown, pitch, f"{pitch:.4g} um {kind}"
 
     # ---- the cost map --------------------------------------------------------------------------------------------
+    def _axis_values(self, name: str) -> np.ndarray:
+        """The map's values of the free parameter ``name`` over its slider's range."""
+        if name == NO_AXIS:
+            return np.zeros(1)
+        f = next(f for f in self.free if f.name == name)
+        count = self.map_values or (SINGLET_MAP_VALUES[name] if self.prescription is None else LENS_MAP_VALUES)
+        return np.linspace(f.start, f.end, count)
+
     def compute_map(self, progress=None) -> dict:
-        """The criteria on :data:`MAP_GRID` (once; ``progress(done, total)`` after each design): ``{"s", "Q_back",
-        name: (len(s), len(Q_back)[, S]) arrays}``; designs the lens refuses are NaN."""
+        """The criteria on a grid of the map's two parameters (:attr:`map_axes`) over their sliders' ranges (once;
+        ``progress(done, total)`` after each design): ``{x name, y name, criterion: (len(y), len(x)[, S]) arrays}``;
+        designs that cannot be made are NaN. The singlet's other parameters at their defaults, any lens's at their
+        first values."""
         with self._lock:
             if self.map_data is not None:
                 return self.map_data
-            s = np.linspace(*MAP_GRID["s"])
-            q = np.linspace(*MAP_GRID["Q_back"])
+            xn, yn = self.map_axes
+            xs, ys = self._axis_values(xn), self._axis_values(yn)
             S = len(self.snr_db)
-            out = {"s": s, "Q_back": q, "mse_r": np.full((len(s), len(q), S), np.nan),
-                   "mse_s": np.full((len(s), len(q), S), np.nan),
-                   **{k: np.full((len(s), len(q)), np.nan) for k in ("rms_w", "strehl", "mtf50", "cost")}}
-            total = len(s) * len(q)
-            for i, sv in enumerate(s):
-                for j, qv in enumerate(q):
-                    d = Design(s=float(sv), Q_back=float(qv))
-                    try:
-                        self.camera.lens.check_design(d.to(torch.float64))
-                        r = evaluate(self.camera, d, self.snr_db, rho0=self.rho0)
-                    except ValueError:
-                        r = None
-                    if r is not None:
-                        for k in MAP_CRITERIA:
-                            out[k][i, j] = r[k].numpy()
-                    self.map_progress = (i * len(q) + j + 1, total)
-                    if progress is not None:
-                        progress(*self.map_progress)
+            out = {xn: xs, yn: ys, **{k: np.full((len(ys), len(xs)) + ((S,) if k in ("mse_r", "mse_s") else ()), np.nan)
+                                      for k in MAP_CRITERIA}}
+            for done, (iy, ix, r) in enumerate((self._singlet_grid if self.prescription is None
+                                                else self._lens_grid)(xs, ys), 1):
+                if r is not None:
+                    for k in MAP_CRITERIA:
+                        out[k][iy, ix] = np.asarray(r[k])
+                self.map_progress = (done, xs.size * ys.size)
+                if progress is not None:
+                    progress(*self.map_progress)
             self.map_data = out
             return out
 
+    def _singlet_grid(self, xs, ys):
+        """``(iy, ix, criteria or None)`` of each design of the singlet's map (:func:`lenssim.evaluate`; None: the lens
+        refuses it), row by row."""
+        xn, yn = self.map_axes
+        for iy, yv in enumerate(ys):
+            for ix, xv in enumerate(xs):
+                try:  # the paper's glass
+                    r = evaluate(self.camera, self.check(Controls(((xn, float(xv)), (yn, float(yv))))), self.snr_db,
+                                 rho0=self.rho0)
+                except ValueError:
+                    r = None
+                yield iy, ix, r
+
+    def _lens_grid(self, xs, ys):
+        """``(iy, ix, criteria or None)`` of each design of a lens's map (one trade-off run over the grid; None: the
+        design cannot be made)."""
+        xn, yn = self.map_axes
+        grid = {xn: xs} if yn == NO_AXIS else {xn: xs, yn: ys}
+        run = self.tradeoff_run(self.start, grid={k: tuple(float(v) for v in g) for k, g in grid.items()})
+        for i in range(run.size):
+            d = run.design(i)
+            r = _score(run, i)
+            yield (0 if yn == NO_AXIS else int(np.argmin(np.abs(ys - d[yn]))), int(np.argmin(np.abs(xs - d[xn]))),
+                   None if r["reason"] else r)
+
     def load_map(self, ds) -> None:
         """Use a sweep's dataset (:func:`lenssim_studies.sweep.run_sweep`'s, with dimensions ``s`` and ``Q_back``)
-        as the map."""
+        as the singlet's map."""
+        if self.prescription is not None:
+            raise ValueError("--sweep is a sweep of the paper's singlet: a lens's map is computed by the explorer")
         need = {"s", "Q_back"}
         if not need <= set(ds.dims):
             raise ValueError(f"the sweep's dimensions are {sorted(ds.dims)}: the map needs s and Q_back")
@@ -507,7 +728,7 @@ class Explorer:
             done, total = self.map_progress
             ax.text(0.5, 0.5, f"computing the map: {done} of {total or '?'} designs", ha="center", va="center")
             ax.set_axis_off()
-            return _figure_png(fig)
+            return figure_png(fig)
         z, logscale = layer["z"], layer["log10"]
         x, y = layer["x"], layer["y"]
         im = ax.pcolormesh(x, y, z, shading="nearest", cmap="viridis")
@@ -527,7 +748,7 @@ class Explorer:
         ax.set_ylabel(self.axis_label(layer["y_name"]))
         ax.set_title("criterion over the design plane; white: iso-cost curves", fontsize=9)
         ax.legend(fontsize=7, loc="lower left")
-        return _figure_png(fig)
+        return figure_png(fig)
 
     # ---- photo -----------------------------------------------------------------------------------------------------
     def new_photo(self, photo, source: str) -> ShownPhoto:
@@ -600,98 +821,148 @@ class Explorer:
         return table.full_well_for_iso(pc.iso)
 
     def sensor_for(self, shape) -> object:
-        """The sensor a photo of ``shape`` is simulated on (its pixels, noise and ISO table): the camera's."""
-        return self.camera.sensor
+        """The sensor a photo of ``shape`` is simulated on (its pixels, noise and ISO table): the singlet's camera's; for
+        any lens the paper's noise and ISO table, the photo's pixels at :meth:`_photo_field`'s pitch."""
+        if self.prescription is None:
+            return self.camera.sensor
+        H, W = shape[-2:]
+        return replace(PAPER_CAMERA.sensor, pixel_pitch_um=self._photo_field(shape)[0], width_px=int(W),
+                       height_px=int(H))
 
-    def _provider(self, controls: DesignControls, lens=None, shape=None):
-        """The design's PSFs (of the manufactured ``lens``, if given) over a photo of ``shape`` (the paper's camera:
-        the same for every photo)."""
-        key = controls.key() + (None if lens is None else id(lens),)
-        d = self.check(controls)
-        cam = self.camera_for(controls)
-        return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(cam, d) if lens is None
-                                                                 else AsBuiltPSF(cam, d, lens)))
+    def _photo_field(self, shape=None) -> tuple[float, float]:
+        """Any lens: the pixel pitch (um) of a photo of ``shape`` (the explorer's own by default) and the largest field
+        angle its blur asks PSFs at (deg), as ``lenssim simulate --lens`` takes them."""
+        from lenssim.optics.sequential import SequentialLens
+        from pipeline.blur import PAPER_SCHEME
 
-    def design_arguments(self, controls: DesignControls) -> list[str]:
-        """The command-line arguments that select ``controls``'s design."""
-        parts = ["--s", f"{controls.s:g}", "--Q_back", f"{controls.Q_back:g}"]
-        if controls.Q_front:
-            parts += ["--Q_front", f"{controls.Q_front:g}"]
-        if controls.focus_shift_um:
-            parts += ["--focus_shift_um", f"{controls.focus_shift_um:g}"]
-        if controls.glass != "paper":
-            parts += ["--glass", controls.glass]
-        return parts
+        shape = tuple(self.photo_shape if shape is None else shape)
+        return self._cache("field").get_or(shape, lambda: photo_field(
+            self.prescription, SequentialLens(self.prescription), shape, pitch_um=self.pixel_pitch_um,
+            margin_px=PAPER_SCHEME.core))
+
+    def _provider(self, controls: Controls, lens=None, shape=None):
+        """The design's PSFs (of the manufactured ``lens``, if given: the singlet's tolerance sample, any lens's
+        SequentialLens) over a photo of ``shape`` (the explorer's own by default; the singlet's: the same for every
+        photo)."""
+        if self.prescription is None:
+            d, cam = self.check(controls), self.camera_for(controls)
+            key = controls.key() + (None if lens is None else id(lens),)
+            return self._cache("psf").get_or(key, lambda: _CachedPSF(LensPSF(cam, d) if lens is None
+                                                                     else AsBuiltPSF(cam, d, lens)))
+        shape = tuple(self.photo_shape if shape is None else shape)
+
+        def make():
+            q, seq = self.check(controls)
+            pitch, amax = self._photo_field(shape)
+            H, W = shape[-2:]
+            return _CachedPSF(sequential_provider(q, seq if lens is None else lens, pitch_um=pitch, sampling="area",
+                                                  max_field_deg=amax, width_px=int(W), height_px=int(H)))
+        return self._cache("psf").get_or(controls.key() + (shape, None if lens is None else lens.cache_key()), make)
 
     def check_grade(self, grade: str) -> None:
-        if grade not in GRADES:
+        """A one-line ``ValueError`` unless ``grade`` names a tolerance grade (the singlet's; any lens's per-surface)."""
+        if self.prescription is not None:
+            from lenssim.model.surface_tolerances import surface_grade
+
+            surface_grade(grade)
+        elif grade not in GRADES:
             raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
 
-    def _built_provider(self, controls: DesignControls, grade: str, lens_seed: int, shape=None):
-        """The PSFs of one manufactured lens of ``controls``'s design (drawn from ``grade`` with ``lens_seed``)."""
-        return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed), shape)
+    def _built_provider(self, controls: Controls, grade: str, lens_seed: int, shape=None):
+        """The PSFs of one manufactured lens of ``controls``'s design (drawn from ``grade`` with ``lens_seed``; any
+        lens's centred: see the module docstring)."""
+        if self.prescription is None:
+            return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed), shape)
+        from lenssim.model.surface_tolerances import surface_grade
+        from lenssim.sequential_tolerance import manufactured_lens
 
-    def photo_panel(self, controls: DesignControls, pc: PhotoControls, *, photo: ShownPhoto | None = None,
+        q, seq = self.check(controls)
+        centred = replace(surface_grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,
+                          element_decentre_um=0.0, element_tilt_arcmin=0.0)
+        pert = centred.sample(q, 1, seed=int(lens_seed))
+        return self._provider(controls, manufactured_lens(seq, pert, 0), shape)
+
+    def _crops(self, shown: ShownPhoto, pc: PhotoControls, cancel: threading.Event | None):
+        """``(box, run)``: the crop box of ``pc`` on ``shown`` and ``run(provider, method, restoration_psf=None)``, its
+        crop blurred, noised through ``pc``'s chain and restored: ``(result, method's name)`` (``cancel`` set before:
+        :class:`Cancelled`)."""
+        from pipeline.simulate import simulate_crops
+
+        chain = self._chain(pc)
+        fw = self._full_well(pc, chain, shown.shape)
+        box = self.crop_box(pc.center, shown.shape)
+        sensor = chain or self.sensor_for(shown.shape)
+
+        def run(prov, method, restoration_psf=None):
+            _stop_if(cancel)
+            (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
+                                  restoration_psf=restoration_psf, blur_cache=_Tagged(prov.blurred, shown.tag),
+                                  blur_zones="auto")
+            return r, r.methods[0]
+        return box, run
+
+    def photo_panel(self, controls: Controls, pc: PhotoControls, *, photo: ShownPhoto | None = None,
                     cancel: threading.Event | None = None) -> dict:
         """The crop at ``pc.center`` of ``photo`` (the explorer's own by default) through the design and the chain:
         ``{"box", "field_deg", "png": {"ideal", "sensor", "restored"}, "scores": {"sensor", "restored"}}`` (PSNR dB
         and SSIM in sRGB). ``cancel`` set before the crop is simulated: :class:`Cancelled`."""
-        from pipeline.simulate import simulate_crops
-
         shown = photo or self.shown_photo
 
         def make():
-            chain = self._chain(pc)
-            fw = self._full_well(pc, chain, shown.shape)
-            box = self.crop_box(pc.center, shown.shape)
-            prov = self._provider(controls, shape=shown.shape)
-            _stop_if(cancel)
-            (r,) = simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(pc.restore,),
-                                  sensor=chain or self.sensor_for(shown.shape),
-                                  blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")
-            name = r.methods[0]
+            box, run = self._crops(shown, pc, cancel)
+            r, name = run(self._provider(controls, shape=shown.shape), pc.restore)
             return {"box": box, "field_deg": r.field_deg,
                     "png": {"ideal": _png(r.ideal), "sensor": _png(r.sensor), "restored": _png(r.images[name])},
                     "scores": {"sensor": r.scores["sensor"], "restored": r.scores[name]}}
         return self._cache("photo").get_or((shown.tag, controls.key(), pc), make)
 
-    def restoration_lab(self, controls: DesignControls, pc: PhotoControls, method_a: str, method_b: str,
+    def restoration_lab(self, controls: Controls, pc: PhotoControls, method_a: str, method_b: str,
                         grade: str = "commercial", lens_seed: int = 0, *, photo: ShownPhoto | None = None,
                         cancel: threading.Event | None = None) -> dict:
         """Two restorations of the same noisy crop of ``photo`` (the explorer's own by default; ``method_a``,
         ``method_b``: ``NAME[:key=value,...]``), and one manufactured lens (drawn from ``grade`` with ``lens_seed``)
         restored with the nominal PSFs and with its own: ``{"png": {...}, "scores": {...}}`` keyed ``a``, ``b``,
         ``nominal``, ``own``. ``cancel`` is checked before each of its four simulations (:class:`Cancelled`)."""
-        from pipeline.simulate import simulate_crops
-
         self.check_grade(grade)
         shown = photo or self.shown_photo
 
         def make():
-            chain = self._chain(pc)
-            fw = self._full_well(pc, chain, shown.shape)
-            box = self.crop_box(pc.center, shown.shape)
-            sensor = chain or self.sensor_for(shown.shape)
+            box, run = self._crops(shown, pc, cancel)
             nominal = self._provider(controls, shape=shown.shape)
-
-            def run(prov, method, restoration_psf=None):
-                _stop_if(cancel)
-                return simulate_crops(shown.photo, prov, fw, [box], seed=pc.seed, methods=(method,), sensor=sensor,
-                                      restoration_psf=restoration_psf,
-                                      blur_cache=_Tagged(prov.blurred, shown.tag), blur_zones="auto")[0]
             # each method from the same noisy crop (the same seed; the blurred region is cached: one blur)
-            ra, rb = run(nominal, method_a), run(nominal, method_b)
-            a, b = ra.images[ra.methods[0]], rb.images[rb.methods[0]]
-            sa, sb = ra.scores[ra.methods[0]], rb.scores[rb.methods[0]]
+            runs = {"a": run(nominal, method_a), "b": run(nominal, method_b)}
             _stop_if(cancel)
             built = self._built_provider(controls, grade, lens_seed, shown.shape)
-            runs = {tag: run(built, pc.restore, prov) for tag, prov in (("nominal", nominal), ("own", built))}
-            out = {"png": {"a": _png(a), "b": _png(b)}, "scores": {"a": sa, "b": sb}}
-            for tag, r in runs.items():
-                m = r.methods[0]
-                out["png"][tag], out["scores"][tag] = _png(r.images[m]), r.scores[m]
-            return out
+            runs.update({tag: run(built, pc.restore, prov) for tag, prov in (("nominal", nominal), ("own", built))})
+            return {"png": {tag: _png(r.images[m]) for tag, (r, m) in runs.items()},
+                    "scores": {tag: r.scores[m] for tag, (r, m) in runs.items()}}
         return self._cache("lab").get_or((shown.tag, controls.key(), pc, method_a, method_b, grade, lens_seed), make)
+
+    # ---- export ---------------------------------------------------------------------------------------------------
+    def design_arguments(self, controls: Controls) -> list[str]:
+        """The command-line arguments that select ``controls``'s design (any lens: its file, or the design's
+        :data:`LENS_EXPORT_FILE`, :meth:`lens_toml`)."""
+        if self.prescription is not None:
+            parts = ["--lens", self.lens if self.is_file_design(controls) else LENS_EXPORT_FILE]
+            return parts + ([] if self.pixel_pitch_um is None else ["--pixel-pitch", f"{self.pixel_pitch_um:g}"])
+        v = controls.as_dict()
+        parts = ["--s", f"{v['s']:g}", "--Q_back", f"{v['Q_back']:g}"]
+        for name in ("Q_front", "focus_shift_um"):
+            if v.get(name):
+                parts += [f"--{name}", f"{v[name]:g}"]
+        return parts + ([] if controls.glass == "paper" else ["--glass", controls.glass])
+
+    def is_file_design(self, controls: Controls) -> bool:
+        """Whether ``controls`` is the lens exactly as its file gives it (no solve, no change)."""
+        return (self.prescription is not None and not self.hold and self.image == "file"
+                and all(v == self.file_values[n] for n, v in controls.values))
+
+    def lens_toml(self, controls: Controls) -> str:
+        """Any lens: the design as a lens file (TOML; its solves applied and its image plane folded into the last
+        thickness): what ``--lens`` of every command takes."""
+        from lenssim.io.prescription_file import prescription_toml
+
+        return prescription_toml(design_prescription(self.tradeoff_run(controls), controls.as_dict()))
 
 
 def command_line(photo: str | None, controls, pc: PhotoControls, explorer: Explorer, shape=None) -> str:

@@ -33,6 +33,20 @@ def test_criteria_are_evaluate_s(explorer):
     assert other["MSE_R at 27.6 dB"] != c["MSE_R at 27.6 dB"]
 
 
+def test_the_singlet_s_parameters_are_its_free_parameters_by_either_name():
+    """The singlet's sliders are its Design parameters; their lens names (E1.bending, S2.conic) name the same ones, and
+    the design they select is the Design of those values."""
+    from lenssim_studies.explore import FreeParameter
+
+    ex = Explorer(free=(FreeParameter("E1.bending", -1.0, 0.0, 0.05), FreeParameter("S2.conic", -5.0, 0.0, 0.1)))
+    assert [sl.key for sl in ex.sliders()] == ["s", "Q_back"] and ex.map_axes == ("Q_back", "s")
+    c = ex.controls_from({"s": -0.5, "Q_back": -3.0})
+    assert ex.check(c).floats() == {"s": -0.5, "Q_back": -3.0}
+    assert [sl.key for sl in Explorer().sliders()] == ["s", "Q_back", "Q_front", "focus_shift_um"]
+    with pytest.raises(ValueError, match="design parameter 'S9.conic' is not known"):
+        Explorer(free=(FreeParameter("S9.conic", -1.0, 0.0, 0.1),))
+
+
 def test_a_design_the_lens_refuses_is_a_one_line_error(explorer):
     with pytest.raises(ValueError) as e:
         explorer.criteria(DesignControls(Q_front=-1e308))

@@ -9,8 +9,7 @@ import pytest
 import torch
 
 from lenssim.io.prescription_file import read_lens
-from lenssim_studies.explore import PhotoControls, command_line
-from lenssim_studies.explore_lens import LENS_EXPORT_FILE, FreeParameter, LensExplorer
+from lenssim_studies.explore import LENS_EXPORT_FILE, Explorer, FreeParameter, PhotoControls, command_line
 
 FREE = (FreeParameter("E1.bending", -1.0, 0.0, 0.025), FreeParameter("s2.conic", -10.0, 0.0, 0.1))
 
@@ -20,8 +19,8 @@ def explorer():
     from lenssim_studies.paper import PAPER_CAMERA
     from pipeline.photo import open_photo
 
-    return LensExplorer(photo=open_photo("skimage:astronaut", PAPER_CAMERA).load(), photo_source="astronaut",
-                        prescription=read_lens("paper_singlet"), lens="paper_singlet", free=FREE, map_values=3)
+    return Explorer(photo=open_photo("skimage:astronaut", PAPER_CAMERA).load(), photo_source="astronaut",
+                    prescription=read_lens("paper_singlet"), lens="paper_singlet", free=FREE, map_values=3)
 
 
 def test_sliders_start_at_the_file_s_design(explorer):
