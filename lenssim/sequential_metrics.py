@@ -23,7 +23,7 @@ therefore at the chief ray's point, against the aberration-free PSF of the same 
 
 The PSFs along one radius of a rotationally symmetric lens are mirror-symmetric about it, so ``Re H`` and ``|H|^2``
 are even in both frequency axes and the quarter plane carries the integrals, as for the singlet. A decentred or
-tilted lens (a manufactured copy, :mod:`lenssim.sequential_tolerance`) is evaluated along its ``+y`` field (other
+tilted lens (a manufactured copy, :mod:`lenssim.tolerancing`) is evaluated along its ``+y`` field (other
 azimuths: :meth:`lenssim.optics.sequential.SequentialLens.rotated`), its PSFs about the chief ray's point
 (``registered``) and not mirror-symmetric: each criterion is the mean of its values on the quarters ``fx >= 0`` and
 ``fx <= 0`` (``|H|^2`` and ``Re H`` are even under ``f -> -f``: exactly the full plane's mean for the integrals

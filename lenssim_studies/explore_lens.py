@@ -331,7 +331,7 @@ class LensExplorer(Explorer):
 
     def _built_provider(self, controls: LensControls, grade: str, lens_seed: int, shape=None):
         from lenssim.model.surface_tolerances import surface_grade
-        from lenssim.sequential_tolerance import manufactured_lens
+        from lenssim.tolerancing import manufactured_lens
 
         q, seq = self.check(controls)
         centred = replace(surface_grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,

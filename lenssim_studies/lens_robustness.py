@@ -1,16 +1,16 @@
 """Robustness on the trade-off front of any lens (issue 30, item 5): the as-built Monte Carlo (tolerances per surface,
-:mod:`lenssim.sequential_tolerance`) at each optimum of a trade-off (:mod:`lenssim_studies.lens_tradeoff`).
+:mod:`lenssim.tolerancing`) at each optimum of a trade-off (:mod:`lenssim_studies.lens_tradeoff`).
 
 :func:`robust_front` takes the distinct designs among one criterion's optima per cost level (a design that is the
 optimum at several levels is computed once), in ascending cost, and runs a resumable Monte Carlo of each
-(:mod:`lenssim_studies.lens_tolerance`, ``design_NN.nc``) on the trade-off's own sensor, numerics, SNRs and field
+(:func:`lenssim_studies.tolerance.run_tolerance`, ``design_NN.nc``) on the trade-off's own sensor, numerics, SNRs and field
 angles, every design with the same seed: common random numbers, the designs compared on the same draws of every
 error term. Per design: its nominal ``mse_r``, the mean, p90 and max of ``mse_r`` as built (each copy restored with
 its own PSFs) and the mean and p90 of ``mse_r_nominal`` (restored with the design's Wiener filter: the nominal
 restoration penalty). Per cost level: the nominal optimum and the robust optimum, the design of best p90 ``mse_r``
 as built among the distinct designs whose cost is within the level.
 
-The Monte Carlo is real-ray (:mod:`lenssim.sequential_tolerance`) whatever route scored the trade-off; on the exact
+The Monte Carlo is real-ray (:func:`lenssim.tolerancing.copy_criteria`) whatever route scored the trade-off; on the exact
 route a design's nominal ``mse_r`` here is the trade-off's value (its image shift folded into the last thickness).
 """
 
@@ -22,10 +22,9 @@ from pathlib import Path
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
 from lenssim.sequential_metrics import evaluation_angles
-from lenssim.sequential_tolerance import summarise_lens_tolerance
 
 from .chunks import finished_result
-from .lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+from .tolerance import LensToleranceRun, run_tolerance, summarise_lens_tolerance
 from .lens_tradeoff import LensTradeoffRun, design_prescription, sequential_provider
 
 __all__ = ["robust_front", "robustness_figure", "design_tolerance_run", "MAX_ROBUST_COPIES"]
@@ -98,9 +97,9 @@ def robust_front(run: LensTradeoffRun, res: dict, tolerances: SurfaceTolerances,
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for d, r, f in zip(designs, runs, files):
-        ds = run_lens_tolerance_resumable(r, out_dir / f, show_progress=show_progress,
-                                          attrs={"tradeoff_design": str(d["design"]), "tradeoff_criterion": criterion,
-                                                 "cost": d["cost"]})
+        ds = run_tolerance(r, out_dir / f, show_progress=show_progress,
+                           attrs={"tradeoff_design": str(d["design"]), "tradeoff_criterion": criterion,
+                                  "cost": d["cost"]})
         s = summarise_lens_tolerance(ds, snr)
         rows.append({"design": d["design"], "cost": d["cost"], "nominal": s["mse_r"]["nominal"],
                      "mean": s["mse_r"]["mean"], "p90": s["mse_r"]["p90"], "max": s["mse_r"]["max"],
