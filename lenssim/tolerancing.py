@@ -62,7 +62,8 @@ from .torch_utils import HOST, chunk_budget_bytes, tensor_of
 from .validate import NumericalError, check_memory
 
 __all__ = ["AZIMUTHS_DEG", "as_built_criteria", "AS_BUILT_CRITERIA", "manufactured_lens", "copy_provider",
-           "nominal_criteria", "copy_criteria", "tolerance_angles", "lens_tolerance_dataset", "run_lens_tolerance",
+           "nominal_criteria", "copy_criteria", "tolerance_angles", "lens_tolerance_dataset", "lens_copies",
+           "run_lens_tolerance",
            "TOLERANCE_ANGLES", "DEFAULT_LENS_COPIES", "COPY_CRITERIA", "NOT_MODELLED"]
 
 AZIMUTHS_DEG = (0.0, 90.0, 180.0, 270.0)
@@ -307,24 +308,34 @@ def lens_tolerance_dataset(psf: SequentialPSF, tolerances: SurfaceTolerances, pe
     return xr.Dataset({k: xr.Variable(*v) for k, v in data.items()}, coords=coords, attrs=attrs)
 
 
-def run_lens_tolerance(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int, *, seed: int, snr_db, rho0: float,
-                       angles_deg=None, coarse: bool = True, numerics=None, compare_default: bool = True,
-                       progress: Callable[[int], None] | None = None):
-    """``n`` copies of ``psf.lens`` (see the module docstring) as an :class:`xarray.Dataset` ``(lens, snr)``: the
-    criteria per copy, the sampled errors per copy (one variable per surface and term), the nominal lens's criteria
-    (``nominal_*``, at the copies' numerics; ``nominal_default_*`` at the default numerics), and the run's settings
-    as attributes (``compare_default=False``: the nominal's default-numerics values are not computed, and are the
-    coarse ones). ``progress(k)`` is called with the number of copies done. In memory, in one go: the resumable run
-    is :func:`lenssim_studies.tolerance.run_tolerance`'s."""
+def lens_copies(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int, *, seed: int, snr_db, rho0: float,
+                angles_deg=None, coarse: bool = True, numerics=None, compare_default: bool = True):
+    """A Monte Carlo of ``n`` copies of ``psf.lens`` made ready (see the module docstring), its nominal lens evaluated
+    first (:func:`nominal_criteria`): ``(copy, dataset)``, ``copy(i)`` copy ``i``'s row (:func:`copy_criteria`),
+    ``dataset(rows)`` the :class:`xarray.Dataset` of the rows of copies ``0..n-1`` (:func:`lens_tolerance_dataset`).
+    Field angles ``angles_deg`` (None: :func:`tolerance_angles`); ``compare_default=False``: the nominal's
+    default-numerics values are not computed, and are the coarse ones."""
     numerics = DEFAULT_NUMERICS if numerics is None else numerics
     angles = tolerance_angles(psf, angles_deg)
     pert = tolerances.sample(psf.lens.prescription, n, seed=seed)
     kw = dict(rho0=rho0, angles_deg=angles, numerics=numerics)
     nominal, nom, full = nominal_criteria(psf, snr_db, coarse=coarse, compare_default=compare_default, **kw)
+    return (lambda i: copy_criteria(psf, nominal, pert, i, snr_db, coarse=coarse, **kw),
+            lambda rows: lens_tolerance_dataset(psf, tolerances, pert, rows, nom, full, snr_db=snr_db, seed=seed,
+                                                angles_deg=angles, rho0=rho0, coarse=coarse))
+
+
+def run_lens_tolerance(psf: SequentialPSF, tolerances: SurfaceTolerances, n: int, *,
+                       progress: Callable[[int], None] | None = None, **settings):
+    """``n`` copies of ``psf.lens`` (:func:`lens_copies`, ``settings`` as there) as an :class:`xarray.Dataset`
+    ``(lens, snr)``: the criteria per copy, the sampled errors per copy (one variable per surface and term), the
+    nominal lens's criteria (``nominal_*``, at the copies' numerics; ``nominal_default_*`` at the default numerics),
+    and the run's settings as attributes. ``progress(k)`` is called with the number of copies done. In memory, in one
+    go: the resumable run is :func:`lenssim_studies.tolerance.run_tolerance`'s."""
+    copy, dataset = lens_copies(psf, tolerances, n, **settings)
     rows = []
     for i in range(n):
-        rows.append(copy_criteria(psf, nominal, pert, i, snr_db, coarse=coarse, **kw))
+        rows.append(copy(i))
         if progress is not None:
             progress(1)
-    return lens_tolerance_dataset(psf, tolerances, pert, rows, nom, full, snr_db=snr_db, seed=seed, angles_deg=angles,
-                                  rho0=rho0, coarse=coarse)
+    return dataset(rows)

@@ -13,7 +13,6 @@ killed study resumes.
 from __future__ import annotations
 
 import hashlib
-import json
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,7 +32,7 @@ from lenssim.tolerancing import as_built_criteria
 from lenssim.validate import ResumeWarning
 
 from .chunks import read_stamped_chunk, write_stamped_chunk
-from .tolerance import TOLERANCE_FIELD_ANGLES, markdown_table, spread
+from .tolerance import TOLERANCE_FIELD_ANGLES, AtFieldAngles, Digested, markdown_table, spread
 from .tradeoff import iso_cost_curve
 
 __all__ = ["AsBuiltStudy", "as_built_study", "AS_BUILT_LEVELS", "STRATEGIES", "STUDY_LENSES"]
@@ -47,7 +46,7 @@ STUDY_LENSES = 120
 
 
 @dataclass(frozen=True)
-class AsBuiltStudy:
+class AsBuiltStudy(Digested, AtFieldAngles):
     """Settings of the study: camera, tolerances, lenses per design, seed, SNR (dB) and ``rho0`` of the image model,
     levels, the curve's ``s`` range and step, the field angles of the Monte Carlo, numerics, and the robust search
     (``robust_levels`` levels on each side of the best one, ``robust_points`` curve steps on each side)."""
@@ -73,17 +72,6 @@ class AsBuiltStudy:
                 "field_angles_deg": list(self.field_angles_deg), "numerics": self.numerics.to_dict(),
                 "robust_levels": self.robust_levels, "robust_points": self.robust_points,
                 "lenssim_version": __version__}
-
-    def digest(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
-
-    @property
-    def eval_camera(self) -> Camera:
-        """The camera with the study's field angles: the nominal criteria and the Monte Carlo sample one field."""
-        import dataclasses
-
-        return dataclasses.replace(self.camera, lens=dataclasses.replace(self.camera.lens,
-                                                                         field_angles_deg=self.field_angles_deg))
 
 
 def _curve(study: AsBuiltStudy, level: float):

@@ -10,7 +10,7 @@ its own PSFs) and the mean and p90 of ``mse_r_nominal`` (restored with the desig
 restoration penalty). Per cost level: the nominal optimum and the robust optimum, the design of best p90 ``mse_r``
 as built among the distinct designs whose cost is within the level.
 
-The Monte Carlo is real-ray (:func:`lenssim.tolerancing.copy_criteria`) whatever route scored the trade-off; on the exact
+The Monte Carlo is real-ray (:func:`lenssim.tolerancing.lens_copies`) whatever route scored the trade-off; on the exact
 route a design's nominal ``mse_r`` here is the trade-off's value (its image shift folded into the last thickness).
 """
 

@@ -8,7 +8,7 @@ path); a summary (mean, median, 90th and 99th percentiles, the bootstrap standar
 yields), a sensitivity table (each tolerance alone) and figures.
 
 **Any sequential lens** (:class:`LensToleranceRun`): copies with tolerances per surface, each traced on real rays
-(:func:`lenssim.tolerancing.copy_criteria`), in chunks of :data:`CHUNK_COPIES`; the nominal lens's values at the
+(:func:`lenssim.tolerancing.lens_copies`), in chunks of :data:`CHUNK_COPIES`; the nominal lens's values at the
 copies' and the default numerics are variables of the result.
 
 One machinery for both (:func:`run_tolerance`): each chunk written to ``out.partial/chunk_NNNNN.npz`` with its index,
@@ -41,15 +41,14 @@ from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.model.tolerances import Tolerances
 from lenssim.optics.sequential_psf import SequentialPSF
-from lenssim.tolerancing import (AS_BUILT_CRITERIA, COPY_CRITERIA, as_built_criteria, copy_criteria,
-                                 lens_tolerance_dataset, nominal_criteria, tolerance_angles)
+from lenssim.tolerancing import AS_BUILT_CRITERIA, COPY_CRITERIA, as_built_criteria, lens_copies, tolerance_angles
 from lenssim.torch_utils import tensor_of
 from lenssim.validate import check_int
 
 from .chunks import (_checksum, finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch,
                      resume_chunks, write_stamped_chunk)
 
-__all__ = ["ToleranceRun", "LensToleranceRun", "run_tolerance", "summarise", "summarise_lens_tolerance", "spread",
+__all__ = ["Digested", "AtFieldAngles", "ToleranceRun", "LensToleranceRun", "run_tolerance", "summarise", "summarise_lens_tolerance", "spread",
            "sensitivity", "parse_yield", "tolerance_report", "lens_tolerance_report", "markdown_table",
            "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES",
            "CHUNK_COPIES"]
@@ -69,12 +68,26 @@ BOOTSTRAP = 400
 _ROW_KEYS = COPY_CRITERIA + ("image_shift_mm", "efl_mm")
 
 
-class _MonteCarlo:
-    """What a Monte Carlo run of either kind shares: its digest (of :meth:`to_dict`) and its chunks (``count`` copies,
-    ``per_chunk`` a chunk)."""
+class Digested:
+    """Settings named by their digest: the SHA-256 (16 hex digits) of :meth:`to_dict`."""
 
     def digest(self) -> str:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class AtFieldAngles:
+    """A Monte Carlo of the singlet's ``camera`` sampled at its own ``field_angles_deg`` (deg)."""
+
+    @property
+    def eval_camera(self) -> Camera:
+        """The camera with the run's field angles: the nominal criteria and the Monte Carlo sample one field."""
+        lens = dataclasses.replace(self.camera.lens, field_angles_deg=self.field_angles_deg)
+        return dataclasses.replace(self.camera, lens=lens)
+
+
+class _MonteCarlo(Digested):
+    """What a Monte Carlo run of either kind shares: its digest and its chunks (``count`` copies, ``per_chunk`` a
+    chunk)."""
 
     def chunks(self) -> list[tuple[int, int]]:
         """Copy ranges ``[k0, k1)`` of the chunks."""
@@ -82,7 +95,7 @@ class _MonteCarlo:
 
 
 @dataclass(frozen=True)
-class ToleranceRun(_MonteCarlo):
+class ToleranceRun(_MonteCarlo, AtFieldAngles):
     """One tolerance Monte Carlo: the camera, one design, the tolerances, ``n_lenses`` lenses from ``seed``, the SNRs
     (dB), the image model's ``rho0``, the numerics and the field angles (deg; each at four azimuths)."""
 
@@ -128,12 +141,6 @@ class ToleranceRun(_MonteCarlo):
 
         for cam in self.camera.with_quadrature(self.numerics.spectral_tol).channel_cameras():
             fft_size(cam, spectral_coefficients(cam, self.design, list(self.field_angles_deg)), self.numerics)
-
-    @property
-    def eval_camera(self) -> Camera:
-        """The camera with the run's field angles."""
-        lens = dataclasses.replace(self.camera.lens, field_angles_deg=self.field_angles_deg)
-        return dataclasses.replace(self.camera, lens=lens)
 
     def to_dict(self) -> dict:
         return {"camera": self.camera.to_dict(), "design": self.design.floats(), "design_name": self.design.name,
@@ -253,28 +260,22 @@ def _singlet_plan(run: ToleranceRun, device, scheduler, workers, worker_threads)
 
 def _lens_plan(run: LensToleranceRun):
     """How the copies of any lens are computed: ``(compute, dataset, weight, desc, unit, None)`` of
-    :func:`run_tolerance` (the nominal lens evaluated first: the reference of every copy)."""
-    angles = run.angles
-    kw = dict(rho0=run.rho0, angles_deg=angles, numerics=run.numerics)
-    pert = run.tolerances.sample(run.psf.lens.prescription, run.n_copies, seed=run.seed)
-    nominal, nom, full = nominal_criteria(run.psf, run.snr_db, coarse=run.coarse, **kw)
+    :func:`run_tolerance` (the nominal lens evaluated first: the reference of every copy, :func:`lens_copies`)."""
+    copy, dataset = lens_copies(run.psf, run.tolerances, run.n_copies, seed=run.seed, snr_db=run.snr_db,
+                                rho0=run.rho0, angles_deg=run.angles, coarse=run.coarse, numerics=run.numerics)
     ranges = run.chunks()
 
     def compute(i, progress):
         rows = []
         for k in range(*ranges[i]):
-            rows.append(copy_criteria(run.psf, nominal, pert, k, run.snr_db, coarse=run.coarse, **kw))
+            rows.append(copy(k))
             progress(1)
         return {key: np.stack([np.asarray(torch.as_tensor(r[key], dtype=torch.float64)) for r in rows])
                 for key in _ROW_KEYS}
 
-    def dataset(chunks):
-        rows = [{key: torch.from_numpy(np.asarray(c[key][j])) for key in _ROW_KEYS}
-                for c in chunks for j in range(c["efl_mm"].shape[0])]
-        return lens_tolerance_dataset(run.psf, run.tolerances, pert, rows, nom, full, snr_db=run.snr_db,
-                                      seed=run.seed, angles_deg=angles, rho0=run.rho0, coarse=run.coarse)
-
-    return compute, dataset, lambda i: ranges[i][1] - ranges[i][0], "manufactured copies", "copy", None
+    return (compute, lambda chunks: dataset([{key: torch.from_numpy(np.asarray(c[key][j])) for key in _ROW_KEYS}
+                                             for c in chunks for j in range(c["efl_mm"].shape[0])]),
+            lambda i: ranges[i][1] - ranges[i][0], "manufactured copies", "copy", None)
 
 
 def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, *, device: str = "auto",

@@ -27,6 +27,7 @@ import pytest
 import torch
 import xarray as xr
 
+import lenssim.tolerancing
 import lenssim_studies.lens_gradient
 import lenssim_studies.lens_tradeoff
 import lenssim_studies.study
@@ -384,9 +385,9 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
         return {k: torch.as_tensor(rng.uniform(0.1, 1.0, len(snr_db)) if k != "rms_w" else rng.uniform(0.1, 1.0))
                 for k in CRITERIA}
 
-    monkeypatch.setattr(lenssim_studies.tolerance, "nominal_criteria",
+    monkeypatch.setattr(lenssim.tolerancing, "nominal_criteria",
                         lambda psf, snr_db, **kw: (psf, values(snr_db), values(snr_db)))
-    monkeypatch.setattr(lenssim_studies.tolerance, "copy_criteria", lambda psf, nominal, pert, i, snr_db, **kw:
+    monkeypatch.setattr(lenssim.tolerancing, "copy_criteria", lambda psf, nominal, pert, i, snr_db, **kw:
                         values(snr_db) | {"image_shift_mm": 0.01 * i, "efl_mm": 50.0 + i})
     p = read_lens(LENS_FILE)
     psf = sequential_provider(p, SequentialLens(p), pitch_um=2.0, sampling="point", max_field_deg=3.0, coarse=True)
@@ -481,7 +482,7 @@ def no_grid(monkeypatch):
     monkeypatch.setattr(lenssim_studies.lens_tradeoff, "_score", _grid_raises)
     monkeypatch.setattr(lenssim_studies.lens_gradient, "_descend", _grid_raises)
     monkeypatch.setattr(lenssim_studies.tolerance, "_compute_chunk", _grid_raises)
-    monkeypatch.setattr(lenssim_studies.tolerance, "nominal_criteria", _grid_raises)
+    monkeypatch.setattr(lenssim.tolerancing, "nominal_criteria", _grid_raises)
     monkeypatch.setattr(lenssim_studies.sweep, "_compute_chunk", _grid_raises)
     for name in ("white_light_study", "exact_along_tradeoff"):
         monkeypatch.setattr(lenssim_studies.study, name, _grid_raises)

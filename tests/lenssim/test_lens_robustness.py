@@ -127,7 +127,7 @@ def test_the_robust_optimum_per_level_is_the_brute_force_one(traded, robust, dir
 
 
 def test_a_second_call_resumes_and_computes_nothing(traded, robust, monkeypatch):
-    import lenssim_studies.tolerance as lt
+    import lenssim.tolerancing as lt
 
     run, _, res = traded
     out, r = robust
