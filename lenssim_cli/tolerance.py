@@ -15,6 +15,15 @@ from .common import (add_camera_arguments, add_design_arguments, add_device_argu
 __all__ = ["register", "cmd_tolerance"]
 
 
+def _snrs(args) -> tuple[list[float], float]:
+    """``--snr`` and ``--reference-snr`` (default the middle ``--snr``; one of them)."""
+    snr = list(args.snr)
+    ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
+    if ref_snr not in snr:
+        raise ValueError(f"--reference-snr {ref_snr:g} is not allowed: one of the --snr values {snr}")
+    return snr, ref_snr
+
+
 def cmd_tolerance(args) -> int:
     if getattr(args, "lens", None) is not None:
         return cmd_tolerance_lens(args)
@@ -45,10 +54,7 @@ def cmd_tolerance(args) -> int:
     if not 0 <= args.sensitivity_lenses <= MAX_SENSITIVITY_LENSES:
         raise ValueError(f"--sensitivity-lenses {args.sensitivity_lenses} is not allowed: from 0 to "
                          f"{MAX_SENSITIVITY_LENSES} (0: no sensitivity table)")
-    snr = list(args.snr)
-    ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
-    if ref_snr not in snr:
-        raise ValueError(f"--reference-snr {ref_snr:g} is not allowed: one of the --snr values {snr}")
+    snr, ref_snr = _snrs(args)
     run = ToleranceRun(camera, design, tol, tuple(snr), PAPER_RHO0, n_lenses=args.lenses, seed=args.seed,
                        numerics=DEFAULT_NUMERICS if args.accurate else FAST_NUMERICS,
                        field_angles_deg=tuple(args.angles) if args.angles else ToleranceRun.__dataclass_fields__[
@@ -111,13 +117,14 @@ def surface_tolerances_from_args(args):
 
 def cmd_tolerance_lens(args) -> int:
     """``lenssim tolerance --lens LENS``: a Monte Carlo of manufactured copies of any lens
-    (:func:`lenssim.sequential_tolerance.run_lens_tolerance`): every argument checked before any work."""
+    (:func:`lenssim_studies.tolerance.run_tolerance` of a :class:`LensToleranceRun`): every argument checked before
+    any work."""
     import math
 
     from lenssim.io.files import atomic_write_text, check_output_dir, json_text, output_lock
     from lenssim.model.numerics import DEFAULT_NUMERICS, FAST_NUMERICS
-    from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES, lens_tolerance_report, summarise_lens_tolerance
-    from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+    from lenssim.tolerancing import DEFAULT_LENS_COPIES
+    from lenssim_studies.tolerance import LensToleranceRun, lens_tolerance_report, run_tolerance, summarise_lens_tolerance
     from lenssim_studies.tradeoff import check_psf_sampling
     from lenssim.torch_utils import select_device
     from lenssim_studies.paper import PAPER_RHO0
@@ -132,10 +139,7 @@ def cmd_tolerance_lens(args) -> int:
     if not 1 <= n <= MAX_LENS_COPIES:
         raise ValueError(f"-n/--lenses {n} is not allowed: from 1 to {MAX_LENS_COPIES} copies")
     tol = surface_tolerances_from_args(args)
-    snr = list(args.snr)
-    ref_snr = snr[len(snr) // 2] if args.reference_snr is None else args.reference_snr
-    if ref_snr not in snr:
-        raise ValueError(f"--reference-snr {ref_snr:g} is not allowed: one of the --snr values {snr}")
+    snr, ref_snr = _snrs(args)
     p = check_lens_arguments(args)  # the paper's singlet's flags refused, the lens read and its aperture checked
     amax = max(p.fields)
     for a in args.angles or ():
@@ -155,8 +159,8 @@ def cmd_tolerance_lens(args) -> int:
     t0 = time.perf_counter()
     with output_lock(out):  # one run at a time writes this folder; a second run resumes the Monte Carlo
         out.mkdir(parents=True, exist_ok=True)
-        ds = run_lens_tolerance_resumable(run, out / "tolerance.nc", show_progress=not args.quiet,
-                                          attrs={"refocus": args.refocus or "file", "file": str(args.lens)})
+        ds = run_tolerance(run, out / "tolerance.nc", show_progress=not args.quiet,
+                           attrs={"refocus": args.refocus or "file", "file": str(args.lens)})
         summary = summarise_lens_tolerance(ds, ref_snr)
         text = lens_tolerance_report(ds, summary)
         info = {"lens": p.name or str(args.lens), "file": str(args.lens), "refocus": args.refocus or "file",
@@ -174,7 +178,7 @@ def cmd_tolerance_lens(args) -> int:
 
 def register(sub) -> None:
     from lenssim_studies.paper import PAPER_SNR_DB
-    from lenssim.sequential_tolerance import DEFAULT_LENS_COPIES
+    from lenssim.tolerancing import DEFAULT_LENS_COPIES
     from lenssim_studies.tolerance import DEFAULT_LENSES, TOLERANCE_FIELD_ANGLES
 
     from .lens import add_lens_arguments

@@ -13,7 +13,6 @@ killed study resumes.
 from __future__ import annotations
 
 import hashlib
-import json
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ import numpy as np
 import torch
 
 from lenssim import __version__
-from lenssim.io.files import atomic_write, atomic_write_text, json_text
+from lenssim.io.files import atomic_write_text, json_text
 from lenssim.metrics import evaluate
 from lenssim.model.camera import Camera
 from lenssim.model.design import Design
@@ -32,8 +31,8 @@ from lenssim.model.tolerances import GRADES, Tolerances
 from lenssim.tolerancing import as_built_criteria
 from lenssim.validate import ResumeWarning
 
-from .chunks import _checksum
-from .tolerance import TOLERANCE_FIELD_ANGLES
+from .chunks import read_stamped_chunk, write_stamped_chunk
+from .tolerance import TOLERANCE_FIELD_ANGLES, AtFieldAngles, Digested, markdown_table, spread
 from .tradeoff import iso_cost_curve
 
 __all__ = ["AsBuiltStudy", "as_built_study", "AS_BUILT_LEVELS", "STRATEGIES", "STUDY_LENSES"]
@@ -47,7 +46,7 @@ STUDY_LENSES = 120
 
 
 @dataclass(frozen=True)
-class AsBuiltStudy:
+class AsBuiltStudy(Digested, AtFieldAngles):
     """Settings of the study: camera, tolerances, lenses per design, seed, SNR (dB) and ``rho0`` of the image model,
     levels, the curve's ``s`` range and step, the field angles of the Monte Carlo, numerics, and the robust search
     (``robust_levels`` levels on each side of the best one, ``robust_points`` curve steps on each side)."""
@@ -73,17 +72,6 @@ class AsBuiltStudy:
                 "field_angles_deg": list(self.field_angles_deg), "numerics": self.numerics.to_dict(),
                 "robust_levels": self.robust_levels, "robust_points": self.robust_points,
                 "lenssim_version": __version__}
-
-    def digest(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
-
-    @property
-    def eval_camera(self) -> Camera:
-        """The camera with the study's field angles: the nominal criteria and the Monte Carlo sample one field."""
-        import dataclasses
-
-        return dataclasses.replace(self.camera, lens=dataclasses.replace(self.camera.lens,
-                                                                         field_angles_deg=self.field_angles_deg))
 
 
 def _curve(study: AsBuiltStudy, level: float):
@@ -116,40 +104,34 @@ def _design_file(out: Path, study: AsBuiltStudy, s: float, q: float) -> Path:
 
 def as_built_design(study: AsBuiltStudy, s: float, q: float, out: Path) -> dict:
     """The Monte Carlo of one design ``(s, Q_back)``, from its stored file if intact: ``mse_r`` and ``mse_r_nominal``
-    ``(N,)`` at the study's SNR."""
+    ``(N,)`` at the study's SNR (the file stamped as a chunk of a tolerance run: :func:`write_stamped_chunk`, its
+    digest the file's name, a hash of the study's digest and the design)."""
     path = _design_file(out, study, s, q)
+    keys = ("mse_r", "mse_r_nominal")
     if path.exists():
-        try:
-            with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            chunk = {k: data[k] for k in ("mse_r", "mse_r_nominal")}
-            ok = (_checksum(chunk) == str(data["_checksum"]) and str(data["_digest"]) == study.digest()
-                  and float(data["_s"]) == s and float(data["_q"]) == q and chunk["mse_r"].shape == (study.n_lenses,))
-        except Exception:  # noqa: BLE001 - any unreadable file is recomputed
-            ok = False
-        if ok:
+        chunk = read_stamped_chunk(path, keys, path.stem, 0, run="as-built study", rows_key="mse_r",
+                                   rows=study.n_lenses, what="lenses")
+        if not isinstance(chunk, str):
             return chunk
-        warnings.warn(f"as-built study file {str(path)!r} is damaged or of another design; computing it again",
-                      ResumeWarning, stacklevel=2)
+        warnings.warn(f"as-built study file {str(path)!r} is damaged or of another design ({chunk}); computing it "
+                      "again", ResumeWarning, stacklevel=2)
         path.unlink()
     lenses = study.tolerances.sample(study.n_lenses, seed=study.seed)
-    r = as_built_criteria(study.eval_camera, Design(s=s, Q_back=q), lenses, [study.snr_db], rho0=study.rho0, numerics=study.numerics)
-    chunk = {k: r[k][:, 0].numpy() for k in ("mse_r", "mse_r_nominal")}
+    r = as_built_criteria(study.eval_camera, Design(s=s, Q_back=q), lenses, [study.snr_db], rho0=study.rho0,
+                          numerics=study.numerics)
+    chunk = {k: r[k][:, 0].numpy() for k in keys}
     path.parent.mkdir(parents=True, exist_ok=True)
-
-    def write(tmp):
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **chunk, _checksum=np.str_(_checksum(chunk)), _digest=np.str_(study.digest()),
-                     _s=np.float64(s), _q=np.float64(q))
-    atomic_write(path, write)
+    write_stamped_chunk(path, chunk, path.stem, 0)
     return chunk
 
 
-def _stats(v: np.ndarray, seed: int) -> dict:
-    rng = np.random.default_rng(seed)
-    boot = np.percentile(v[rng.integers(0, len(v), size=(400, len(v)))], 90.0, axis=1)
-    p90 = float(np.percentile(v, 90.0))
-    return {"mean": float(v.mean()), "p90": p90, "p90_rel_se": float(boot.std() / p90)}
+def _design_stats(study: AsBuiltStudy, s: float, q: float, out: Path) -> dict:
+    """The spread of one design's Monte Carlo (:func:`as_built_design`) restored with the nominal PSFs and with each
+    lens's own: mean, 90th percentile and its bootstrap relative standard error
+    (:func:`lenssim_studies.tolerance.spread`)."""
+    mc = as_built_design(study, s, q, out)
+    return {name: {k: v for k, v in spread(mc[key], study.seed).items() if k in ("mean", "p90", "p90_rel_se")}
+            for name, key in (("nominal_restoration", "mse_r_nominal"), ("calibrated", "mse_r"))}
 
 
 def as_built_study(study: AsBuiltStudy, out, *, reference: Design | None = None, log: Callable[[str], None] = print,
@@ -170,11 +152,10 @@ def as_built_study(study: AsBuiltStudy, out, *, reference: Design | None = None,
         for k in STRATEGIES:
             i = row["best"][k]
             s, q = float(row["s"][i]), float(row["Q_back"][i])
-            mc = as_built_design(study, s, q, out)
+            mc = _design_stats(study, s, q, out)
             table.append({"strategy": k, "level": row["level"], "s": s, "Q_back": q,
-                          "nominal_mse_r": float(row["values"]["mse_r"][i]),
-                          "calibrated": _stats(mc["mse_r"], study.seed), "nominal_restoration":
-                              _stats(mc["mse_r_nominal"], study.seed)})
+                          "nominal_mse_r": float(row["values"]["mse_r"][i]), "calibrated": mc["calibrated"],
+                          "nominal_restoration": mc["nominal_restoration"]})
             bar.update(1)
     bar.close()
     # the robust search around the end-to-end strategy's best as-built level
@@ -190,24 +171,19 @@ def as_built_study(study: AsBuiltStudy, out, *, reference: Design | None = None,
     robust = []
     bar = progress_bar(total=len(cand), unit="design", show=show_progress, desc="robust")
     for level, s, q, nom in cand:
-        mc = as_built_design(study, s, q, out)
+        robust.append({"level": level, "s": s, "Q_back": q, "nominal_mse_r": nom, **_design_stats(study, s, q, out)})
         bar.update(1)
-        robust.append({"level": level, "s": s, "Q_back": q, "nominal_mse_r": nom,
-                       "nominal_restoration": _stats(mc["mse_r_nominal"], study.seed),
-                       "calibrated": _stats(mc["mse_r"], study.seed)})
     bar.close()
     if reference is None:
         ref_row = min(e2e, key=lambda t: t["nominal_mse_r"])
         reference = Design(s=ref_row["s"], Q_back=ref_row["Q_back"])
     rs, rq = float(reference["s"]), float(reference["Q_back"])
-    mc = as_built_design(study, rs, rq, out)
     from lenssim.optics.cost import slope_departure_cost
 
     ref_cost = float(slope_departure_cost(study.camera.lens, Design(s=rs, Q_back=rq).to(torch.float64)))
     r_nom = float(evaluate(study.eval_camera, Design(s=rs, Q_back=rq), [study.snr_db], numerics=study.numerics,
                            rho0=study.rho0)["mse_r"][0])
-    ref = {"s": rs, "Q_back": rq, "level": ref_cost, "nominal_mse_r": r_nom,
-           "nominal_restoration": _stats(mc["mse_r_nominal"], study.seed), "calibrated": _stats(mc["mse_r"], study.seed)}
+    ref = {"s": rs, "Q_back": rq, "level": ref_cost, "nominal_mse_r": r_nom, **_design_stats(study, rs, rq, out)}
     best_robust = min(robust + [ref], key=lambda r: r["nominal_restoration"]["p90"])  # the reference is a candidate
     result = {"study": study.to_dict(), "table": table, "robust": robust, "robust_best": best_robust,
               "reference": ref}
@@ -222,11 +198,9 @@ COLOURS = {"rms_w": "tab:green", "mse_s": "tab:orange", "mse_r": "tab:blue"}
 
 
 def _figure(result: dict, out: Path, study: AsBuiltStudy) -> None:
-    import matplotlib
+    from .figures import _plt, _save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 4.6))
     for k in STRATEGIES:
         rows = [t for t in result["table"] if t["strategy"] == k]
@@ -245,9 +219,7 @@ def _figure(result: dict, out: Path, study: AsBuiltStudy) -> None:
     ax.legend(fontsize=7, ncol=2)
     ax.set_yscale("log")
     fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(out / f"fig6_as_built.{ext}", dpi=120)
-    plt.close(fig)
+    _save(fig, out, "fig6_as_built", dpi=120)
 
 
 def report(result: dict, study: AsBuiltStudy) -> str:
@@ -256,22 +228,23 @@ def report(result: dict, study: AsBuiltStudy) -> str:
     lines = [f"# As-built trade-off ({study.n_lenses} lenses per design, seed {study.seed}, {study.snr_db:g} dB)", "",
              "Tolerances: " + ", ".join(f"{k} = {v:g}" for k, v in study.tolerances.to_dict().items()
                                         if not isinstance(v, bool) and v) + ".", "",
-             "## As-built Table 1: the best cost level of each strategy", "",
-             "| strategy | best nominal: C_a, s / Q_back, MSE_R | best as built (90th pct, nominal restoration): C_a, "
-             "s / Q_back, p90 | its nominal MSE_R |", "|---|---|---|---|"]
+             "## As-built Table 1: the best cost level of each strategy", ""]
+    best = []
     for k in STRATEGIES:
         rows = [t for t in result["table"] if t["strategy"] == k]
         a = min(rows, key=lambda t: t["nominal_mse_r"])
         b = min(rows, key=lambda t: t["nominal_restoration"]["p90"])
-        lines.append(f"| {LABELS[k]} | {a['level']:.1e}, {a['s']:.2f} / {a['Q_back']:.2f}, {a['nominal_mse_r']:.5f} | "
+        best.append((LABELS[k], f"{a['level']:.1e}, {a['s']:.2f} / {a['Q_back']:.2f}, {a['nominal_mse_r']:.5f}",
                      f"{b['level']:.1e}, {b['s']:.2f} / {b['Q_back']:.2f}, {b['nominal_restoration']['p90']:.5f} "
-                     f"(s.e. {100 * b['nominal_restoration']['p90_rel_se']:.1f}%) | {b['nominal_mse_r']:.5f} |")
-    lines += ["", "## Per level", "", "| C_a | strategy | s / Q_back | MSE_R nominal | as built, calibrated: mean / p90 | "
-              "as built, nominal restoration: mean / p90 |", "|---|---|---|---|---|---|"]
-    for t in result["table"]:
-        lines.append(f"| {t['level']:.1e} | {t['strategy']} | {t['s']:.2f} / {t['Q_back']:.2f} | {t['nominal_mse_r']:.5f} "
-                     f"| {t['calibrated']['mean']:.5f} / {t['calibrated']['p90']:.5f} | "
-                     f"{t['nominal_restoration']['mean']:.5f} / {t['nominal_restoration']['p90']:.5f} |")
+                     f"(s.e. {100 * b['nominal_restoration']['p90_rel_se']:.1f}%)", f"{b['nominal_mse_r']:.5f}"))
+    lines += markdown_table(("strategy", "best nominal: C_a, s / Q_back, MSE_R", "best as built (90th pct, nominal "
+                             "restoration): C_a, s / Q_back, p90", "its nominal MSE_R"), best)
+    lines += ["", "## Per level", ""] + markdown_table(
+        ("C_a", "strategy", "s / Q_back", "MSE_R nominal", "as built, calibrated: mean / p90",
+         "as built, nominal restoration: mean / p90"),
+        [(f"{t['level']:.1e}", t["strategy"], f"{t['s']:.2f} / {t['Q_back']:.2f}", f"{t['nominal_mse_r']:.5f}",
+          f"{t['calibrated']['mean']:.5f} / {t['calibrated']['p90']:.5f}",
+          f"{t['nominal_restoration']['mean']:.5f} / {t['nominal_restoration']['p90']:.5f}") for t in result["table"]])
     rb, ref = result["robust_best"], result["reference"]
     gain = 100 * (rb["nominal_restoration"]["p90"] / ref["nominal_restoration"]["p90"] - 1)
     lines += ["", "## Robust design (lowest 90th-percentile as-built MSE_R, nominal restoration)", "",

@@ -874,7 +874,7 @@ class Explorer:
         if self.prescription is None:
             return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed), shape)
         from lenssim.model.surface_tolerances import surface_grade
-        from lenssim.sequential_tolerance import manufactured_lens
+        from lenssim.tolerancing import manufactured_lens
 
         q, seq = self.check(controls)
         centred = replace(surface_grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,

@@ -32,11 +32,12 @@ def _plt():
     return plt
 
 
-def _save(fig, out_dir: Path, name: str) -> Path:
+def _save(fig, out_dir: Path, name: str, dpi: int = 130) -> Path:
+    """``fig`` written atomically as ``name.png`` (``dpi``) and ``name.svg`` in ``out_dir``, then closed."""
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / f"{name}.png"
     for path in (png, out_dir / f"{name}.svg"):
-        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=130))
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi))
     _plt().close(fig)
     return png
 

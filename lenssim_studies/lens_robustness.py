@@ -1,16 +1,16 @@
 """Robustness on the trade-off front of any lens (issue 30, item 5): the as-built Monte Carlo (tolerances per surface,
-:mod:`lenssim.sequential_tolerance`) at each optimum of a trade-off (:mod:`lenssim_studies.lens_tradeoff`).
+:mod:`lenssim.tolerancing`) at each optimum of a trade-off (:mod:`lenssim_studies.tradeoff`).
 
 :func:`robust_front` takes the distinct designs among one criterion's optima per cost level (a design that is the
 optimum at several levels is computed once), in ascending cost, and runs a resumable Monte Carlo of each
-(:mod:`lenssim_studies.lens_tolerance`, ``design_NN.nc``) on the trade-off's own sensor, numerics, SNRs and field
+(:func:`lenssim_studies.tolerance.run_tolerance`, ``design_NN.nc``) on the trade-off's own sensor, numerics, SNRs and field
 angles, every design with the same seed: common random numbers, the designs compared on the same draws of every
 error term. Per design: its nominal ``mse_r``, the mean, p90 and max of ``mse_r`` as built (each copy restored with
 its own PSFs) and the mean and p90 of ``mse_r_nominal`` (restored with the design's Wiener filter: the nominal
 restoration penalty). Per cost level: the nominal optimum and the robust optimum, the design of best p90 ``mse_r``
 as built among the distinct designs whose cost is within the level.
 
-The Monte Carlo is real-ray (:mod:`lenssim.sequential_tolerance`) whatever route scored the trade-off; on the exact
+The Monte Carlo is real-ray (:func:`lenssim.tolerancing.lens_copies`) whatever route scored the trade-off; on the exact
 route a design's nominal ``mse_r`` here is the trade-off's value (its image shift folded into the last thickness).
 """
 
@@ -22,10 +22,9 @@ from pathlib import Path
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluation_angles
-from lenssim.sequential_tolerance import summarise_lens_tolerance
 
 from .chunks import finished_result
-from .lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+from .tolerance import LensToleranceRun, run_tolerance, summarise_lens_tolerance
 from .tradeoff import LensTradeoffRun, design_prescription, sequential_provider
 
 __all__ = ["robust_front", "robustness_figure", "design_tolerance_run", "MAX_ROBUST_COPIES"]
@@ -46,7 +45,7 @@ def _distinct_optima(res: dict, criterion: str) -> list[dict]:
 
 def design_tolerance_run(run: LensTradeoffRun, design: dict, tolerances: SurfaceTolerances, *, copies: int,
                          seed: int) -> LensToleranceRun:
-    """The Monte Carlo of one design of ``run`` (:func:`lenssim_studies.lens_tradeoff.design_prescription`: its solves
+    """The Monte Carlo of one design of ``run`` (:func:`lenssim_studies.tradeoff.design_prescription`: its solves
     applied, its image plane folded into the last thickness) on the trade-off's sensor, numerics, SNRs, correlation,
     field angles and table coarseness."""
     q = design_prescription(run, design)
@@ -65,7 +64,7 @@ def _summary_snr(run: LensTradeoffRun, criterion: str) -> float:
 def robust_front(run: LensTradeoffRun, res: dict, tolerances: SurfaceTolerances, *, copies: int, seed: int,
                  out_dir: Path, criterion: str = "mse_r", show_progress=True) -> dict:
     """The as-built Monte Carlo at each distinct optimum of ``criterion`` in ``res``
-    (:func:`lenssim_studies.lens_tradeoff.tradeoff_json` of ``run``), each written to (and resumed from)
+    (:func:`lenssim_studies.tradeoff.tradeoff_json` of ``run``), each written to (and resumed from)
     ``out_dir/design_NN.nc``: see the module docstring. Returns ``{"criterion", "copies", "seed", "tolerances",
     "snr_db", "designs": [...], "levels": [{"cost", "nominal_optimum", "robust_optimum"}, ...], "nominal_optimum",
     "robust_optimum"}`` (indices into ``designs``, None where no valid design reaches a level; the overall nominal
@@ -98,9 +97,9 @@ def robust_front(run: LensTradeoffRun, res: dict, tolerances: SurfaceTolerances,
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     for d, r, f in zip(designs, runs, files):
-        ds = run_lens_tolerance_resumable(r, out_dir / f, show_progress=show_progress,
-                                          attrs={"tradeoff_design": str(d["design"]), "tradeoff_criterion": criterion,
-                                                 "cost": d["cost"]})
+        ds = run_tolerance(r, out_dir / f, show_progress=show_progress,
+                           attrs={"tradeoff_design": str(d["design"]), "tradeoff_criterion": criterion,
+                                  "cost": d["cost"]})
         s = summarise_lens_tolerance(ds, snr)
         rows.append({"design": d["design"], "cost": d["cost"], "nominal": s["mse_r"]["nominal"],
                      "mean": s["mse_r"]["mean"], "p90": s["mse_r"]["p90"], "max": s["mse_r"]["max"],

@@ -1,12 +1,21 @@
-"""``lenssim tolerance``: a Monte Carlo of as-built lenses of one design (issue 19, item 3).
+"""``lenssim tolerance`` (and ``lenssim tolerance --lens``): the resumable Monte Carlo of manufactured copies of a lens of
+either kind (issues 19, item 3, and 29).
 
-``N`` lenses are drawn from a :class:`lenssim.model.tolerances.Tolerances` (seeded: the same seed gives the same
-lenses, whatever the chunking), evaluated in chunks by :func:`lenssim.tolerancing.as_built_criteria` (serially or
-as dask tasks on the sweep's cluster path), each chunk written with its index, the run's digest and a SHA-256 of
-its arrays, so a killed run resumes and every resumed chunk is verified. The result is an xarray dataset
-(``lens`` x ``snr``; one variable per criterion, the sampled errors as variables), a summary (mean, median, 90th
-and 99th percentiles, the bootstrap standard error of the 90th percentile, yields), a sensitivity table (each
-tolerance alone) and figures.
+**The paper's singlet** (:class:`ToleranceRun`): ``N`` lenses drawn from a :class:`lenssim.model.tolerances.Tolerances`
+(seeded: the same seed gives the same lenses, whatever the chunking), evaluated in chunks of :data:`CHUNK_LENSES` by the
+batched closed form :func:`lenssim.tolerancing.as_built_criteria` (serially or as dask tasks on the sweep's cluster
+path); a summary (mean, median, 90th and 99th percentiles, the bootstrap standard error of the 90th percentile,
+yields), a sensitivity table (each tolerance alone) and figures.
+
+**Any sequential lens** (:class:`LensToleranceRun`): copies with tolerances per surface, each traced on real rays
+(:func:`lenssim.tolerancing.lens_copies`), in chunks of :data:`CHUNK_COPIES`; the nominal lens's values at the
+copies' and the default numerics are variables of the result.
+
+One machinery for both (:func:`run_tolerance`): each chunk written to ``out.partial/chunk_NNNNN.npz`` with its index,
+the run's digest and a SHA-256 of its arrays, so a killed run resumes where it stopped, every resumed chunk is verified
+(a chunk that fails is reported as a :class:`lenssim.validate.ResumeWarning` and computed again), and the finished
+dataset (``lens`` x ``snr``; one variable per criterion, the sampled errors as variables) is the same, byte for byte,
+as an uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -29,30 +38,64 @@ from lenssim.criteria import CRITERIA
 from lenssim.model.camera import Camera
 from lenssim.model.design import Design
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
+from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.model.tolerances import Tolerances
-from lenssim.tolerancing import AS_BUILT_CRITERIA, as_built_criteria
+from lenssim.optics.sequential_psf import SequentialPSF
+from lenssim.tolerancing import AS_BUILT_CRITERIA, COPY_CRITERIA, as_built_criteria, lens_copies, tolerance_angles
+from lenssim.torch_utils import tensor_of
 from lenssim.validate import check_int
 
 from .chunks import (_checksum, finish_resumable, open_resumable, partial_folder, read_stamped_chunk, result_mismatch,
                      resume_chunks, write_stamped_chunk)
 
-__all__ = ["ToleranceRun", "run_tolerance", "summarise", "sensitivity", "parse_yield", "tolerance_report",
-           "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES"]
+__all__ = ["Digested", "AtFieldAngles", "ToleranceRun", "LensToleranceRun", "run_tolerance", "summarise", "summarise_lens_tolerance", "spread",
+           "sensitivity", "parse_yield", "tolerance_report", "lens_tolerance_report", "markdown_table",
+           "tolerance_figures", "nominal_values", "TOLERANCE_FIELD_ANGLES", "DEFAULT_LENSES", "CHUNK_LENSES",
+           "CHUNK_COPIES"]
 
 TOLERANCE_FIELD_ANGLES = (0.0, 3.5, 7.0, 10.5, 14.0)
-"""Field angles (deg) of a tolerance run (each at four azimuths): the paper's 0..14 deg every 3.5 deg (its 15
-angles would cost 3.4x as much for a field average within 1% of this one on the nominal lens)."""
+"""Field angles (deg) of a tolerance run of the singlet (each at four azimuths): the paper's 0..14 deg every 3.5 deg
+(its 15 angles would cost 3.4x as much for a field average within 1% of this one on the nominal lens)."""
 DEFAULT_LENSES = 1000
-"""Lenses of a tolerance run: enough for the 90th percentile of each reported quantity to be known to ~1%
-(the report gives each one's bootstrap standard error)."""
+"""Lenses of a tolerance run of the singlet: enough for the 90th percentile of each reported quantity to be known to
+~1% (the report gives each one's bootstrap standard error)."""
 CHUNK_LENSES = 50
-"""Lenses per chunk (the unit of resumption and of dask tasks)."""
+"""Singlet lenses per chunk (the unit of resumption and of dask tasks)."""
+CHUNK_COPIES = 5
+"""Copies of any lens per chunk file (each copy traces its own wavefront tables: a chunk is seconds to a minute)."""
 BOOTSTRAP = 400
 """Bootstrap resamples for the standard error of the 90th percentile."""
+_ROW_KEYS = COPY_CRITERIA + ("image_shift_mm", "efl_mm")
+
+
+class Digested:
+    """Settings named by their digest: the SHA-256 (16 hex digits) of :meth:`to_dict`."""
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class AtFieldAngles:
+    """A Monte Carlo of the singlet's ``camera`` sampled at its own ``field_angles_deg`` (deg)."""
+
+    @property
+    def eval_camera(self) -> Camera:
+        """The camera with the run's field angles: the nominal criteria and the Monte Carlo sample one field."""
+        lens = dataclasses.replace(self.camera.lens, field_angles_deg=self.field_angles_deg)
+        return dataclasses.replace(self.camera, lens=lens)
+
+
+class _MonteCarlo(Digested):
+    """What a Monte Carlo run of either kind shares: its digest and its chunks (``count`` copies, ``per_chunk`` a
+    chunk)."""
+
+    def chunks(self) -> list[tuple[int, int]]:
+        """Copy ranges ``[k0, k1)`` of the chunks."""
+        return [(k, min(k + self.per_chunk, self.count)) for k in range(0, self.count, self.per_chunk)]
 
 
 @dataclass(frozen=True)
-class ToleranceRun:
+class ToleranceRun(_MonteCarlo, AtFieldAngles):
     """One tolerance Monte Carlo: the camera, one design, the tolerances, ``n_lenses`` lenses from ``seed``, the SNRs
     (dB), the image model's ``rho0``, the numerics and the field angles (deg; each at four azimuths)."""
 
@@ -99,12 +142,6 @@ class ToleranceRun:
         for cam in self.camera.with_quadrature(self.numerics.spectral_tol).channel_cameras():
             fft_size(cam, spectral_coefficients(cam, self.design, list(self.field_angles_deg)), self.numerics)
 
-    @property
-    def eval_camera(self) -> Camera:
-        """The camera with the run's field angles."""
-        lens = dataclasses.replace(self.camera.lens, field_angles_deg=self.field_angles_deg)
-        return dataclasses.replace(self.camera, lens=lens)
-
     def to_dict(self) -> dict:
         return {"camera": self.camera.to_dict(), "design": self.design.floats(), "design_name": self.design.name,
                 "tolerances": self.tolerances.to_dict(), "snr_db": list(self.snr_db), "rho0": self.rho0,
@@ -112,12 +149,11 @@ class ToleranceRun:
                 "field_angles_deg": list(self.field_angles_deg), "chunk_lenses": self.chunk_lenses,
                 "lenssim_version": __version__}
 
-    def digest(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
-
-    def chunks(self) -> list[tuple[int, int]]:
-        """Lens ranges ``[k0, k1)`` of the chunks."""
-        return [(k, min(k + self.chunk_lenses, self.n_lenses)) for k in range(0, self.n_lenses, self.chunk_lenses)]
+    count = property(lambda self: self.n_lenses)
+    per_chunk = property(lambda self: self.chunk_lenses)
+    finite = property(lambda self: AS_BUILT_CRITERIA())
+    chunk_keys = property(lambda self: AS_BUILT_CRITERIA() + ("fft_size",))
+    rows_key, what = "cost", "lenses"
 
 
 def _compute_chunk(run: ToleranceRun, i: int, device=None, progress=None) -> dict:
@@ -142,17 +178,6 @@ def _chunk_task(run: ToleranceRun, digest: str, index: int, device: str, threads
     return index, chunk, _checksum(chunk)
 
 
-def _write_chunk(path: Path, chunk: dict, run: ToleranceRun, i: int) -> None:
-    write_stamped_chunk(path, chunk, run.digest(), i)
-
-
-def _read_chunk(path: Path, run: ToleranceRun, i: int):
-    """The chunk's arrays if ``path`` holds chunk ``i`` of this run intact, else the reason it does not."""
-    k0, k1 = run.chunks()[i]
-    return read_stamped_chunk(path, AS_BUILT_CRITERIA() + ("fft_size",), run.digest(), i, run="tolerance run",
-                              rows_key="cost", rows=k1 - k0, what="lenses")
-
-
 def _dataset(run: ToleranceRun, chunks: list[dict]) -> xr.Dataset:
     lenses = run.tolerances.sample(run.n_lenses, seed=run.seed)
     data = {}
@@ -175,56 +200,134 @@ def _dataset(run: ToleranceRun, chunks: list[dict]) -> xr.Dataset:
     return ds
 
 
-def run_tolerance(run: ToleranceRun, out: str | os.PathLike, *, device: str = "auto", show_progress: bool = True,
-                  scheduler: str | None = None, workers: int | None = None, worker_threads: int | None = None,
-                  max_chunks: int | None = None) -> xr.Dataset | None:
-    """Run (or resume) the Monte Carlo and write ``out`` (NetCDF); ``None`` if ``max_chunks`` stopped it early.
+@dataclass(frozen=True)
+class LensToleranceRun(_MonteCarlo):
+    """Everything that sets a Monte Carlo of any lens: the nominal lens's provider (lens, sensor, light, sampling),
+    the tolerances, the number of copies and seed, the SNRs (dB), the image model's correlation, the field angles
+    (deg; None: :func:`lenssim.tolerancing.tolerance_angles`), the numerics and whether the copies' tables are
+    coarse."""
+
+    psf: SequentialPSF
+    tolerances: SurfaceTolerances
+    n_copies: int
+    seed: int
+    snr_db: tuple[float, ...]
+    rho0: float
+    numerics: Numerics
+    angles_deg: tuple[float, ...] | None = None
+    coarse: bool = True
+    chunk_copies: int = CHUNK_COPIES
+
+    count = property(lambda self: self.n_copies)
+    per_chunk = property(lambda self: self.chunk_copies)
+    finite = chunk_keys = _ROW_KEYS
+    rows_key, what = "efl_mm", "copies"
+
+    @property
+    def angles(self) -> tuple[float, ...]:
+        return tolerance_angles(self.psf, self.angles_deg)
+
+    def to_dict(self) -> dict:
+        return {"psf": json.loads(self.psf.fingerprint()), "lens_cache_key": self.psf.lens.cache_key(),
+                "tolerances": self.tolerances.to_dict(), "n_copies": self.n_copies, "seed": self.seed,
+                "snr_db": list(self.snr_db), "rho0": self.rho0, "numerics": self.numerics.to_dict(),
+                "angles_deg": list(self.angles), "coarse": self.coarse, "chunk_copies": self.chunk_copies,
+                "lenssim_version": __version__}
+
+
+def _singlet_plan(run: ToleranceRun, device, scheduler, workers, worker_threads):
+    """How the singlet's chunks are computed: ``(compute, dataset, weight, desc, unit, cluster)`` of
+    :func:`run_tolerance` (its FFT sizes checked first)."""
+    from lenssim.torch_utils import select_device
+
+    dev = select_device(device)
+    run.check_fft_sizes()
+    ranges = run.chunks()
+    per_lens = 1 + 4 * sum(a != 0 for a in run.field_angles_deg)  # field points (the axis once)
+    where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
+
+    def on_cluster(todo):
+        from .cluster import compute_chunks, dask_client
+
+        with dask_client(scheduler, workers) as client:
+            yield from compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
+                                      kind="tolerance")
+
+    return (lambda i, progress: _compute_chunk(run, i, dev, progress), lambda chunks: _dataset(run, chunks),
+            lambda i: (ranges[i][1] - ranges[i][0]) * per_lens, f"tolerance on {where}", "PSF",
+            on_cluster if scheduler is not None or workers is not None else None)
+
+
+def _lens_plan(run: LensToleranceRun):
+    """How the copies of any lens are computed: ``(compute, dataset, weight, desc, unit, None)`` of
+    :func:`run_tolerance` (the nominal lens evaluated first: the reference of every copy, :func:`lens_copies`)."""
+    copy, dataset = lens_copies(run.psf, run.tolerances, run.n_copies, seed=run.seed, snr_db=run.snr_db,
+                                rho0=run.rho0, angles_deg=run.angles, coarse=run.coarse, numerics=run.numerics)
+    ranges = run.chunks()
+
+    def compute(i, progress):
+        rows = []
+        for k in range(*ranges[i]):
+            rows.append(copy(k))
+            progress(1)
+        return {key: np.stack([np.asarray(torch.as_tensor(r[key], dtype=torch.float64)) for r in rows])
+                for key in _ROW_KEYS}
+
+    return (compute, lambda chunks: dataset([{key: torch.from_numpy(np.asarray(c[key][j])) for key in _ROW_KEYS}
+                                             for c in chunks for j in range(c["efl_mm"].shape[0])]),
+            lambda i: ranges[i][1] - ranges[i][0], "manufactured copies", "copy", None)
+
+
+def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, *, device: str = "auto",
+                  show_progress: bool = True, scheduler: str | None = None, workers: int | None = None,
+                  worker_threads: int | None = None, max_chunks: int | None = None,
+                  attrs: dict | None = None) -> xr.Dataset | None:
+    """Run (or resume) the Monte Carlo of either kind and write ``out`` (NetCDF); ``None`` if ``max_chunks`` stopped
+    it early.
 
     Resumption as the sweeps': finished chunks in ``out.partial/`` carry their index, the run's digest and a SHA-256
     of their arrays; a chunk that fails its check is reported (:class:`lenssim.validate.ResumeWarning`) and computed
-    again. ``out`` must not be an existing file other than the finished result of the same run. With ``workers`` or
-    ``scheduler`` the chunks are dask tasks (:mod:`lenssim_studies.cluster`); the file is the same, byte for byte.
+    again. ``out`` must not be an existing file other than the finished result of the same run (verified before it is
+    returned). With ``workers`` or ``scheduler`` the singlet's chunks are dask tasks (:mod:`lenssim_studies.cluster`);
+    the file is the same, byte for byte. ``attrs``: more attributes of the dataset (descriptive: not part of the
+    digest).
     """
-    from lenssim.torch_utils import select_device
-
     out = Path(out)
-    dev = select_device(device)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
-
-    done = open_resumable(out, run.digest(), "tolerance output", "tolerance run",
-                          check=lambda ds: result_mismatch(ds, {"lens": np.arange(run.n_lenses), "snr": run.snr_db},
-                                                           finite=AS_BUILT_CRITERIA(), dims=("lens",)))
+    lens = isinstance(run, LensToleranceRun)
+    if lens and (scheduler is not None or workers is not None):
+        raise ValueError("a Monte Carlo of any lens runs in this process: no scheduler or workers")
+    digest = run.digest()
+    done = open_resumable(out, digest, "tolerance output", "tolerance run",
+                          check=lambda ds: result_mismatch(ds, {"lens": np.arange(run.count), "snr": run.snr_db},
+                                                           finite=run.finite, dims=("lens",)))
     if done is not None:
         return done
-    run.check_fft_sizes()
+    compute, dataset, weight, desc, unit, cluster = (
+        _lens_plan(run) if lens else _singlet_plan(run, device, scheduler, workers, worker_threads))
     part = out.with_name(out.name + ".partial")
     if part.exists():
         for p in part.glob(".*"):
             p.unlink(missing_ok=True)
-    with partial_folder(part, "run.json", run.digest(), {"run": run.to_dict()},
+    with partial_folder(part, "run.json", digest, {"run": run.to_dict()},
                         f"{str(part)!r} holds chunks of a different tolerance run; remove it or choose another output"):
         ranges = run.chunks()
         paths = [part / f"chunk_{i:05d}.npz" for i in range(len(ranges))]
-        per_lens = 1 + 4 * sum(a != 0 for a in run.field_angles_deg)  # field points (the axis once)
-        where = scheduler or (f"{workers} local workers" if workers is not None else dev.type)
 
-        def on_cluster(todo):
-            from .cluster import compute_chunks, dask_client
+        def read(path, i):
+            return read_stamped_chunk(path, run.chunk_keys, digest, i, run="tolerance run", rows_key=run.rows_key,
+                                      rows=ranges[i][1] - ranges[i][0], what=run.what)
 
-            with dask_client(scheduler, workers) as client:
-                yield from compute_chunks(client, run, todo, device=device, threads=worker_threads, task=_chunk_task,
-                                          kind="tolerance")
-
-        chunks = resume_chunks(paths, kind="tolerance", read=lambda p, i: _read_chunk(p, run, i),
-                               write=lambda p, chunk, i: _write_chunk(p, chunk, run, i),
-                               compute=lambda i, progress: _compute_chunk(run, i, dev, progress),
-                               weight=lambda i: (ranges[i][1] - ranges[i][0]) * per_lens, desc=f"tolerance on {where}",
-                               show_progress=show_progress, max_chunks=max_chunks,
-                               cluster=on_cluster if scheduler is not None or workers is not None else None)
+        chunks = resume_chunks(paths, kind="tolerance", read=read,
+                               write=lambda p, chunk, i: write_stamped_chunk(p, chunk, digest, i), compute=compute,
+                               weight=weight, desc=desc, unit=unit, show_progress=show_progress,
+                               max_chunks=max_chunks, cluster=cluster)
         if chunks is None:
             return None
-        ds = _dataset(run, chunks)
+        ds = dataset(chunks)
+        ds.attrs.update(attrs or {})
+        ds.attrs["config_digest"] = digest
         finish_resumable(out, ds, part)
         return ds
 
@@ -248,34 +351,71 @@ def parse_yield(spec: str) -> tuple[str, str, float]:
     raise ValueError(f"--yield {spec!r} is not allowed: CRITERION<=VALUE or CRITERION>=VALUE, e.g. mse_r_nominal<=0.05")
 
 
+def _snr_index(ds, ref_snr: float) -> int:
+    snr = [float(v) for v in ds["snr"].values]
+    for j, v in enumerate(snr):
+        if math.isclose(v, ref_snr, abs_tol=1e-9):
+            return j
+    raise ValueError(f"reference SNR {ref_snr:g} dB is not allowed: one of the run's {snr}")
+
+
 def _values(ds: xr.Dataset, name: str, snr: float) -> np.ndarray:
+    """``name``'s values per lens at ``snr`` (dB) of a Monte Carlo of either kind (of the run's SNRs)."""
     v = ds[name]
-    return (v.sel(snr=snr) if "snr" in v.dims else v).values
+    return (v.isel(snr=_snr_index(ds, snr)) if "snr" in v.dims else v).values
+
+
+def spread(v: np.ndarray, seed: int, *, worse_low: bool = False) -> dict:
+    """The spread of a criterion over ``N`` lenses ``v``: mean, median, ``p90`` and ``p99`` (the values 90% and 99% of
+    the lenses are at least as good as: the 90th and 99th percentiles of a criterion to minimise, the 10th and 1st of
+    one to maximise, ``worse_low``), and the bootstrap standard error of ``p90`` (relative; :data:`BOOTSTRAP`
+    resamples drawn from ``seed``: the same draws for every criterion of ``N`` lenses)."""
+    idx = np.random.default_rng(seed).integers(0, len(v), size=(BOOTSTRAP, len(v)))
+    q90, q99 = (10.0, 1.0) if worse_low else (90.0, 99.0)
+    p50, p90, p99 = np.percentile(v, (50.0, q90, q99))
+    boot = np.percentile(v[idx], q90, axis=1)
+    return {"mean": float(v.mean()), "median": float(p50), "p90": float(p90), "p99": float(p99),
+            "p90_rel_se": float(boot.std() / abs(p90)) if p90 else 0.0}
 
 
 def summarise(ds: xr.Dataset, nominal: dict, snr_db: float, yields=(), *, seed: int = 0) -> dict:
-    """Per criterion at ``snr_db``: the nominal value, mean, median, ``p90`` and ``p99`` (the values 90% and 99% of
-    the lenses are at least as good as: the 90th and 99th percentiles of a criterion to minimise, the 10th and 1st
-    of one to maximise), the bootstrap standard error of ``p90`` (relative), and the yields
-    ``[(criterion, op, value)]`` (fraction of lenses meeting each)."""
-    rng = np.random.default_rng(seed)
+    """The singlet's Monte Carlo: per criterion at ``snr_db``, the nominal value and its :func:`spread` over the
+    lenses, and the yields ``[(criterion, op, value)]`` (fraction of lenses meeting each)."""
     out = {"snr_db": snr_db, "lenses": int(ds.sizes["lens"]), "criteria": {}, "yields": []}
-    N = int(ds.sizes["lens"])
-    idx = rng.integers(0, N, size=(BOOTSTRAP, N))
     for k in AS_BUILT_CRITERIA():
-        v = _values(ds, k, snr_db)
-        worse = CRITERIA[k].sense == "max"  # for a criterion to maximise, 90% of the lenses are above its 10th pct
-        q90, q99 = (10.0, 1.0) if worse else (90.0, 99.0)
-        p50, p90, p99 = np.percentile(v, (50.0, q90, q99))
-        boot = np.percentile(v[idx], q90, axis=1)
-        out["criteria"][k] = {"nominal": float(nominal[k]), "mean": float(v.mean()), "median": float(p50),
-                              "p90": float(p90), "p99": float(p99),
-                              "p90_rel_se": float(boot.std() / abs(p90)) if p90 else 0.0}
+        # for a criterion to maximise, 90% of the lenses are above its 10th percentile
+        out["criteria"][k] = {"nominal": float(nominal[k]),
+                              **spread(_values(ds, k, snr_db), seed, worse_low=CRITERIA[k].sense == "max")}
     for name, op, thr in yields:
         v = _values(ds, name, snr_db)
         ok = v <= thr if op == "<=" else v >= thr
         out["yields"].append({"criterion": name, "op": op, "threshold": thr, "fraction": float(ok.mean())})
     return out
+
+
+def summarise_lens_tolerance(ds, ref_snr: float) -> dict:
+    """The Monte Carlo of any lens: mean, median and 90th percentile over the copies of ``mse_r`` and
+    ``mse_r_nominal`` at ``ref_snr`` (and of ``mse_s``, ``rms_w``), with the nominal's values beside them, and the
+    coarse numerics' effect on the nominal."""
+    j = _snr_index(ds, ref_snr)
+    out = {"reference_snr_db": float(ref_snr), "lenses": int(ds.sizes["lens"])}
+    for k in COPY_CRITERIA:
+        v = tensor_of(ds[k].values, torch.float64)
+        nom = tensor_of(ds[f"nominal_{k}"].values, torch.float64)
+        full = tensor_of(ds[f"nominal_default_{k}"].values, torch.float64)
+        if v.ndim == 2:
+            v, nom, full = v[:, j], nom[j], full[j]
+        out[k] = {"mean": float(v.mean()), "median": float(v.median()) if v.numel() % 2 else float(v.quantile(0.5)),
+                  "p90": float(v.quantile(0.9)), "min": float(v.min()), "max": float(v.max()),
+                  "nominal": float(nom), "nominal_default_numerics": float(full),
+                  "coarse_effect": float(nom / full - 1) if float(full) else 0.0}
+    return out
+
+
+def markdown_table(header, rows) -> list[str]:
+    """The lines of a Markdown table: ``header`` (column titles) and ``rows`` (each a sequence of cell texts)."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + [
+        "| " + " | ".join(r) + " |" for r in rows]
 
 
 def nominal_values(run: ToleranceRun, snr_db: float) -> dict:
@@ -310,19 +450,19 @@ def sensitivity(run: ToleranceRun, snr_db: float, n_lenses: int, *, log: Callabl
 
 
 def tolerance_report(run: ToleranceRun, summary: dict, sens: list | None, snr_db: float) -> str:
-    """Markdown: the statistics table, yields, the sensitivity table."""
+    """Markdown of the singlet's Monte Carlo: the statistics table, yields, the sensitivity table."""
     lines = [f"# Tolerance Monte Carlo: {run.design.name or 'custom design'}", "",
              f"{summary['lenses']} lenses, seed {run.seed}, at {snr_db:g} dB; design "
              + ", ".join(f"{k} = {v:g}" for k, v in run.design.floats().items())
              + f"; field angles {', '.join(f'{a:g}' for a in run.field_angles_deg)} deg at 4 azimuths.", "",
              "Tolerances: " + ", ".join(f"{k} = {v:g}" for k, v in run.tolerances.to_dict().items()
                                         if not isinstance(v, bool) and v) +
-             f"; focus {'compensated at assembly' if run.tolerances.focus_compensated else 'not compensated'}.", "",
-             "| criterion | nominal | mean | median | 90% of lenses as good as | 99% as good as | s.e. of the 90% value |",
-             "|---|---|---|---|---|---|---|"]
-    for k, s in summary["criteria"].items():
-        lines.append(f"| {CRITERIA[k].label} ({k}) | {s['nominal']:.5g} | {s['mean']:.5g} | {s['median']:.5g} | "
-                     f"{s['p90']:.5g} | {s['p99']:.5g} | {100 * s['p90_rel_se']:.2f}% |")
+             f"; focus {'compensated at assembly' if run.tolerances.focus_compensated else 'not compensated'}.", ""]
+    lines += markdown_table(("criterion", "nominal", "mean", "median", "90% of lenses as good as", "99% as good as",
+                             "s.e. of the 90% value"),
+                            [(f"{CRITERIA[k].label} ({k})", f"{s['nominal']:.5g}", f"{s['mean']:.5g}",
+                              f"{s['median']:.5g}", f"{s['p90']:.5g}", f"{s['p99']:.5g}",
+                              f"{100 * s['p90_rel_se']:.2f}%") for k, s in summary["criteria"].items()])
     lines += ["", "`mse_r`: each lens restored with its own PSFs (calibrated); `mse_r_nominal`: with the nominal "
               "lens's (the restoration built for the design). The 90% and 99% values are the 90th and 99th "
               "percentiles of a criterion to minimise, the 10th and 1st of one to maximise (MTF50, Strehl).", ""]
@@ -330,29 +470,44 @@ def tolerance_report(run: ToleranceRun, summary: dict, sens: list | None, snr_db
         lines.append(f"Yield: {100 * y['fraction']:.1f}% of the lenses have {y['criterion']} {y['op']} "
                      f"{y['threshold']:g}.")
     if sens:
-        lines += ["", "## Sensitivity (each tolerance alone)", "",
-                  "| term | p90 MSE_R (calibrated) | rise | p90 MSE_R (nominal restoration) | rise |", "|---|---|---|---|---|"]
-        for r in sens:
-            lines.append(f"| {r['term']} | {r['mse_r']['p90']:.5f} | {r['mse_r']['rise']:+.5f} | "
-                         f"{r['mse_r_nominal']['p90']:.5f} | {r['mse_r_nominal']['rise']:+.5f} |")
+        lines += ["", "## Sensitivity (each tolerance alone)", ""] + markdown_table(
+            ("term", "p90 MSE_R (calibrated)", "rise", "p90 MSE_R (nominal restoration)", "rise"),
+            [(r["term"], f"{r['mse_r']['p90']:.5f}", f"{r['mse_r']['rise']:+.5f}", f"{r['mse_r_nominal']['p90']:.5f}",
+              f"{r['mse_r_nominal']['rise']:+.5f}") for r in sens])
     return "\n".join(lines) + "\n"
+
+
+def lens_tolerance_report(ds, summary: dict) -> str:
+    """Markdown of a Monte Carlo of any lens (its dataset and :func:`summarise_lens_tolerance`)."""
+    tol = json.loads(ds.attrs["tolerances"])
+    lines = [f"# Tolerance Monte Carlo: {ds.attrs['lens'] or 'lens'}", "",
+             f"{summary['lenses']} manufactured copies (seed {ds.attrs['seed']}), pixels "
+             f"{ds.attrs['pixel_pitch_um']:.4g} um ({ds.attrs['sampling']}), field angles "
+             + ", ".join(f"{a:.3g}" for a in ds.attrs["angles_deg"]) + " deg, SNR "
+             f"{summary['reference_snr_db']:g} dB.", "",
+             "Tolerances (+/- limits, each 2 standard deviations): " + ", ".join(
+                 f"{k} {v:g}" for k, v in tol.items() if k != "focus_compensated")
+             + f"; focus compensated: {'yes' if tol['focus_compensated'] else 'no'}. Not modelled: "
+             + ds.attrs["not_modelled"] + ".", ""]
+    lines += markdown_table(("criterion", "nominal", "mean", "median", "p90", "max"),
+                            [(k, *(f"{summary[k][c]:.5g}" for c in ("nominal", "mean", "median", "p90", "max")))
+                             for k in COPY_CRITERIA])
+    lines += ["", "mse_r: restored with each copy's own PSFs; mse_r_nominal: with the Wiener filter of the nominal "
+              "lens. Copies at coarser numerics (" + ds.attrs["numerics"] + "): the nominal's mse_r differs from the "
+              f"default numerics by {summary['mse_r']['coarse_effect']:+.2e} (relative).", ""]
+    return "\n".join(lines)
 
 
 def tolerance_figures(ds: xr.Dataset, summary: dict, out: Path, snr_db: float, title: str) -> list[Path]:
     """Histograms of MSE_R (calibrated and nominal restoration) and their cumulative distributions, with the nominal
     design and the 90th percentiles marked: ``histogram.png/.svg``, ``cdf.png/.svg`` in ``out``."""
-    import matplotlib
+    from .figures import _plt, _save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _plt()
     written = []
 
     def save(fig, stem):
-        for ext in ("png", "svg"):
-            fig.savefig(out / f"{stem}.{ext}", dpi=120)
-            written.append(out / f"{stem}.{ext}")
-        plt.close(fig)
+        written.extend([_save(fig, out, stem, dpi=120), out / f"{stem}.svg"])
 
     series = [("mse_r", "restored with its own PSFs (calibrated)", "tab:blue"),
               ("mse_r_nominal", "restored with the nominal PSFs", "tab:red")]

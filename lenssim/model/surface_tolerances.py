@@ -25,7 +25,7 @@ standard deviations of a normal draw (95% of the parts inside it). Terms:
 
 The decentres and tilts make a copy that is not rotationally symmetric: it is traced as such
 (:class:`lenssim.optics.sequential.SequentialLens` with ``misalignments``) and evaluated at four image azimuths
-(:mod:`lenssim.sequential_tolerance`).
+(:mod:`lenssim.tolerancing`).
 
 Grades (:data:`SURFACE_GRADES`): ``radius_pct``, ``conic_pct``, ``index`` and ``despace_um`` are the grades of
 :data:`lenssim.model.tolerances.GRADES` (the moulded asphere's front-surface radius, conic, index and despace;

@@ -27,7 +27,7 @@ import pytest
 import torch
 import xarray as xr
 
-import lenssim_studies.lens_tolerance
+import lenssim.tolerancing
 import lenssim_studies.tradeoff
 import lenssim_studies.study
 import lenssim_studies.sweep
@@ -374,8 +374,8 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
     from lenssim.model.numerics import FAST_NUMERICS
     from lenssim.model.surface_tolerances import surface_grade
     from lenssim.optics.sequential import SequentialLens
-    from lenssim.sequential_tolerance import CRITERIA
-    from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+    from lenssim.tolerancing import COPY_CRITERIA as CRITERIA
+    from lenssim_studies.tolerance import LensToleranceRun, run_tolerance
     from lenssim_studies.tradeoff import sequential_provider
 
     rng = np.random.default_rng(5)
@@ -384,26 +384,26 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
         return {k: torch.as_tensor(rng.uniform(0.1, 1.0, len(snr_db)) if k != "rms_w" else rng.uniform(0.1, 1.0))
                 for k in CRITERIA}
 
-    monkeypatch.setattr(lenssim_studies.lens_tolerance, "nominal_criteria",
+    monkeypatch.setattr(lenssim.tolerancing, "nominal_criteria",
                         lambda psf, snr_db, **kw: (psf, values(snr_db), values(snr_db)))
-    monkeypatch.setattr(lenssim_studies.lens_tolerance, "copy_criteria", lambda psf, nominal, pert, i, snr_db, **kw:
+    monkeypatch.setattr(lenssim.tolerancing, "copy_criteria", lambda psf, nominal, pert, i, snr_db, **kw:
                         values(snr_db) | {"image_shift_mm": 0.01 * i, "efl_mm": 50.0 + i})
     p = read_lens(LENS_FILE)
     psf = sequential_provider(p, SequentialLens(p), pitch_um=2.0, sampling="point", max_field_deg=3.0, coarse=True)
     run = LensToleranceRun(psf, surface_grade("commercial"), 3, 0, (21.6, 27.6), 0.937, FAST_NUMERICS,
                            angles_deg=(0.0,), chunk_copies=2)
     out = tmp_path / "tolerance.nc"
-    ds = run_lens_tolerance_resumable(run, out, show_progress=False)
-    assert run_lens_tolerance_resumable(run, out, show_progress=False).attrs["data_sha256"] == ds.attrs["data_sha256"]
+    ds = run_tolerance(run, out, show_progress=False)
+    assert run_tolerance(run, out, show_progress=False).attrs["data_sha256"] == ds.attrs["data_sha256"]
     _rewrite(ds, out, lambda d: d.assign(efl_mm=d["efl_mm"] * 2.0))
     with pytest.raises(ValueError, match="tolerance.nc' fails its checksum"):
-        run_lens_tolerance_resumable(run, out, show_progress=False)
+        run_tolerance(run, out, show_progress=False)
     _rewrite(ds, out, lambda d: d.assign_coords(lens=[2, 1, 0]), restamp=True)
     with pytest.raises(ValueError, match="its lens coordinate is not the run's"):
-        run_lens_tolerance_resumable(run, out, show_progress=False)
+        run_tolerance(run, out, show_progress=False)
     _rewrite(ds, out, _set("mse_r", (1, 1), np.inf), restamp=True)
     with pytest.raises(ValueError, match="its mse_r holds NaN or infinite values"):
-        run_lens_tolerance_resumable(run, out, show_progress=False)
+        run_tolerance(run, out, show_progress=False)
 
 
 def test_a_gradient_result_is_verified_before_it_is_reused(tmp_path, monkeypatch):
@@ -481,7 +481,7 @@ def no_grid(monkeypatch):
     monkeypatch.setattr(lenssim_studies.tradeoff, "_score", _grid_raises)
     monkeypatch.setattr(lenssim_studies.tradeoff, "_descend", _grid_raises)
     monkeypatch.setattr(lenssim_studies.tolerance, "_compute_chunk", _grid_raises)
-    monkeypatch.setattr(lenssim_studies.lens_tolerance, "nominal_criteria", _grid_raises)
+    monkeypatch.setattr(lenssim.tolerancing, "nominal_criteria", _grid_raises)
     monkeypatch.setattr(lenssim_studies.sweep, "_compute_chunk", _grid_raises)
     for name in ("white_light_study", "exact_along_tradeoff"):
         monkeypatch.setattr(lenssim_studies.study, name, _grid_raises)

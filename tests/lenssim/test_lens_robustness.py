@@ -17,7 +17,7 @@ from lenssim.model.numerics import Numerics
 from lenssim.model.surface_tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluation_angles
-from lenssim.sequential_tolerance import run_lens_tolerance
+from lenssim.tolerancing import run_lens_tolerance
 from lenssim_studies.lens_robustness import robust_front, robustness_figure
 from lenssim_studies.tradeoff import (LensTradeoffRun, design_prescription, run_lens_tradeoff,
                                            sequential_provider, tradeoff_json)
@@ -51,7 +51,7 @@ def robust(traded, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def direct(traded):
-    """Each grid design's Monte Carlo in memory (lenssim.sequential_tolerance), on its design_prescription lens."""
+    """Each grid design's Monte Carlo in memory (lenssim.tolerancing), on its design_prescription lens."""
     run, _, _ = traded
     out = {}
     for k in CONICS:
@@ -127,7 +127,7 @@ def test_the_robust_optimum_per_level_is_the_brute_force_one(traded, robust, dir
 
 
 def test_a_second_call_resumes_and_computes_nothing(traded, robust, monkeypatch):
-    import lenssim_studies.lens_tolerance as lt
+    import lenssim.tolerancing as lt
 
     run, _, res = traded
     out, r = robust

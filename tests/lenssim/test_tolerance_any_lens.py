@@ -21,7 +21,7 @@ from lenssim.model.surface_tolerances import (SURFACE_GRADES, SurfaceTolerances,
 from lenssim.model.tolerances import GRADES
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluate_sequential
-from lenssim.sequential_tolerance import copy_provider, manufactured_lens, run_lens_tolerance
+from lenssim.tolerancing import copy_provider, manufactured_lens, run_lens_tolerance
 from lenssim_cli.lens import lens_provider
 from lenssim_cli.main import main
 
@@ -249,21 +249,21 @@ def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singl
     import xarray as xr
 
     from lenssim.validate import ResumeWarning
-    from lenssim_studies.lens_tolerance import LensToleranceRun, run_lens_tolerance_resumable
+    from lenssim_studies.tolerance import LensToleranceRun, run_tolerance
 
     p, seq = singlet
     psf = _provider(p, seq)
     tol = SURFACE_GRADES["commercial"]
     run = LensToleranceRun(psf, tol, 3, 1, SNR, 0.937, SMALL, angles_deg=(0.0, 3.0), chunk_copies=1)
     out = tmp_path / "t.nc"
-    assert run_lens_tolerance_resumable(run, out, show_progress=False, max_chunks=2) is None
+    assert run_tolerance(run, out, show_progress=False, max_chunks=2) is None
     part = tmp_path / "t.nc.partial"
     chunks = sorted(part.glob("chunk_*.npz"))
     assert len(chunks) == 2 and not out.exists()
     chunks[1].write_bytes(chunks[1].read_bytes()[:-40])  # a chunk cut short by a crash
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        ds = run_lens_tolerance_resumable(run, out, show_progress=False)
+        ds = run_tolerance(run, out, show_progress=False)
     assert any(issubclass(w.category, ResumeWarning) for w in caught)
     assert out.exists() and not part.exists()
     one = run_lens_tolerance(psf, tol, 3, seed=1, snr_db=SNR, rho0=0.937, angles_deg=(0.0, 3.0), numerics=SMALL)
@@ -273,7 +273,7 @@ def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singl
         assert back.attrs["config_digest"] == run.digest()
     other = LensToleranceRun(psf, tol, 3, 2, SNR, 0.937, SMALL, angles_deg=(0.0, 3.0), chunk_copies=1)
     with pytest.raises(FileExistsError, match="not the finished result"):
-        run_lens_tolerance_resumable(other, out, show_progress=False)
+        run_tolerance(other, out, show_progress=False)
 
 
 def test_grades_take_the_singlets_decentres_and_tilts():
@@ -375,7 +375,7 @@ def test_an_asymmetric_psf_is_scored_over_the_whole_frequency_plane():
 
 
 def test_a_decentred_copy_is_averaged_over_four_azimuths(singlet):
-    from lenssim.sequential_tolerance import copy_criteria, nominal_criteria
+    from lenssim.tolerancing import copy_criteria, nominal_criteria
 
     p, seq = singlet
     psf = _provider(p, seq)
