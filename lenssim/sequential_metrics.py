@@ -1,6 +1,6 @@
 """The paper's design criteria for any sequential lens on a sensor: real-ray wavefronts instead of third order.
 
-:func:`evaluate_sequential` computes, for a :class:`lenssim.optics.sequential_psf.SequentialPSF` (a lens from a
+:func:`evaluate_sequential` computes, for a :class:`lenssim.optics.psf_provider.SequentialPSF` (a lens from a
 prescription, object at infinity, on a sensor's pixels, in one spectrum or colour channels), what
 :func:`lenssim.metrics.evaluate` computes for the paper's singlet (Sections 2.2-2.3 of the paper):
 
@@ -17,7 +17,7 @@ prescription, object at infinity, on a sensor's pixels, in one spectrum or colou
   sphere (:func:`lenssim.optics.cost.prescription_costs`; ``cost_per_surface`` by surface number).
 
 Each PSF is taken about its chief ray's image point, not the paraxial point: distortion is the lens's geometric
-mapping (a camera corrects it, or a simulated photo renders it, :mod:`lenssim.optics.sequential_psf`), not blur, and
+mapping (a camera corrects it, or a simulated photo renders it, :mod:`lenssim.optics.psf_bank`), not blur, and
 a pixel-wise MSE against the undistorted scene would score a shift of whole pixels as error. The Strehl ratio is
 therefore at the chief ray's point, against the aberration-free PSF of the same (vignetted) pupil.
 
@@ -47,7 +47,7 @@ from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.cost import prescription_costs
 from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
-from .optics.sequential_psf import SequentialPSF
+from .optics.psf_provider import SequentialPSF
 from .torch_utils import HOST, tensor_of
 from .validate import ResourceLimitError, check_memory
 

@@ -17,7 +17,7 @@ image azimuths :data:`MISALIGNED_AZIMUTHS_DEG` (each as the ``+y`` field of
 and its field average is over those too. Its image plane is focused on the centred copy's paraxial focus.
 
 **Coarser numerics for the copies** (``coarse=True``, the default): each copy's wavefront table is traced at the
-table's initial field-angle nodes only (:data:`lenssim.optics.sequential_psf.TABLE_INITIAL_NODES`, 9 from the axis
+table's initial field-angle nodes only (:data:`lenssim.optics.psf_bank.TABLE_INITIAL_NODES`, 9 from the axis
 to the largest angle), without the bisection that otherwise adds nodes until the angle interpolation holds 0.01 wave
 (every interval's mid-node is traced even when it passes, so the default table has at least 17 nodes: the coarse one
 traces about half the rays). Everything else (pupil grid, FFT sizes, the MSE integrals' ``numerics``) is unchanged.
@@ -39,7 +39,8 @@ import torch
 from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, copy_misalignments,
                                        perturbed_prescription)
 from .optics.sequential import SequentialLens
-from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
+from .optics.psf_bank import TABLE_INITIAL_NODES, TABLE_MAX_NODES
+from .optics.psf_provider import SequentialPSF
 from .sequential_metrics import evaluate_sequential, evaluation_angles
 from .torch_utils import HOST, tensor_of
 

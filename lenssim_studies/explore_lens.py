@@ -222,7 +222,7 @@ class LensExplorer(Explorer):
         angles = tuple(f * amax for f in LENS_PSF_FIELDS) if angles is None else tuple(angles)
 
         def make():
-            from lenssim.optics.sequential_psf import image_scale_mm
+            from lenssim.optics.psf_bank import image_scale_mm
 
             q, seq = self.check(controls)
             pitch = self._criteria_pitch

@@ -19,7 +19,7 @@ import torch
 from ..model.design import Design
 from ..model.lens import Lens
 from ..model.surface import Surface
-from ..model.surface_kinds import conic_intersection, sag_normal
+from ..model.surface_kinds import conic_intersection, refract, sag_normal
 from ..model.surface_kinds.standard import conic_sag
 from ..torch_utils import HOST
 
@@ -34,17 +34,6 @@ def _intersect(P, d, c, kappa):
         raise ValueError("a ray misses a surface (discriminant < 0); reduce the aperture or field")
     X = P + t.unsqueeze(-1) * d
     return X, sag_normal(X, conic_sag(X[..., 0] ** 2 + X[..., 1] ** 2, c, kappa)[1]), t
-
-
-def _refract(d, N, n1, n2):
-    cos_i = (d * N).sum(-1, keepdim=True)
-    N = torch.where(cos_i < 0, -N, N)
-    cos_i = cos_i.abs()
-    mu = n1 / n2
-    k = 1 - mu**2 * (1 - cos_i**2)
-    if (k < 0).any():
-        raise ValueError("total internal reflection in the ray trace")
-    return mu * d + (torch.sqrt(k) - mu * cos_i) * N
 
 
 def surface_frame(surf: Surface, z_vertex_mm: float, dtype=torch.float64, device=None):
@@ -81,7 +70,9 @@ def trace_rays_opl(surfaces: list[Surface], starts: torch.Tensor, direction: tor
         o, R = surface_frame(surf, z_v, P.dtype, P.device)
         Pl, dl = (P - o) @ R, d @ R  # into the surface's frame (rows times R = R^T applied)
         Xl, Nl, t = _intersect(Pl, dl, c, kap)
-        dl = _refract(dl, Nl, n, surf.n_after)
+        dl, ok = refract(dl, Nl, n, surf.n_after)
+        if not bool(ok.all()):
+            raise ValueError("total internal reflection in the ray trace")
         opl = opl + n * t
         P, d = Xl @ R.T + o, dl @ R.T
         n = surf.n_after

@@ -55,7 +55,7 @@ from ..model.glass import as_glass
 from ..model.misalignment import Misalignment
 from ..model.prescription import Prescription, PrescriptionError
 from ..model.surface import Surface
-from ..model.surface_kinds import NEWTON_ITERATIONS
+from ..model.surface_kinds import NEWTON_ITERATIONS, refract
 from .paraxial import seidel_surface_sums
 from ..torch_utils import HOST
 
@@ -445,17 +445,6 @@ class SequentialLens:
         X, N, t, ok, rho = s.surface_kind.intersect(s, P - v, d, valid)
         return X + v, N, t, ok, rho
 
-    @staticmethod
-    def _refract(d, N, n1, n2, valid):
-        cos_i = (d * N).sum(-1, keepdim=True)
-        N = torch.where(cos_i < 0, -N, N)
-        cos_i = cos_i.abs()
-        mu = n1 / n2
-        k = 1 - mu**2 * (1 - cos_i**2)
-        ok = valid & (k[..., 0] >= 0)
-        k = torch.where(ok.unsqueeze(-1), k, torch.ones_like(k))
-        return mu * d + (torch.sqrt(k) - mu * cos_i) * N, ok
-
     def trace(self, starts: torch.Tensor, directions: torch.Tensor, wavelength_um: float | None = None, *,
               upto: int | None = None, opl_start: torch.Tensor | None = None, vignette: bool = True) -> RayBundle:
         """Trace rays from ``starts`` ``(R, 3)`` along ``directions`` ``(R, 3)`` (object space, air) through the
@@ -494,7 +483,7 @@ class SequentialLens:
                     ok = ok & within
             n2 = self.index_after(i, lam)
             met = ok
-            d2, ok = self._refract(d, N, n, n2, ok)
+            d2, ok = refract(d, N, n, n2, ok)
             reflected = torch.where(met & ~ok & (reflected == 0), i + 1, reflected)
             clipped = torch.where(valid & ~ok & (clipped == 0), i + 1, clipped)
             valid = ok
