@@ -723,15 +723,11 @@ def otf_quarter_pair(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample
     quarters equal :func:`otf_quarter_spectrum` (tested). The general path: full 2-D transforms of the pupil's
     bounding box and of the zero-padded PSF.
     """
-    _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     m = n * int(oversample)
     hm = m // 2
     acc = None
-    flat = coeffs
-    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        R = _radius(camera, int(n), lam)
-        field = _field(flat[:, k], R, None, numerics.supersample, flat.dtype, flat.device, terms)
-        amp, _ = _pupil_box_cached(float(R), int(numerics.supersample))
+    for _, lam, w, field, _, _ in _wavelength_fields(camera, coeffs, n, None, None, numerics, terms):
+        amp, _ = _pupil_box_cached(float(_radius(camera, int(n), lam)), int(numerics.supersample))
         p = _intensity(field, int(n), area=float(amp.sum())).mul_(w)
         acc = p if acc is None else acc.add_(p)
     acc = _pad_periodic(_pad_periodic(acc, m, -2), m, -1)
