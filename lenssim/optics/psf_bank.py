@@ -326,17 +326,15 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device, terms=None):
 
 def _intensity(field: torch.Tensor, n: int, *, area=None, keep: torch.Tensor | None = None) -> torch.Tensor:
     """``|DFT_n(field)|^2`` ``(B, n, n)`` of a pupil field on its box ``(B, rows, cols)`` zero-padded to ``n x n``: the
-    pupil -> PSF step of every lens kind. The transform runs along x on the pupil's rows only (the rest of the grid is
-    zero), then along y. ``keep`` ``(w,)``: the indices (DFT order) of the rows and columns to keep, each pass keeping
-    only those (a ``w x w`` window of the PSF). ``area``: the pupil's area (samples; a number or ``(B, 1, 1)``), the
-    PSF then divided by ``n^2 area``, so that the whole grid holds ``sum(amp^2) / sum(amp)`` of the light (Parseval:
-    all of it for a pupil of 0/1 amplitude)."""
-    a = torch.fft.fft(field, n=n, dim=-1)
-    if keep is not None:
-        a = a.index_select(-1, keep)
-    a = torch.fft.fft(a, n=n, dim=-2)
-    if keep is not None:
-        a = a.index_select(-2, keep)
+    pupil -> PSF step of every lens kind. ``keep`` ``(w,)``: the indices (DFT order) of the rows and columns to keep
+    (a ``w x w`` window of the PSF; the transform then runs one axis at a time, keeping only those after each).
+    ``area``: the pupil's area (samples; a number or ``(B, 1, 1)``), the PSF then divided by ``n^2 area``, so that the
+    whole grid holds ``sum(amp^2) / sum(amp)`` of the light (Parseval: all of it for a pupil of 0/1 amplitude)."""
+    if keep is None:
+        a = torch.fft.fft2(field, s=(n, n))
+    else:
+        a = torch.fft.fft(field, n=n, dim=-1).index_select(-1, keep)
+        a = torch.fft.fft(a, n=n, dim=-2).index_select(-2, keep)
     p = a.real.square() + a.imag.square()
     return p if area is None else p.div_((n * n) * area)
 
