@@ -42,7 +42,8 @@ def main(argv=None) -> int:
     from lenssim.io.prescription_file import read_lens
     from lenssim.model.spectrum import Spectrum
     from lenssim.optics.sequential import SequentialLens
-    from lenssim.optics.sequential_psf import SequentialPSF, image_scale_mm
+    from lenssim.optics.psf_bank import image_scale_mm
+    from lenssim.optics.psf_provider import SequentialPSF
     from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

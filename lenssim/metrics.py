@@ -15,7 +15,7 @@ the field angles (:func:`_field_means`); ``rms_w`` is the root of the field-aver
   chunks. The paper's singlet (:func:`evaluate`: batches of :class:`lenssim.Design`, the third-order closed forms),
   the exact ray-traced wavefront of one singlet design fitted by polynomials (:func:`exact_criteria`), and the Seidel
   wavefront of any prescription (:func:`evaluate_third_order`, on :func:`third_order_camera`) take it;
-* **real-ray PSFs** of any lens (:func:`evaluate_sequential`, a :class:`lenssim.optics.sequential_psf.SequentialPSF`:
+* **real-ray PSFs** of any lens (:func:`evaluate_sequential`, a :class:`lenssim.optics.psf_provider.SequentialPSF`:
   a prescription, object at infinity, on a sensor's pixels, in one spectrum or colour channels): at
   :data:`EVALUATION_FIELDS` angles from the axis to the provider's largest, the PSF by Fourier optics of the real-ray
   OPD (vignetted pupil, every wavelength), zero-padded to the oversampled grid (:func:`_otf_quarters`); ``rms_w`` over
@@ -64,7 +64,7 @@ from .optics.psf_bank import fft_size as choose_fft_size
 from .optics.psf_bank import otf_quarter_spectrum, spectral_coefficients
 from .optics.seidel_wavefront import SEIDEL_TERMS, equivalent_thin_lens, third_order_coefficients
 from .optics.sequential import SequentialLens
-from .optics.sequential_psf import SequentialPSF
+from .optics.psf_provider import SequentialPSF
 from .optics.wavefront_models import WAVEFRONT_MODELS, register_evaluator
 from .torch_utils import HOST, as_tensor, chunk_budget_bytes, tensor_of
 from .validate import NumericalError, ResourceLimitError, check_memory

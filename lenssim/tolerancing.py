@@ -22,7 +22,7 @@ not mirror-symmetric, about the chief ray's point), and its field average is ove
 on the centred copy's paraxial focus.
 
 **Coarser numerics for the copies** (``coarse=True``, the default): each copy's wavefront table is traced at the
-table's initial field-angle nodes only (:data:`lenssim.optics.sequential_psf.TABLE_INITIAL_NODES`, 9 from the axis
+table's initial field-angle nodes only (:data:`lenssim.optics.psf_bank.TABLE_INITIAL_NODES`, 9 from the axis
 to the largest angle), without the bisection that otherwise adds nodes until the angle interpolation holds 0.01 wave
 (every interval's mid-node is traced even when it passes, so the default table has at least 17 nodes: the coarse one
 traces about half the rays). Everything else (pupil grid, FFT sizes, the MSE integrals' ``numerics``) is unchanged.
@@ -55,7 +55,8 @@ from .optics.exact_wavefront import pupil_quadrature
 from .optics.image_model import image_psd_quarter, noise_variance
 from .optics.psf_bank import fft_size, otf_quarter_pair, otf_quarter_spectrum
 from .optics.sequential import SequentialLens
-from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
+from .optics.psf_bank import TABLE_INITIAL_NODES, TABLE_MAX_NODES
+from .optics.psf_provider import SequentialPSF
 from .optics.aberrations import pupil_monomials
 from .metrics import evaluate_sequential, evaluation_angles
 from .torch_utils import HOST, chunk_budget_bytes, tensor_of

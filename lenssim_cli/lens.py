@@ -180,7 +180,7 @@ def lens_label(ns) -> str:
 
 
 def lens_psf_from_args(args, shape, *, progress=None):
-    """The :class:`lenssim.optics.sequential_psf.SequentialPSF` of ``--lens`` for a frame of ``shape`` ``(..., H, W)``:
+    """The :class:`lenssim.optics.psf_provider.SequentialPSF` of ``--lens`` for a frame of ``shape`` ``(..., H, W)``:
     the lens's own wavelengths (equal weights) or the colour channels of ``--spectrum``; the paper's sensor (its noise
     and full wells) with the pixel pitch of ``--pixel-pitch`` or, by default, the one that puts the lens's largest
     field at the frame's corners; the table of wavefronts traced out to the corners' field angle."""
@@ -221,7 +221,7 @@ def note_lens_field(args, psf) -> None:
 
 def lens_provider(args, p, seq, *, pitch_um: float, width_px: int, height_px: int, max_field_deg: float,
                   sampling: str = "area"):
-    """The :class:`lenssim.optics.sequential_psf.SequentialPSF` of the lens ``seq`` (prescription ``p``) on the paper's
+    """The :class:`lenssim.optics.psf_provider.SequentialPSF` of the lens ``seq`` (prescription ``p``) on the paper's
     sensor (its noise and full wells) with pixels of ``pitch_um``, in the lens's own wavelengths (equal weights) or the
     colour channels of ``--spectrum``, traced out to ``max_field_deg``."""
     from lenssim.model.spectrum import channel_spectra

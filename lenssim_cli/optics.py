@@ -18,7 +18,7 @@ from lenssim.io.resources import builtin_configs, config_path
 from .common import (add_camera_arguments, add_design_arguments, add_device_argument, camera_from_args,
                      design_from_args, designs, numerics_from_args, table)
 from lenssim_studies.paper import PAPER_RHO0
-from lenssim.optics.sequential_psf import SAMPLINGS
+from lenssim.optics.psf_bank import SAMPLINGS
 
 from .lens import add_lens_arguments
 

@@ -604,7 +604,7 @@ class Explorer:
     def _lens_psfs(self, controls: Controls, angles) -> tuple:
         """A lens's PSFs on the criteria's sensor at the whole pixels nearest ``angles`` along the image's x axis, the
         angles they are at, the pitch (um) and its words."""
-        from lenssim.optics.sequential_psf import image_scale_mm
+        from lenssim.optics.psf_bank import image_scale_mm
 
         q, seq = self.check(controls)
         pitch = self._criteria_pitch

@@ -76,7 +76,7 @@ def lens_mosaic(ideal: torch.Tensor, out_dir, psf, label: str, *, angles, crop: 
                 method="wiener", isos=None, sensor=None, blur_zones="auto", about: str = ""
                 ) -> tuple[Path, list[dict]]:
     """Fig. 8's mosaic for one lens of any kind (a PSF provider ``psf``, e.g. a
-    :class:`lenssim.optics.sequential_psf.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
+    :class:`lenssim.optics.psf_provider.SequentialPSF`, named ``label``): ideal | sensor image without noise | its
     restorations with ``method`` at each ISO of ``isos`` (default the paper's 400, 100, 25; full wells of ``sensor``,
     a :class:`lenssim.Sensor` or a :class:`pipeline.camera_chain.CameraChain`, default the provider's sensor), one row
     per field angle of ``angles`` (crops of ``crop`` px at the provider's geometry).

@@ -47,7 +47,8 @@ from lenssim.model.spectrum import Spectrum
 from lenssim.optics.cost import DEFAULT_COST_POINTS, slope_departure_cost
 from lenssim.optics.lens_solves import solve_design
 from lenssim.optics.sequential import SequentialLens
-from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
+from lenssim.optics.psf_bank import TABLE_INITIAL_NODES, TABLE_MAX_NODES
+from lenssim.optics.psf_provider import SequentialPSF
 from lenssim.metrics import evaluate_sequential, evaluate_third_order, evaluation_angles
 from lenssim.validate import ModelValidityWarning, check_distinct, check_snr_db
 
@@ -403,7 +404,7 @@ def photo_field(p: Prescription, seq: SequentialLens, shape, *, pitch_um: float 
     largest field, so the photo spans the lens's field and every PSF asked for lies within it; ``pitch_um``: the given
     pitch, refused (:class:`PhotoFieldError`, with the pitch that would fit) where the lens's chief ray does not pass
     at the reach it gives."""
-    from lenssim.optics.sequential_psf import image_scale_mm
+    from lenssim.optics.psf_bank import image_scale_mm
 
     H, W = shape[-2:]
     reach_px = math.hypot(H - 1, W - 1) / 2 + margin_px
@@ -417,7 +418,7 @@ def photo_field(p: Prescription, seq: SequentialLens, shape, *, pitch_um: float 
     reach = math.degrees(math.atan(reach_px * pitch_um * 1e-3 / scale))
     if reach > amax:
         from lenssim.optics.sequential import RayTraceError
-        from lenssim.optics.sequential_psf import chief_point_mm
+        from lenssim.optics.psf_bank import chief_point_mm
 
         try:
             for lam in p.wavelengths_um:

@@ -110,7 +110,7 @@ def cooke_triplet_rays():
 
 @case
 def cooke_triplet_psfs():
-    from lenssim.optics.sequential_psf import image_scale_mm, psfs_from_table, wavefront_table
+    from lenssim.optics.psf_bank import image_scale_mm, psfs_from_table, wavefront_table
 
     p, seq = _lens(COOKE)
     lam = (p.primary_wavelength_um,)
@@ -238,7 +238,7 @@ def _leaves(x, path="result"):
 def _clear_process_caches(monkeypatch) -> None:
     """Empty every cache of tensors the library keeps in the process: the ``functools`` caches of its modules and its
     own tables (replaced by empty ones that ``monkeypatch`` puts back)."""
-    from lenssim.optics import psf_bank, sequential_psf
+    from lenssim.optics import psf_bank
     from pipeline import blur
 
     for name, mod in list(sys.modules.items()):
@@ -249,7 +249,7 @@ def _clear_process_caches(monkeypatch) -> None:
     monkeypatch.setattr(psf_bank, "_BASIS_CACHE", OrderedDict())
     monkeypatch.setattr(psf_bank, "_basis_cache_used", 0)
     monkeypatch.setattr(blur, "_ZONE_ERRORS", OrderedDict())
-    monkeypatch.setattr(sequential_psf, "_TABLES", {})
+    monkeypatch.setattr(psf_bank, "_TABLES", {})
 
 
 @contextlib.contextmanager

@@ -43,7 +43,8 @@ def test_criteria_are_the_real_ray_evaluation_at_the_tradeoff_s_sensor(explorer)
     from lenssim.model.numerics import FAST_NUMERICS
     from lenssim.model.spectrum import Spectrum
     from lenssim.optics.sequential import SequentialLens
-    from lenssim.optics.sequential_psf import TABLE_INITIAL_NODES, SequentialPSF
+    from lenssim.optics.psf_bank import TABLE_INITIAL_NODES
+    from lenssim.optics.psf_provider import SequentialPSF
     from lenssim.metrics import evaluate_sequential, evaluation_angles
     from lenssim_studies.paper import PAPER_CAMERA
 

@@ -1,7 +1,7 @@
 """A refracting surface: the data an optical system is made of (:meth:`lenssim.Lens.surfaces`).
 
 The model layer's description of a surface; the optics reads it (the paraxial Seidel sums of
-:mod:`lenssim.optics.paraxial`, the exact ray trace of :mod:`lenssim.optics.raytrace`, the cost of
+:mod:`lenssim.optics.paraxial`, the exact ray trace (:func:`lenssim.optics.sequential.trace_rays_opl`), the cost of
 :mod:`lenssim.optics.cost`). ``lenssim.optics.paraxial.Surface`` is the same class.
 """
 
@@ -24,7 +24,7 @@ class Surface:
     industrial cost (:mod:`lenssim.optics.cost`); semi_aperture_mm : the clear radius over which the surface is
     used (and made: the cost's aperture); None: the system's pupil radius; decentre_mm : ``(dx, dy)`` mm of the
     vertex off the axis and tilt_deg : ``(tx, ty)`` degrees about the vertex (x axis, then y axis): a displaced
-    surface, which only the exact ray trace (:mod:`lenssim.optics.raytrace`) reads; aspheric_coefficients: see below.
+    surface, which only the exact ray trace (:func:`lenssim.optics.sequential.surfaces_lens`) reads; aspheric_coefficients: see below.
     """
 
     curvature: float | torch.Tensor

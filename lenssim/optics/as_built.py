@@ -120,7 +120,7 @@ def _perturbed(camera: Camera, design: Design, pert: Perturbations, wavelength_u
 
 def as_built_surfaces(camera: Camera, design: Design, pert: Perturbations, i: int = 0,
                       wavelength_um: float | None = None):
-    """The surfaces of as-built lens ``i`` for the exact ray trace (:mod:`lenssim.optics.raytrace`): perturbed
+    """The surfaces of as-built lens ``i`` for the exact ray trace (:func:`lenssim.optics.exact_wavefront.opd`): perturbed
     curvatures, conics and index, the asphere decentred and tilted against the front, the whole lens tilted. (The
     figure error is not a surface of the trace.) The despace goes into the design's ``focus_shift_um``
     (:func:`as_built_design`)."""

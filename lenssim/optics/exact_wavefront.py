@@ -1,7 +1,7 @@
 """How good is third order here? The wavefront of the thin conic lens from an exact ray trace.
 
 The exact wavefront is the optical path difference (OPD) of an exact ray trace through the real surfaces
-(:func:`lenssim.optics.raytrace.opd`): the path of each ray from the incident plane wavefront to the reference
+(:func:`opd`, the general tracer of :mod:`lenssim.optics.sequential` on the singlet's surfaces): the path of each ray from the incident plane wavefront to the reference
 sphere centred on the chief ray's image point, minus the chief ray's. It is sampled on a polar pupil grid whose
 radii are Gauss-Legendre nodes in ``rho^2`` (so the weighted sum over the grid is the area integral over the
 pupil) and represented by its least-squares (area-weighted) projection on the pupil monomials
@@ -35,11 +35,11 @@ import torch
 from .aberrations import Term, pupil_monomials
 from ..model.camera import Camera
 from ..model.design import Design
-from .raytrace import opd
+from .sequential import surfaces_lens, trace_rays, trace_rays_opl
 from ..torch_utils import HOST
 
 __all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients", "pupil_quadrature", "opd_rms_waves",
-           "fit_exact_terms", "lens_exact_coefficients"]
+           "fit_exact_terms", "lens_exact_coefficients", "opd", "transverse_aberration"]
 
 EXACT_TERMS = tuple(Term(f"E{a}{b}", a, b) for a in range(5) for b in range(9) if 0 < 2 * a + b <= 8)
 """Pupil monomials ``rho^2a rho_r^b`` up to degree 8 (no piston)."""
@@ -49,6 +49,62 @@ QUADRATURE_RINGS = 12
 ``rho`` is exact, so the degree-8 projection is the continuous one."""
 QUADRATURE_SPOKES = 48
 """Equally spaced azimuths of the pupil grid (exact for ``cos^b`` products up to b = 47)."""
+
+
+def _beam(lens, alpha_deg: float, rho_r: torch.Tensor, rho_t: torch.Tensor, pupil_radius_mm: float | None):
+    if lens.position_factor != -1.0:
+        raise ValueError(f"position_factor={lens.position_factor}: the ray trace supports only p = -1 "
+                         "(object at infinity)")
+    y = lens.pupil_radius_mm if pupil_radius_mm is None else pupil_radius_mm
+    a = math.radians(alpha_deg)
+    starts = torch.stack([rho_t * y, rho_r * y, torch.zeros_like(rho_r)], dim=-1)
+    return starts, torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=rho_r.dtype, device=rho_r.device)
+
+
+def transverse_aberration(lens, design: Design, alpha_deg: float, rho_r: torch.Tensor, rho_t: torch.Tensor,
+                          pupil_radius_mm: float | None = None, wavelength_um: float | None = None, surfaces=None):
+    """Exact transverse ray aberration (mm) in the paraxial image plane of the thin lens ``lens``
+    (:class:`lenssim.Lens`).
+
+    Object at infinity (``p = -1`` only), field angle ``alpha_deg`` in the y-z plane, stop at the
+    lens. ``rho_r`` (meridional, along +y) and ``rho_t`` are pupil coordinates normalised to
+    ``pupil_radius_mm`` (default ``lens.pupil_radius_mm``). Returns ``(eps_r, eps_t)`` relative to
+    the paraxial image point ``(0, t tan(alpha))``, along the same axes, in the image plane ``t`` (the
+    lens's image distance plus the design's ``focus_shift_um``), at ``wavelength_um`` (default: the
+    reference index). ``surfaces``: the lens's surfaces (default ``lens.surfaces(design, wavelength_um)``; e.g.
+    displaced ones).
+    """
+    starts, direction = _beam(lens, alpha_deg, rho_r, rho_t, pupil_radius_mm)
+    t = lens.image_distance_mm + float(design["focus_shift_um"]) * 1e-3
+    img = trace_rays(lens.surfaces(design, wavelength_um) if surfaces is None else surfaces, starts, direction, t)
+    return img[..., 1] - t * math.tan(math.radians(alpha_deg)), img[..., 0]
+
+
+def opd(lens, design: Design, alpha_deg: float, rho_r: torch.Tensor, rho_t: torch.Tensor, *,
+        wavelength_um: float | None = None, surfaces=None, pupil_radius_mm: float | None = None):
+    """Optical path difference (mm, Welford's sign) of the thin lens ``lens`` (:class:`lenssim.Lens`) at field angle
+    ``alpha_deg`` at pupil points, traced by :func:`lenssim.optics.sequential.trace_rays_opl`.
+
+    The reference sphere is centred on the chief ray's point in the image plane ``t`` (the lens's image distance
+    plus the design's ``focus_shift_um``) and passes through the chief ray's point on the last surface (the exit
+    pupil of the thin lens, whose stop is at the lens): its radius is ``t / cos(alpha)`` for the centred lens.
+    ``W = OPL(chief) - OPL(ray)``, each path from the incident plane wavefront to the sphere, so a wavefront ahead
+    of the sphere at the rim (the image plane beyond the focus) is positive, as the third-order ``W020`` is.
+    ``rho_r`` (along +y, the field's direction) and ``rho_t`` are entrance-pupil coordinates normalised to
+    ``pupil_radius_mm`` (default the lens's); ``surfaces``: as in :func:`transverse_aberration`. Returns
+    ``(W (*), chief image point (3,))`` in mm, float64.
+    """
+    starts, direction = _beam(lens, alpha_deg, rho_r, rho_t, pupil_radius_mm)
+    t_img = lens.image_distance_mm + float(design["focus_shift_um"]) * 1e-3
+    seq = surfaces_lens(lens.surfaces(design, wavelength_um) if surfaces is None else surfaces)
+    Pc, dc, Lc = trace_rays_opl(seq, torch.zeros(1, 3, dtype=rho_r.dtype, device=rho_r.device), direction)
+    Q = Pc[0] + ((t_img - Pc[0, 2]) / dc[0, 2]) * dc[0]  # the chief ray's image point
+    R2 = ((Q - Pc[0]) ** 2).sum()
+    P, d, L = trace_rays_opl(seq, starts, direction)
+    b = ((P - Q) * d).sum(-1)
+    c = ((P - Q) ** 2).sum(-1) - R2
+    s = c / (-b + torch.sqrt(b * b - c))  # the root near the last surface (stable form): distance to the sphere
+    return Lc[0] - (L + s), Q
 
 
 @lru_cache(maxsize=4)

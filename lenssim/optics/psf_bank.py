@@ -1,4 +1,10 @@
-"""PSF and OTF banks by Fraunhofer (FFT) diffraction of the third-order pupil.
+"""PSFs and OTFs by Fraunhofer (FFT) diffraction of an OPD on a pupil, for every lens kind.
+
+One pipeline, two sources of the OPD: the singlet's wavefront coefficients (third order or the exact fit, batched
+closed forms: the fast path, :func:`psf`, :func:`otf_quarter_spectrum` and the sweeps' banks) or the real rays of any
+sequential lens (:class:`WavefrontTable`, :func:`psfs_from_table`). Both share the pupil's box of samples
+(:func:`_box_coords`), the pupil -> PSF transform and its normalisation by the pupil's area (:func:`_intensity`)
+and the spectrum and colour-channel weighting (:func:`_channel_rows`, :func:`_add_weighted`).
 
 Sampling. The image pixel pitch is the sensor's ``Delta`` (1.5625 um for the paper). With an
 ``N x N`` FFT the pupil-plane sample spacing is ``lambda f / (N Delta)``, so the pupil radius spans
@@ -23,12 +29,42 @@ Orientation. PSF arrays are indexed ``[..., row, col] = [y, x]`` in image-plane 
 with the paraxial image point at ``[N // 2, N // 2]`` (or ``[0, 0]`` for the unshifted banks).
 The pupil field is ``A exp(-2 pi i W)`` with ``W`` in Welford's sign, so that the light lands at
 the transverse ray aberration ``eps = -(f / y) grad W`` (see :mod:`lenssim.optics.aberrations`).
+
+Real rays (any sequential lens, object at infinity; the provider is :class:`lenssim.optics.psf_provider.SequentialPSF`):
+
+1. **The wavefront table** (:func:`wavefront_table`). The lens is rotationally symmetric, so the wavefront of a field
+   depends on the field angle only, up to a rotation of the pupil. For each wavelength and each field angle of a set
+   of nodes from the axis to the largest angle asked, the OPD (:meth:`SequentialLens.wavefront`, real rays aimed at
+   the stop, vignetted by every semi-diameter) is traced on a ``grid x grid`` square of the entrance pupil in the
+   meridional frame (field along ``+y``), against the reference sphere centred on the primary wavelength's chief-ray
+   point; the distortion that moves that point from the pixel's paraxial one ``m tan(alpha)`` (``m`` the paraxial
+   image scale on the image plane, :func:`image_scale_mm`) is kept apart and added as a tilt. The OPD therefore
+   holds, as tilt, the distortion and the lateral colour, and as defocus the axial colour and the focus. Beyond the
+   vignetting's edge the OPD is traced through the surfaces extended past their semi-diameters (its smooth
+   continuation, what the interpolation at the edge reads). Field-angle nodes are added (bisection) until the table,
+   interpolated in angle, matches traced OPDs at the mid-nodes to :data:`TABLE_TOLERANCE_WAVES`; the error reached
+   is :attr:`WavefrontTable.interpolation_error_waves`.
+2. **The pupil of one PSF**: the FFT grid's pupil samples (radius ``R = N delta / (2 lambda N_w)`` samples for an
+   ``N``-point FFT of pitch ``delta``, ``N_w`` the paraxial working F-number) are rotated into the meridional frame
+   of the PSF's azimuth and the table's OPD and aperture ratio (each ray's largest height over a semi-diameter) are
+   interpolated there (bilinear in the pupil, cubic in angle). The amplitude is 1 inside the unit disc where the rays
+   pass (interpolated aperture ratio <= 1), so an off-axis pupil takes the vignetted shape the semi-diameters give.
+3. **The PSF** ``|FFT(A exp(-2 pi i W))|^2`` (the sign puts the PSF's centroid where the rays land: checked against
+   the rays' centroid in the tests), summed over the wavelengths with their weights, on a grid ``s`` times finer
+   than the pixels; ``sampling="area"`` sums each pixel's ``s x s`` samples (a pixel of full fill factor integrates
+   the light falling on it; ``s`` odd), ``sampling="point"`` takes the samples at the pixel centres (the paper's
+   model, ``s = 1``). Each PSF has unit sum on its ``n x n`` pixels.
+
+Neglected, as in :mod:`lenssim.optics.lens_report`: the entrance pupil's grid is mapped linearly onto the exit
+pupil (pupil aberrations and the oblique beam's foreshortening, ``1/cos`` factors of the off-axis PSF's scale).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections import OrderedDict
+from dataclasses import dataclass
 from functools import lru_cache
 
 import torch
@@ -39,6 +75,7 @@ from ..model.camera import Camera
 from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
+from .sequential import SequentialLens
 from ..torch_utils import HOST, as_tensor
 from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
@@ -55,6 +92,17 @@ __all__ = [
     "otf_quarter",
     "otf_quarter_spectrum",
     "otf_quarter_pair",
+    "WavefrontTable",
+    "wavefront_table",
+    "cached_wavefront_table",
+    "psfs_from_table",
+    "image_scale_mm",
+    "chief_point_mm",
+    "SAMPLINGS",
+    "TABLE_GRID",
+    "TABLE_INITIAL_NODES",
+    "TABLE_MAX_NODES",
+    "TABLE_TOLERANCE_WAVES",
 ]
 
 
@@ -242,9 +290,15 @@ def pupil_amplitude(camera: Camera, n: int, wavelength_um: float | None = None, 
 @lru_cache(maxsize=128)
 def _pupil_box_cached(radius: float, supersample: int):
     """Anti-aliased pupil on its bounding box only: coordinates ``-m..m`` samples, ``m = ceil(R + 0.71)``."""
-    m = int(math.ceil(radius + RIM_REACH))
-    x = torch.arange(-m, m + 1, dtype=torch.float64, device=HOST)
+    x = _box_coords(radius)
     return _coverage(x, x, radius, supersample), x / radius
+
+
+def _box_coords(radius: float) -> torch.Tensor:
+    """The samples ``-m..m`` (float64, :data:`HOST`) of the box about a pupil of ``radius`` samples, ``m = ceil(R +``
+    :data:`RIM_REACH` ``)``: every sample that overlaps the disc, for every lens kind."""
+    m = int(math.ceil(radius + RIM_REACH))
+    return torch.arange(-m, m + 1, dtype=torch.float64, device=HOST)
 
 
 def _field(coeffs, radius, azimuth_rad, supersample, dtype, device, terms=None):
@@ -270,10 +324,30 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device, terms=None):
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 
-def _intensity(field: torch.Tensor, n: int) -> torch.Tensor:
-    """``|DFT_n(field)|^2`` ``(B, n, n)`` of a box field zero-padded to ``n x n``."""
-    a = torch.fft.fft2(field, s=(n, n))
-    return a.real.square() + a.imag.square()
+def _intensity(field: torch.Tensor, n: int, *, area=None, keep: torch.Tensor | None = None) -> torch.Tensor:
+    """``|DFT_n(field)|^2`` ``(B, n, n)`` of a pupil field on its box ``(B, rows, cols)`` zero-padded to ``n x n``: the
+    pupil -> PSF step of every lens kind. ``keep`` ``(w,)``: the indices (DFT order) of the rows and columns to keep
+    (a ``w x w`` window of the PSF; the transform then runs one axis at a time, keeping only those after each).
+    ``area``: the pupil's area (samples; a number or ``(B, 1, 1)``), the PSF then divided by ``n^2 area``, so that the
+    whole grid holds ``sum(amp^2) / sum(amp)`` of the light (Parseval: all of it for a pupil of 0/1 amplitude)."""
+    if keep is None:
+        a = torch.fft.fft2(field, s=(n, n))
+    else:
+        a = torch.fft.fft(field, n=n, dim=-1).index_select(-1, keep)
+        a = torch.fft.fft(a, n=n, dim=-2).index_select(-2, keep)
+    p = a.real.square() + a.imag.square()
+    return p if area is None else p.div_((n * n) * area)
+
+
+def _add_weighted(outs: list, p: torch.Tensor, rows, k: int) -> None:
+    """``outs[c] += rows[c][k] p`` for every channel ``c`` that weighs wavelength ``k`` (``outs[c]`` None until its
+    first): the spectrum weighting of every lens kind's PSFs (``p`` itself where it is one spectrum's only one)."""
+    for c, r in enumerate(rows):
+        if r[k] > 0:
+            if outs[c] is None:
+                outs[c] = p if len(rows) == 1 and r[k] == 1 else p * r[k]
+            else:
+                outs[c].add_(p, alpha=r[k])
 
 
 def _azimuth(azimuth_deg, flat: torch.Tensor):
@@ -326,14 +400,9 @@ def psf(camera: Camera, coeffs: torch.Tensor, n: int, *, azimuth_deg=None, cente
                                                            skip=skip):
         R = float(_radius(camera, int(n), lam))
         area = float(_pupil_box_cached(R, int(numerics.supersample))[0].sum())
-        p = _intensity(field, int(n)).div_(area * n * n).add_(_rim_loss(R, int(numerics.supersample)) / (n * n))
+        p = _intensity(field, int(n), area=area).add_(_rim_loss(R, int(numerics.supersample)) / (n * n))
         del field
-        for c, r in enumerate(rows):
-            if r[k] > 0:
-                if len(rows) == 1 and K == 1:
-                    outs[c] = p
-                else:
-                    outs[c] = p * r[k] if outs[c] is None else outs[c].add_(p, alpha=r[k])
+        _add_weighted(outs, p, rows, k)
     out = outs[0] if channel_weights is None else torch.stack(outs, dim=-3)
     if centered:
         out = torch.fft.fftshift(out, dim=(-2, -1))
@@ -652,18 +721,12 @@ def otf_quarter_pair(camera: Camera, coeffs: torch.Tensor, n: int, *, oversample
     quarters equal :func:`otf_quarter_spectrum` (tested). The general path: full 2-D transforms of the pupil's
     bounding box and of the zero-padded PSF.
     """
-    _check_spectral(camera, coeffs, N_TERMS if terms is None else len(terms))
     m = n * int(oversample)
     hm = m // 2
     acc = None
-    flat = coeffs
-    for k, (lam, w) in enumerate(zip(camera.spectrum.wavelengths_um, camera.spectrum.weights)):
-        R = _radius(camera, int(n), lam)
-        field = _field(flat[:, k], R, None, numerics.supersample, flat.dtype, flat.device, terms)
-        amp, _ = _pupil_box_cached(float(R), int(numerics.supersample))
-        a = torch.fft.fft(torch.fft.fft(field, n=int(n), dim=-1), n=int(n), dim=-2)  # x on the pupil's rows only
-        p = (a.real.square() + a.imag.square()).mul_(w / (float(amp.sum()) * n * n))
-        del a
+    for _, lam, w, field, _, _ in _wavelength_fields(camera, coeffs, n, None, None, numerics, terms):
+        amp, _ = _pupil_box_cached(float(_radius(camera, int(n), lam)), int(numerics.supersample))
+        p = _intensity(field, int(n), area=float(amp.sum())).mul_(w)
         acc = p if acc is None else acc.add_(p)
     acc = _pad_periodic(_pad_periodic(acc, m, -2), m, -1)
     H = torch.fft.rfft2(acc)  # (B, m, m/2+1): every fy, fx >= 0 (the PSF is real)
@@ -687,3 +750,321 @@ def _area_normalise(H: torch.Tensor, amp: torch.Tensor) -> torch.Tensor:
     H = H / (amp.sum() * n * n)
     H[..., 0, 0] = 1
     return H
+
+
+# -- the OPD on a pupil from real rays (any sequential lens) ---------------------------------------------------------
+
+SAMPLINGS = ("area", "point")
+"""How a PSF is sampled on the pixels: integrated over each pixel's area, or at the pixel centres."""
+TABLE_GRID = 64
+"""Pupil samples across the entrance pupil's diameter in the wavefront table (each wavelength and field node)."""
+TABLE_INITIAL_NODES = 9
+"""Field-angle nodes of the table before bisection (from the axis to the largest angle, evenly)."""
+TABLE_MAX_NODES = 257
+"""Most field-angle nodes of the table (the bisection stops there and the error reached is reported)."""
+TABLE_TOLERANCE_WAVES = 0.01
+"""Largest error (waves) of the table's angle interpolation at the mid-nodes, over the unvignetted pupil."""
+PHASE_SIGN = -1.0
+"""The pupil function is ``A exp(PHASE_SIGN 2 pi i W)`` with ``W`` Welford's OPD (reference minus ray) and the image
+axes along the pupil's: with -1 the PSF's centroid is the rays' centroid (tests/lenssim/test_sequential_psf.py)."""
+TABLE_CACHE_SIZE = 8
+"""Wavefront tables kept in the process (each a few MB)."""
+_TABLES: dict = {}
+CHUNK_BYTES = 2**28
+"""PSFs are computed in batches whose complex FFT grids take at most this many bytes."""
+APERTURE_UNTRACED = 2.0
+"""The aperture ratio given to a pupil sample whose ray cannot be traced at all (well beyond the pass level 1)."""
+
+
+
+def _meridional_grid(grid: int):
+    """The table's pupil grid: ``grid`` samples from ``-e`` to ``e`` per axis, ``e`` a little beyond the unit disc so
+    that interpolation at the rim has samples on both sides. Returns ``(coords (grid,), e)``."""
+    e = 1.0 + 2.0 / (grid - 1) * 2
+    return torch.linspace(-e, e, grid, dtype=torch.float64, device=HOST), e
+
+
+def _inpaint(W: torch.Tensor, valid: torch.Tensor, sweeps: int = 3) -> torch.Tensor:
+    """``W`` (…, G, G) with the samples where ``valid`` is False filled from their valid neighbours (``sweeps`` rings),
+    0 beyond: the values a bilinear interpolation reads at the vignetting's edge."""
+    W = torch.where(valid, W, torch.zeros_like(W))
+    have = valid.to(W.dtype)
+    for _ in range(sweeps):
+        num = torch.zeros_like(W)
+        den = torch.zeros_like(W)
+        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+            num += torch.roll(W * have, (dy, dx), dims=(-2, -1))
+            den += torch.roll(have, (dy, dx), dims=(-2, -1))
+        fill = (have == 0) & (den > 0)
+        W = torch.where(fill, num / den.clamp(min=1), W)
+        have = torch.where(fill, torch.ones_like(have), have)
+    return W
+
+
+def _stencil(nodes: torch.Tensor, alpha: torch.Tensor, width: int = 4):
+    """Cubic Lagrange interpolation in angle: for each ``alpha`` ``(P,)`` the ``width`` nodes around it (fewer if the
+    table has fewer) and their weights, ``(P, w)`` each (the weights sum to 1)."""
+    A = nodes.numel()
+    w = min(width, A)
+    j = torch.clamp(torch.searchsorted(nodes, alpha.contiguous(), right=True) - 1, 0, A - 1)
+    first = torch.clamp(j - (w // 2 - 1), 0, A - w)
+    idx = first[:, None] + torch.arange(w, device=nodes.device)[None, :]
+    x = nodes[idx]  # (P, w)
+    wts = torch.ones_like(x)
+    for i in range(w):
+        for k in range(w):
+            if i != k:
+                wts[:, i] = wts[:, i] * (alpha - x[:, k]) / (x[:, i] - x[:, k])
+    return idx, wts
+
+
+@dataclass(frozen=True)
+class WavefrontTable:
+    """OPD maps (waves) of a lens per wavelength and field-angle node, in the meridional frame (see the module
+    docstring): ``opd_waves`` and ``aperture_ratio`` ``(K, A, G, G)`` (the ray's largest height over a semi-diameter,
+    :attr:`lenssim.optics.sequential.RayBundle.aperture_ratio`: the ray passes where it is <= 1, a smooth function
+    whose interpolation places the vignetting's edge between samples; ``opd_waves`` continued smoothly across that
+    edge), on the pupil coordinates
+    ``grid_coords`` ``(G,)`` (``[row, col] = [py, px]``), ``angles_deg`` ``(A,)`` increasing from 0;
+    ``spot_radius_mm`` ``(K, A)``: the largest distance of a ray's image point from the paraxial image point. The OPD
+    is against the sphere centred on the primary wavelength's chief-ray point; the distortion that moves that point
+    from the paraxial one is :attr:`distortion_mm` (a smooth function of the angle, interpolated by a cubic spline and
+    added to the PSF as the tilt that moves it there: a tilt's linear interpolation in angle would need many more
+    nodes)."""
+
+    wavelengths_um: tuple[float, ...]
+    angles_deg: torch.Tensor
+    grid_coords: torch.Tensor
+    extent: float
+    opd_waves: torch.Tensor
+    aperture_ratio: torch.Tensor
+    spot_radius_mm: torch.Tensor
+    distortion_mm: torch.Tensor
+    """``(A,)``: the primary wavelength's chief-ray point minus the paraxial point ``m tan(alpha)`` (mm, radial)."""
+    interpolation_error_waves: float
+
+    def _bracket(self, alpha_deg: torch.Tensor):
+        a = self.angles_deg
+        if bool((alpha_deg > a[-1] * (1 + 1e-9) + 1e-12).any()):
+            raise ValueError(f"field angle {float(alpha_deg.max()):.4g} deg is beyond the wavefront table's "
+                             f"{float(a[-1]):.4g} deg")
+        j = torch.clamp(torch.searchsorted(a, alpha_deg.contiguous(), right=True) - 1, 0, max(len(a) - 2, 0))
+        if len(a) == 1:
+            return j, j, torch.zeros_like(alpha_deg)
+        t = ((alpha_deg - a[j]) / (a[j + 1] - a[j])).clamp(0, 1)
+        return j, j + 1, t
+
+    def spot_radius_at(self, alpha_deg: torch.Tensor) -> torch.Tensor:
+        """The largest spot radius (mm) over the wavelengths at ``alpha_deg`` ``(P,)``: the larger of the two nodes'."""
+        j0, j1, _ = self._bracket(alpha_deg)
+        r = self.spot_radius_mm.amax(dim=0)
+        return torch.maximum(r[j0], r[j1])
+
+    def distortion_at(self, alpha_deg: torch.Tensor) -> torch.Tensor:
+        """The distortion (mm, radial) at ``alpha_deg`` ``(P,)``: cubic spline through the nodes (not-a-knot)."""
+        a = self.angles_deg.numpy()
+        if len(a) < 4:
+            return torch.from_numpy(__import__("numpy").interp(alpha_deg.numpy(), a, self.distortion_mm.numpy()))
+        from scipy.interpolate import CubicSpline
+
+        return torch.from_numpy(CubicSpline(a, self.distortion_mm.numpy())(alpha_deg.to(torch.float64).numpy()))
+
+    def sample(self, k: int, alpha_deg: torch.Tensor, px: torch.Tensor, py: torch.Tensor):
+        """OPD (waves) and aperture ratio (the ray passes where <= 1) of wavelength ``k`` at field angles ``alpha_deg``
+        ``(P,)`` and meridional pupil points ``px, py`` ``(P, M, M)``: bilinear in the pupil, cubic in angle (Lagrange
+        through the four nearest nodes). Returns two ``(P, M, M)``."""
+        import torch.nn.functional as F
+
+        self._bracket(alpha_deg)  # refuses angles beyond the table
+        grid = torch.stack([px / self.extent, py / self.extent], dim=-1).to(self.opd_waves.dtype)  # x = col, y = row
+        idx, wts = _stencil(self.angles_deg, alpha_deg.to(torch.float64))
+        # the angle interpolation on the table's grid first (linear operations commute): one bilinear lookup per map
+        wts = wts.to(self.opd_waves.dtype)[:, :, None, None]
+        maps = torch.stack([(self.opd_waves[k][idx] * wts).sum(1), (self.aperture_ratio[k][idx] * wts).sum(1)], dim=1)
+        out = F.grid_sample(maps, grid, mode="bilinear", padding_mode="border", align_corners=True)
+        return out[:, 0], out[:, 1]
+
+
+def chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
+    """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``(x, y)`` (mm; ``x`` is 0
+    for a centred lens, and taken as exactly 0 there)."""
+    zero = torch.zeros(1, dtype=torch.float64, device=HOST)
+    w = seq.wavefront(alpha, zero, zero, lam)
+    return (0.0 if seq.is_centred else float(w.chief_mm[0])), float(w.chief_mm[1])
+
+
+def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: int):
+    """One field node: per wavelength, the OPD map against the sphere centred on the primary wavelength's chief-ray
+    point, the vignetting, the disc's unvignetted samples, and the largest distance (mm) of a ray's image point from
+    the paraxial point ``scale tan(alpha)``; and the distortion (mm) of the primary chief ray."""
+    coords, e = _meridional_grid(grid)
+    Y, X = torch.meshgrid(coords, coords, indexing="ij")
+    inside = X**2 + Y**2 <= (1 + 2 * (coords[1] - coords[0])) ** 2
+    paraxial = scale_mm * math.tan(math.radians(alpha))
+    chief_x, chief = chief_point_mm(seq, alpha, seq.primary_wavelength_um)
+    out = []
+    for lam in lams:
+        w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(chief_x, chief), vignette=False)
+        W = torch.zeros(grid, grid, dtype=torch.float64, device=HOST)
+        V = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
+        T = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
+        W[inside] = torch.nan_to_num(w.opd_waves, nan=0.0)
+        V[inside] = w.valid
+        T[inside] = ~torch.isnan(w.opd_waves)  # traced through the surfaces extended beyond their semi-diameters
+        ratio = torch.full((grid, grid), APERTURE_UNTRACED, dtype=torch.float64, device=HOST)
+        ratio[inside] = torch.where(T[inside], w.aperture_ratio, torch.full_like(w.aperture_ratio, APERTURE_UNTRACED))
+        disc = V & (X**2 + Y**2 <= 1)
+        if not bool(disc.any()):
+            raise ValueError(f"field {alpha:.4g} deg at {lam:g} um: every ray is vignetted")
+        pts = w.image_mm[w.valid][:, :2]
+        spot = float(torch.hypot(pts[:, 0] - chief_x, pts[:, 1] - paraxial).max())
+        out.append((_inpaint(W, T), ratio, spot, disc))
+    return out, chief - paraxial
+
+
+def wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, image_scale_mm: float, *,
+                    grid: int = TABLE_GRID, tolerance_waves: float = TABLE_TOLERANCE_WAVES,
+                    max_nodes: int = TABLE_MAX_NODES, progress=None) -> WavefrontTable:
+    """The :class:`WavefrontTable` of ``seq`` at ``wavelengths_um`` from the axis to ``max_angle_deg`` (see the module
+    docstring); ``progress(k)`` is called with the number of traced maps as they are traced."""
+    lams = tuple(float(v) for v in wavelengths_um)
+    amax = float(max_angle_deg)
+    nodes = torch.linspace(0, amax, TABLE_INITIAL_NODES if amax > 0 else 1, dtype=torch.float64, device=HOST).tolist()
+    maps: dict[float, tuple] = {}
+
+    def trace(a):
+        if a not in maps:
+            maps[a] = _trace_node(seq, a, lams, image_scale_mm, grid)
+            if progress is not None:
+                progress(len(lams))
+        return maps[a][0]
+
+    for a in nodes:
+        trace(a)
+    err = 0.0
+    todo = list(zip(nodes, nodes[1:]))  # intervals whose mid-node is checked
+    left = 0.0
+    while todo and len(maps) < max_nodes:
+        refine, left = [], 0.0
+        for a0, a1 in todo:
+            known = torch.tensor(sorted(maps), dtype=torch.float64, device=HOST)
+            mid = (a0 + a1) / 2
+            idx, wts = _stencil(known, torch.tensor([mid], dtype=torch.float64, device=HOST))
+            stencil = [float(known[i]) for i in idx[0]]
+            m = trace(mid)
+            e = 0.0
+            for k, (Wm, _, _, dm) in enumerate(m):
+                both = dm.clone()
+                guess = torch.zeros_like(Wm)
+                for a, wt in zip(stencil, wts[0]):
+                    Wa, _, _, da = maps[a][0][k]
+                    both &= da
+                    guess = guess + float(wt) * Wa
+                if bool(both.any()):
+                    e = max(e, float((Wm - guess)[both].abs().max()))
+            if e > tolerance_waves:
+                refine += [(a0, mid), (mid, a1)]
+                left = max(left, e)
+            else:
+                err = max(err, e)  # an interval accepted: its mid-node's error
+        todo = refine
+    if todo:  # stopped at max_nodes: the intervals not refined keep their error
+        err = max(err, left)
+    nodes = sorted(maps)
+    K = len(lams)
+    W = torch.stack([torch.stack([maps[a][0][k][0] for a in nodes]) for k in range(K)])
+    V = torch.stack([torch.stack([maps[a][0][k][1] for a in nodes]) for k in range(K)])
+    spot = torch.tensor([[maps[a][0][k][2] for a in nodes] for k in range(K)], dtype=torch.float64, device=HOST)
+    dist = torch.tensor([maps[a][1] for a in nodes], dtype=torch.float64, device=HOST)
+    coords, e = _meridional_grid(grid)
+    return WavefrontTable(lams, torch.tensor(nodes, dtype=torch.float64, device=HOST), coords, e, W, V, spot, dist, err)
+
+
+def cached_wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, image_scale_mm: float, *,
+                           max_nodes: int = TABLE_MAX_NODES, progress=None) -> WavefrontTable:
+    """:func:`wavefront_table`, traced once in the process for the same lens (everything that changes its optics: its
+    ``cache_key``, so prescription, image plane, index offsets, misalignments), wavelengths, largest angle and node
+    limit; the :data:`TABLE_CACHE_SIZE` most recently used are kept."""
+    key = json.dumps([seq.cache_key(), tuple(wavelengths_um), max_angle_deg]
+                     + ([max_nodes] if max_nodes != TABLE_MAX_NODES else []), sort_keys=True, default=str)
+    hit = _TABLES.pop(key, None)
+    if hit is None:
+        hit = wavefront_table(seq, wavelengths_um, max_angle_deg, image_scale_mm, progress=progress,
+                              max_nodes=max_nodes)
+    _TABLES[key] = hit  # most recently used last
+    while len(_TABLES) > TABLE_CACHE_SIZE:
+        _TABLES.pop(next(iter(_TABLES)))
+    return hit
+
+
+def _paraxial_image_heights(seq: SequentialLens, lam: float, z_img: float, tan_field: float):
+    """The paraxial marginal ray's and the chief ray's (at ``tan_field``) heights (mm) on the plane ``z_img`` at
+    ``lam``."""
+    par = seq.paraxial(lam)
+    z_last = float(seq.prescription.vertex_z_mm[-1])
+    r_ep = par.epd_mm / 2
+    mh, mu = seq._ynu(r_ep, 0.0, lam)
+    ch, cu = seq._ynu(-par.entrance_pupil_z_mm * tan_field, tan_field, lam)
+    d = z_img - z_last
+    return mh[-1] + mu[-1] * d, ch[-1] + cu[-1] * d
+
+
+def image_scale_mm(seq: SequentialLens) -> float:
+    """Paraxial chief-ray height on the image plane per unit tangent of the field angle (primary wavelength)."""
+    lam = seq.primary_wavelength_um
+    return _paraxial_image_heights(seq, lam, seq.image_z_mm, 1.0)[1]
+
+
+def psfs_from_table(table: WavefrontTable, channel_weights, alpha_deg, phi_rad, n: int, s: int, N: int,
+                    pitch_um: float, working_f_number: float, sampling: str,
+                    complex_dtype=torch.complex64, distortion: bool = True) -> torch.Tensor:
+    """PSFs ``(P, C, n, n)`` (unit sum) at field angles ``alpha_deg`` and image-plane azimuths ``phi_rad`` ``(P,)``
+    from ``table``, with each channel's weights ``(C, K)`` at the table's wavelengths; ``s`` samples per pixel, an
+    ``N``-point FFT (see the module docstring). Returns them and the fraction of each one's light the ``n x n``
+    window holds, ``(P, C)``. ``distortion=False``: each PSF about the primary wavelength's chief-ray point instead of
+    the paraxial point (the image registered, as for a criterion that scores blur, not the geometric mapping)."""
+    P = alpha_deg.numel()
+    rows_w = _channel_rows(channel_weights, len(table.wavelengths_um))
+    C = len(rows_w)
+    real = torch.float64 if complex_dtype == torch.complex128 else torch.float32
+    dev = table.opd_waves.device
+    out = torch.zeros(P, C, n, n, dtype=torch.float64, device=dev)
+    held = torch.zeros(P, C, dtype=torch.float64, device=dev)
+    fine = pitch_um / s
+    half = N // 2
+    per = max(1, CHUNK_BYTES // (N * N * (16 if complex_dtype == torch.complex128 else 8) * 3))
+    lo = half - (n // 2) * s - s // 2
+    if lo < 0:
+        raise ValueError(f"FFT size {N} is smaller than the {n} px PSF at {s} samples per pixel")
+    keep = (torch.arange(n * s, device=dev) + (lo - half)) % N  # the window's samples, frequency 0 at index 0
+    for i0 in range(0, P, per):
+        a = alpha_deg[i0:i0 + per].to(torch.float64)
+        ph = phi_rad[i0:i0 + per].to(torch.float64)
+        m = a.numel()
+        dist_um = table.distortion_at(a) * 1e3 if distortion else torch.zeros_like(a)
+        outs = [None] * C
+        for k, lam in enumerate(table.wavelengths_um):
+            if not any(r[k] > 0 for r in rows_w):
+                continue
+            R = N * fine / (2 * lam * working_f_number)
+            j = _box_coords(R).to(dev) / R
+            gy, gx = torch.meshgrid(j, j, indexing="ij")  # pupil [row, col] = [py, px], image-plane frame
+            sp, cp = torch.sin(ph)[:, None, None], torch.cos(ph)[:, None, None]
+            mx = gx * sp - gy * cp  # the meridional frame of each PSF's azimuth (field along +y)
+            my = gx * cp + gy * sp
+            W, V = table.sample(k, a, mx, my)
+            # the distortion as a tilt: with PHASE_SIGN -1, W = -delta rho_y / (2 lambda N_w) moves the PSF by +delta
+            W = W - (dist_um / (2 * lam * working_f_number))[:, None, None] * my
+            amp = ((gx**2 + gy**2 <= 1)[None] & (V <= 1)).to(real)
+            field_ = torch.polar(amp, (PHASE_SIGN * 2 * math.pi) * W.to(real)).to(complex_dtype)
+            win = _intensity(field_, N, area=amp.sum(dim=(-2, -1), keepdim=True), keep=keep)  # the window's samples
+            if sampling == "area":
+                pix = win.reshape(m, n, s, n, s).sum(dim=(2, 4))
+            else:
+                pix = win[:, s // 2::s, s // 2::s]
+            _add_weighted(outs, pix.to(torch.float64), rows_w, k)
+        acc = torch.stack(outs, dim=1)
+        inside = acc.sum(dim=(-2, -1))
+        held[i0:i0 + m] = inside
+        out[i0:i0 + m] = acc / inside[..., None, None]
+    return out, held

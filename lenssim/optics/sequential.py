@@ -19,7 +19,7 @@ object = 0) and answers, at any wavelength of the prescription:
   pupil's plane at that point (``aim="paraxial"``, what the optical-design programs call ray aiming off);
 * the optical path difference (:meth:`SequentialLens.wavefront`) to the reference sphere centred on the chief ray's
   point on the image plane and passing through the chief ray's point on the paraxial exit pupil's plane (the
-  convention of the optical-design programs), in waves, sign as :func:`lenssim.optics.raytrace.opd` (Welford's:
+  convention of the optical-design programs), in waves, sign as :func:`lenssim.optics.exact_wavefront.opd` (Welford's:
   ``W = OPL(chief) - OPL(ray)``); RMS and peak-to-valley over the unvignetted pupil; spot diagrams.
 
 Conventions: the axis is ``z``, surface 1's vertex at ``z = 0``; fields lie along ``+y`` (a field angle ``a`` is the
@@ -53,14 +53,14 @@ import torch
 
 from ..model.glass import as_glass
 from ..model.misalignment import Misalignment
-from ..model.prescription import Prescription, PrescriptionError
+from ..model.prescription import AIR, Prescription, PrescriptionError, PrescriptionSurface
 from ..model.surface import Surface
-from ..model.surface_kinds import NEWTON_ITERATIONS
+from ..model.surface_kinds import NEWTON_ITERATIONS, refract
 from .paraxial import seidel_surface_sums
 from ..torch_utils import HOST
 
 __all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
-           "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError"]
+           "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError", "surfaces_lens", "trace_rays_opl", "trace_rays"]
 
 AIM_METHODS = ("real", "paraxial")
 AIM_ITERATIONS = 60
@@ -445,17 +445,6 @@ class SequentialLens:
         X, N, t, ok, rho = s.surface_kind.intersect(s, P - v, d, valid)
         return X + v, N, t, ok, rho
 
-    @staticmethod
-    def _refract(d, N, n1, n2, valid):
-        cos_i = (d * N).sum(-1, keepdim=True)
-        N = torch.where(cos_i < 0, -N, N)
-        cos_i = cos_i.abs()
-        mu = n1 / n2
-        k = 1 - mu**2 * (1 - cos_i**2)
-        ok = valid & (k[..., 0] >= 0)
-        k = torch.where(ok.unsqueeze(-1), k, torch.ones_like(k))
-        return mu * d + (torch.sqrt(k) - mu * cos_i) * N, ok
-
     def trace(self, starts: torch.Tensor, directions: torch.Tensor, wavelength_um: float | None = None, *,
               upto: int | None = None, opl_start: torch.Tensor | None = None, vignette: bool = True) -> RayBundle:
         """Trace rays from ``starts`` ``(R, 3)`` along ``directions`` ``(R, 3)`` (object space, air) through the
@@ -494,7 +483,7 @@ class SequentialLens:
                     ok = ok & within
             n2 = self.index_after(i, lam)
             met = ok
-            d2, ok = self._refract(d, N, n, n2, ok)
+            d2, ok = refract(d, N, n, n2, ok)
             reflected = torch.where(met & ~ok & (reflected == 0), i + 1, reflected)
             clipped = torch.where(valid & ~ok & (clipped == 0), i + 1, clipped)
             valid = ok
@@ -729,3 +718,45 @@ def pupil_grid(n: int, dtype=torch.float64):
     Y, X = torch.meshgrid(g, g, indexing="ij")
     inside = X**2 + Y**2 <= 1
     return X[inside], Y[inside]
+
+
+# -- model surfaces (the singlet's exact trace is this one) ------------------------------------------------------------
+def surfaces_lens(surfaces: list[Surface]) -> SequentialLens:
+    """The :class:`SequentialLens` of model surfaces at one wavelength (:class:`lenssim.model.surface.Surface`, e.g.
+    :meth:`lenssim.Lens.surfaces`: curvatures, conics, even-asphere terms, the index after each, the separations, each
+    surface's decentre and its tilt about its vertex, about x then y), surface 1's vertex at ``z = 0`` (a zero
+    separation is the thin lens's limit: a ray may travel a signed negative distance, its optical path with its
+    sign). What :func:`trace_rays_opl` reads is the surfaces only: the stop is surface 1, the entrance pupil 1 mm
+    across, the image plane 1 mm after the last surface."""
+    surfs, moved = [], {}
+    for i, s in enumerate(surfaces):
+        n = float(s.n_after)
+        surfs.append(PrescriptionSurface(float(s.curvature), 1.0 if i == len(surfaces) - 1 else float(s.thickness_after_mm),
+                                         AIR if n == 1 else (n, 0.0), conic=float(s.conic),
+                                         aspheric_coefficients=tuple(float(a) for a in s.aspheric_coefficients)))
+        (dx, dy), (tx, ty) = s.decentre_mm, s.tilt_deg
+        if dx or dy or tx or ty:  # the tilt about x, then about y and the decentre
+            moved[i] = (Misalignment(tilt_x_deg=tx), Misalignment(decentre_x_mm=dx, decentre_y_mm=dy, tilt_y_deg=ty))
+    return SequentialLens(Prescription(tuple(surfs), 1, 1.0), misalignments=moved)
+
+
+def trace_rays_opl(surfaces, starts: torch.Tensor, direction: torch.Tensor):
+    """Trace rays from ``starts`` ``(*, 3)`` along ``direction`` ``(3,)`` or ``(*, 3)`` (object space, air) through
+    model surfaces (a list, :func:`surfaces_lens`; or that lens) extended beyond their apertures. Returns
+    ``(points, directions, opl)``: each ray's point on the last surface ``(*, 3)`` (mm), its unit direction after it
+    ``(*, 3)``, and its optical path (mm) from the plane through the origin normal to its incoming direction (a plane
+    wavefront of the object at infinity), float64. ``ValueError`` if a ray misses a surface or is totally internally
+    reflected."""
+    seq = surfaces if isinstance(surfaces, SequentialLens) else surfaces_lens(surfaces)
+    shape = starts.shape
+    b = seq.trace(starts.reshape(-1, 3), direction.expand(shape).reshape(-1, 3), vignette=False)
+    if not bool(b.valid.all()):
+        raise ValueError("a ray misses a surface or is totally internally reflected in the ray trace; reduce the "
+                         "aperture or field")
+    return b.points.reshape(shape), b.directions.reshape(shape), b.opl.reshape(shape[:-1])
+
+
+def trace_rays(surfaces, starts: torch.Tensor, direction: torch.Tensor, z_image_mm: float) -> torch.Tensor:
+    """:func:`trace_rays_opl`'s rays on the plane ``z = z_image_mm``: their points ``(*, 3)`` (mm)."""
+    P, d, _ = trace_rays_opl(surfaces, starts, direction)
+    return P + ((z_image_mm - P[..., 2]) / d[..., 2]).unsqueeze(-1) * d

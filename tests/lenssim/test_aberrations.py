@@ -8,7 +8,7 @@ from lenssim import TERMS, Design, field_rms_wavefront, rms_wavefront, seidel_su
 
 from lenssim_studies.paper import PAPER_LENS
 from lenssim.optics.paraxial import Surface, seidel_surface_sums
-from lenssim.optics.raytrace import transverse_aberration
+from lenssim.optics.exact_wavefront import transverse_aberration
 
 D = torch.float64
 LAMBDA_UM = 0.5

@@ -21,7 +21,7 @@ from lenssim.optics.aberrations import pupil_monomials, wavefront_coefficients
 from lenssim.optics.as_built import (AS_BUILT_TERMS, _figure_gradient_norm, as_built_coefficients, as_built_design,
                                      as_built_surfaces, field_points, nominal_as_built_coefficients)
 from lenssim.optics.exact_wavefront import pupil_quadrature
-from lenssim.optics.raytrace import opd
+from lenssim.optics.exact_wavefront import opd
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_LENS, PAPER_SENSOR
 
 D = torch.float64

@@ -12,7 +12,8 @@ from lenssim import Camera, Design, LensPSF, Numerics, Spectrum, evaluate
 from lenssim_studies.paper import PAPER_CAMERA
 from lenssim.optics.aberrations import wavefront_coefficients, wavefront_gradient
 from lenssim.model.glass import C_LINE_UM, D_LINE_UM, F_LINE_UM, load_glasses
-from lenssim.optics.raytrace import trace_rays, transverse_aberration
+from lenssim.optics.exact_wavefront import transverse_aberration
+from lenssim.optics.sequential import trace_rays
 from lenssim.model.spectrum import channel_spectra
 from lenssim.validate import ModelValidityWarning
 import dataclasses

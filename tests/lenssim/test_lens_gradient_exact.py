@@ -1,7 +1,7 @@
 """The gradient route on real rays (issue 44, item 3): ``tradeoff --optimise CRITERION --wavefront exact``.
 
 The exact route's coefficients are the real-ray OPD fitted on :data:`lenssim.optics.exact_wavefront.EXACT_TERMS`:
-checked against the paper singlet's own exact route (its independent ray trace, :mod:`lenssim.optics.raytrace`), its
+checked against the paper singlet's own exact route (:func:`lenssim.optics.exact_wavefront.opd`, its own pupil), its
 gradient against central differences of the whole criterion on the Cooke triplet with four free parameters, and one
 descent step lowering the criterion."""
 

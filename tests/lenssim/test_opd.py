@@ -22,7 +22,8 @@ import torch
 
 from lenssim import Camera, Design, Spectrum
 from lenssim.optics.exact_wavefront import exact_wavefront_fit, opd_rms_waves, pupil_quadrature
-from lenssim.optics.raytrace import opd, trace_rays_opl, transverse_aberration
+from lenssim.optics.exact_wavefront import opd, transverse_aberration
+from lenssim.optics.sequential import trace_rays_opl
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS, PAPER_LENS, PAPER_SENSOR
 
 D = torch.float64

@@ -1,5 +1,5 @@
 """Any lens from a prescription (issue 29): paraxial data, Seidel sums, real rays and the exact wavefront, each against
-something independent: today's thin singlet (its closed-form Seidel sums and its own ray trace), Cartesian ovals
+something independent: today's thin singlet (its closed-form Seidel sums and its exact OPD: its own beam and sphere), Cartesian ovals
 (closed form: zero OPD), the third-order limit of the real OPD, the area a semi-diameter leaves, thin-lens optics."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import torch
 from lenssim import Design
 from lenssim.model.prescription import Prescription, PrescriptionError
 from lenssim.model.prescription import PrescriptionSurface as S
-from lenssim.optics.raytrace import opd
+from lenssim.optics.exact_wavefront import opd
 from lenssim.optics.sequential import RayTraceError, SequentialLens, pupil_grid
 from lenssim_studies.paper import PAPER_CAMERA
 

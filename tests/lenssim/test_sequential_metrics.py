@@ -16,7 +16,7 @@ from lenssim.model.sensor import Sensor
 from lenssim.model.spectrum import Spectrum
 from lenssim.optics.image_model import image_psd, noise_variance
 from lenssim.optics.sequential import SequentialLens
-from lenssim.optics.sequential_psf import SequentialPSF
+from lenssim.optics.psf_provider import SequentialPSF
 from lenssim.metrics import evaluate_sequential, evaluation_angles
 
 LAM = 0.55

@@ -1,4 +1,4 @@
-"""PSFs of any sequential lens (lenssim.optics.sequential_psf), each check against something independent: the Airy
+"""PSFs of any sequential lens (lenssim.optics.psf_bank, lenssim.optics.psf_provider.SequentialPSF), each check against something independent: the Airy
 pattern's encircled energy (closed form), the rays' centroid (geometric optics), today's thin-lens PSFs, the lens's
 mirror symmetry, and a table traced directly at the angle asked."""
 
@@ -16,7 +16,8 @@ from lenssim.model.prescription import PrescriptionSurface as S
 from lenssim.model.sensor import Sensor
 from lenssim.model.spectrum import Spectrum
 from lenssim.optics.sequential import SequentialLens, pupil_grid
-from lenssim.optics.sequential_psf import SequentialPSF, psfs_from_table, wavefront_table
+from lenssim.optics.psf_bank import psfs_from_table, wavefront_table
+from lenssim.optics.psf_provider import SequentialPSF
 
 N_GLASS = 1.5
 LAM = 0.55

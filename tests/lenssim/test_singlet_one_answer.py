@@ -1,7 +1,7 @@
 """The paper's singlet gives one answer through its named design and through its prescription (issue 44).
 
 Two routes evaluate the same singlet: the named design's exact route (:func:`lenssim.metrics.exact_criteria`: the
-real-ray OPD of :func:`lenssim.optics.raytrace.opd` fitted by the polynomials of ``EXACT_TERMS``, each PSF by FFT of an
+real-ray OPD of :func:`lenssim.optics.exact_wavefront.opd` fitted by the polynomials of ``EXACT_TERMS``, each PSF by FFT of an
 anti-aliased pupil) and the prescription's (:func:`lenssim.metrics.evaluate_sequential`: the real-ray OPD of
 :class:`lenssim.optics.sequential.SequentialLens` traced into a table and interpolated, each PSF by FFT of a
 hard-edged pupil, windowed). Asked for the same model they agree:

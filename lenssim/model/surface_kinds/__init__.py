@@ -29,7 +29,7 @@ import torch
 from ...registry import Registry, import_plugins
 from ...torch_utils import HOST
 
-__all__ = ["SurfaceKind", "SURFACE_KINDS", "register", "ZemaxParmError", "sag_normal", "conic_intersection",
+__all__ = ["SurfaceKind", "SURFACE_KINDS", "register", "ZemaxParmError", "sag_normal", "conic_intersection", "refract",
            "NEWTON_ITERATIONS", "INTERSECTION_TOLERANCE_MM", "finite_number"]
 
 NEWTON_ITERATIONS = 12
@@ -78,6 +78,20 @@ def sag_normal(X, dz):
     -1)`` normalised."""
     N = torch.stack([2 * X[..., 0] * dz, 2 * X[..., 1] * dz, -torch.ones_like(dz)], dim=-1)
     return N / torch.linalg.norm(N, dim=-1, keepdim=True)
+
+
+def refract(d, N, n1, n2, valid=None):
+    """``(d', ok)``: unit directions ``d`` ``(*, 3)`` refracted at unit normals ``N`` (either orientation) from index
+    ``n1`` into ``n2`` by the vector form of Snell's law, and the rays (of ``valid``) not totally internally reflected
+    (``d'`` is then meaningless): the refraction of every ray trace, whatever the surface's kind."""
+    cos_i = (d * N).sum(-1, keepdim=True)
+    N = torch.where(cos_i < 0, -N, N)
+    cos_i = cos_i.abs()
+    mu = n1 / n2
+    k = 1 - mu**2 * (1 - cos_i**2)
+    ok = k[..., 0] >= 0 if valid is None else valid & (k[..., 0] >= 0)
+    k = torch.where(ok.unsqueeze(-1), k, torch.ones_like(k))
+    return mu * d + (torch.sqrt(k) - mu * cos_i) * N, ok
 
 
 class SurfaceKind:
