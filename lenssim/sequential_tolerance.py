@@ -36,8 +36,8 @@ from collections.abc import Callable
 
 import torch
 
-from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, copy_misalignments,
-                                       perturbed_prescription)
+from .model.tolerances import (SurfacePerturbations, SurfaceTolerances, copy_misalignments,
+                               perturbed_prescription)
 from .optics.sequential import SequentialLens
 from .optics.sequential_psf import TABLE_INITIAL_NODES, TABLE_MAX_NODES, SequentialPSF
 from .metrics import evaluate_sequential, evaluation_angles

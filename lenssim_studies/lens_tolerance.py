@@ -21,7 +21,7 @@ import xarray as xr
 
 from lenssim import __version__
 from lenssim.model.numerics import Numerics
-from lenssim.model.surface_tolerances import SurfaceTolerances
+from lenssim.model.tolerances import SurfaceTolerances
 from lenssim.optics.sequential_psf import SequentialPSF
 from lenssim.sequential_tolerance import (CRITERIA, copy_criteria, lens_tolerance_dataset, nominal_criteria,
                                           tolerance_angles)
