@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from lenssim import AsBuiltPSF, LensPSF
-from lenssim.model.tolerances import GRADES, grade
+from lenssim.model.tolerances import GRADES, Tolerances
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
 from pipeline.figures import mosaic_figure
 from pipeline import load_photo
@@ -34,7 +34,7 @@ def main() -> None:
     size = min(192, *ideal.shape[-2:])
     angles = fitting_angles(ideal.shape, size, PAPER_CAMERA.geometry, (0.0, 6.0))
     boxes = [crop_at_field_angle(ideal.shape, a, size, PAPER_CAMERA.geometry) for a in angles]
-    lens = grade(args.grade).sample(1, seed=args.seed)
+    lens = Tolerances.grade(args.grade).sample(1, seed=args.seed)
     built, nominal = AsBuiltPSF(PAPER_CAMERA, design, lens), LensPSF(PAPER_CAMERA, design)
     well = PAPER_CAMERA.sensor.full_well_for_iso(args.iso)
     runs = {tag: simulate_crops(ideal, built, well, boxes, seed=0, sensor=PAPER_CAMERA.sensor, restoration_psf=prov)

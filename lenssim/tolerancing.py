@@ -11,7 +11,7 @@ angles, as the nominal lens's is over its angles. Its OTFs come from the general
 planes. The nominal lens's OTF at the same field point and FFT size is the reference of criteria that need one.
 
 **Any sequential lens** (:func:`run_lens_tolerance`, issue 29: tolerances per surface): ``N`` copies drawn from a
-:class:`lenssim.model.surface_tolerances.SurfaceTolerances` (radius, thickness, conic and index per surface, the image
+:class:`lenssim.model.tolerances.SurfaceTolerances` (radius, thickness, conic and index per surface, the image
 plane's despace, decentres and tilts; each copy focused at assembly unless switched off, :func:`manufactured_lens`),
 each traced on real rays and evaluated on the nominal lens's sensor at a few field angles (:data:`TOLERANCE_ANGLES`,
 from the axis to the largest, evenly) with :func:`lenssim.metrics.evaluate_sequential`: the
@@ -46,9 +46,8 @@ from .criteria import CRITERIA, OTFContext, otf_criteria, quarter_weights
 from .model.camera import Camera
 from .model.design import Design
 from .model.numerics import DEFAULT_NUMERICS, Numerics
-from .model.surface_tolerances import (SurfacePerturbations, SurfaceTolerances, copy_misalignments,
-                                       perturbed_prescription)
-from .model.tolerances import Perturbations, Tolerances
+from .model.tolerances import (Perturbations, SurfacePerturbations, SurfaceTolerances, Tolerances, copy_misalignments,
+                               perturbed_prescription)
 from .optics.as_built import AS_BUILT_TERMS, as_built_coefficients, field_points
 from .optics.cost import slope_departure_cost
 from .optics.exact_wavefront import pupil_quadrature
@@ -208,7 +207,7 @@ NOT_MODELLED = ("surface form (figure) errors, the image plane's tilt, and a dec
 def manufactured_lens(nominal: SequentialLens, pert: SurfacePerturbations, i: int) -> SequentialLens:
     """Copy ``i`` of ``pert`` of the lens ``nominal`` (its prescription and image plane): radii, thicknesses and conics
     changed, index offsets on the glasses (their dispersion kept), and the image plane placed (see
-    :mod:`lenssim.model.surface_tolerances`): with focus compensation its distance from the copy's paraxial focus
+    :mod:`lenssim.model.tolerances`): with focus compensation its distance from the copy's paraxial focus
     (primary wavelength) is the nominal's, plus the despace; without, the nominal distance behind the last surface,
     plus the despace. Zero errors give the nominal lens exactly (same image shift, same :meth:`cache_key`)."""
     p0 = nominal.prescription

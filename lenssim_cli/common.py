@@ -214,28 +214,29 @@ def add_tolerance_arguments(p: argparse.ArgumentParser, *, switches: bool = True
                        help="leave the image plane at the nominal distance (default: focused at assembly)")
 
 
-def graded_tolerances(args, grade, from_dict):
-    """The tolerances of ``--grade`` (``grade(name)``), or of ``--tolerances FILE``'s one ``[tolerances]`` table on top
-    of that grade (``from_dict``): the singlet's and any lens's alike."""
+def graded_tolerances(args, kind):
+    """The tolerances of ``--grade`` (``kind.grade(name)``), or of ``--tolerances FILE``'s one ``[tolerances]`` table
+    on top of that grade (``kind.from_dict``): the singlet's (``kind`` :class:`lenssim.Tolerances`) and any lens's
+    (:class:`lenssim.model.tolerances.SurfaceTolerances`) alike."""
     from lenssim.io.files import read_toml
 
     name = args.grade or DEFAULT_GRADE
     if not args.tolerances:
-        return grade(name)
+        return kind.grade(name)
     table = read_toml(args.tolerances, "tolerances file")
     unknown = sorted(set(table) - {"tolerances"})
     if unknown or "tolerances" not in table:
         raise ValueError(f"tolerances file {args.tolerances!r}: expected one [tolerances] table"
                          + (f"; unknown table(s) {listed(unknown)}" if unknown else ""))
-    return from_dict({"grade": name, **table["tolerances"]})
+    return kind.from_dict({"grade": name, **table["tolerances"]})
 
 
 def tolerances_from_args(args):
     """The :class:`lenssim.Tolerances` of ``--grade``, ``--tolerances FILE``, ``--off TERM`` and
     ``--no-focus-compensation``."""
-    from lenssim.model.tolerances import Tolerances, grade
+    from lenssim.model.tolerances import Tolerances
 
-    t = graded_tolerances(args, grade, Tolerances.from_dict)
+    t = graded_tolerances(args, Tolerances)
     for term in getattr(args, "off", None) or ():
         if term == "figure":
             t = dataclasses.replace(t, figure_floor=0.0, figure_per_cost=0.0)

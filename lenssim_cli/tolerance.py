@@ -96,15 +96,15 @@ LENS_REFUSED = (("--yield", "yield_"), ("--sensitivity-lenses", "sensitivity_len
 
 
 def surface_tolerances_from_args(args):
-    """The :class:`lenssim.model.surface_tolerances.SurfaceTolerances` of ``--grade``, ``--tolerances FILE``,
+    """The :class:`lenssim.model.tolerances.SurfaceTolerances` of ``--grade``, ``--tolerances FILE``,
     ``--off TERM`` and ``--no-focus-compensation`` (for ``--lens``)."""
     import dataclasses
 
-    from lenssim.model.surface_tolerances import SurfaceTolerances, surface_grade
+    from lenssim.model.tolerances import SurfaceTolerances
 
     from .common import graded_tolerances
 
-    t = graded_tolerances(args, surface_grade, SurfaceTolerances.from_dict)
+    t = graded_tolerances(args, SurfaceTolerances)
     terms = [f.name for f in dataclasses.fields(t) if f.name != "focus_compensated"]
     for term in getattr(args, "off", None) or ():
         if term not in terms:

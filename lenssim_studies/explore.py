@@ -51,7 +51,7 @@ from lenssim import AsBuiltPSF, Camera, Design, LensPSF, PSFProvider, evaluate
 from lenssim.model.design import PARAMETERS, parameter_name
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
 from lenssim.model.prescription import Prescription
-from lenssim.model.tolerances import GRADES
+from lenssim.model.tolerances import GRADES, SurfaceTolerances
 from lenssim.optics.psf_provider import DerivedPSF
 from pipeline.photo import Photo
 
@@ -862,9 +862,7 @@ class Explorer:
     def check_grade(self, grade: str) -> None:
         """A one-line ``ValueError`` unless ``grade`` names a tolerance grade (the singlet's; any lens's per-surface)."""
         if self.prescription is not None:
-            from lenssim.model.surface_tolerances import surface_grade
-
-            surface_grade(grade)
+            SurfaceTolerances.grade(grade)
         elif grade not in GRADES:
             raise ValueError(f"grade {grade!r} is not allowed: one of {', '.join(GRADES)}")
 
@@ -873,11 +871,10 @@ class Explorer:
         lens's centred: see the module docstring)."""
         if self.prescription is None:
             return self._provider(controls, GRADES[grade].sample(1, seed=lens_seed), shape)
-        from lenssim.model.surface_tolerances import surface_grade
         from lenssim.tolerancing import manufactured_lens
 
         q, seq = self.check(controls)
-        centred = replace(surface_grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,
+        centred = replace(SurfaceTolerances.grade(grade), surface_decentre_um=0.0, surface_tilt_arcmin=0.0,
                           element_decentre_um=0.0, element_tilt_arcmin=0.0)
         pert = centred.sample(q, 1, seed=int(lens_seed))
         return self._provider(controls, manufactured_lens(seq, pert, 0), shape)

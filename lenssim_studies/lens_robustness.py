@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from lenssim.model.surface_tolerances import SurfaceTolerances
+from lenssim.model.tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluation_angles
 

@@ -38,8 +38,7 @@ from lenssim.criteria import CRITERIA
 from lenssim.model.camera import Camera
 from lenssim.model.design import Design
 from lenssim.model.numerics import FAST_NUMERICS, Numerics
-from lenssim.model.surface_tolerances import SurfaceTolerances
-from lenssim.model.tolerances import Tolerances
+from lenssim.model.tolerances import SurfaceTolerances, Tolerances
 from lenssim.optics.psf_provider import SequentialPSF
 from lenssim.tolerancing import AS_BUILT_CRITERIA, COPY_CRITERIA, as_built_criteria, lens_copies, tolerance_angles
 from lenssim.torch_utils import tensor_of

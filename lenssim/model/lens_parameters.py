@@ -2,7 +2,7 @@
 
 A designer names the numbers of their lens that may move; each name resolves against the
 :class:`lenssim.model.prescription.Prescription` (surfaces numbered as in the file, 1..N; elements numbered from the
-object side, 1..E, as :func:`lenssim.model.surface_tolerances.lens_elements` finds them: a run of surfaces joined by
+object side, 1..E, as :func:`lenssim.model.tolerances.lens_elements` finds them: a run of surfaces joined by
 glass, a cemented group being one element):
 
 =================  ========  ======================================================================================
@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 from .prescription import Prescription
 from .surface_kinds.standard import Standard
-from .surface_tolerances import lens_elements
+from .tolerances import lens_elements
 
 __all__ = ["LensParameter", "lens_parameters", "parse_parameter", "apply_parameters", "parameter_values",
            "ASPHERIC_ORDERS", "FOCUS_PARAMETER"]

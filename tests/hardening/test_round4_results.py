@@ -372,7 +372,7 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
     read back, not the optics: tracing each copy takes minutes on a small machine)."""
     from lenssim.io.prescription_file import read_lens
     from lenssim.model.numerics import FAST_NUMERICS
-    from lenssim.model.surface_tolerances import surface_grade
+    from lenssim.model.tolerances import SurfaceTolerances
     from lenssim.optics.sequential import SequentialLens
     from lenssim.tolerancing import COPY_CRITERIA as CRITERIA
     from lenssim_studies.tolerance import LensToleranceRun, run_tolerance
@@ -390,7 +390,7 @@ def test_a_lens_tolerance_result_is_verified_before_it_is_reused(tmp_path, monke
                         values(snr_db) | {"image_shift_mm": 0.01 * i, "efl_mm": 50.0 + i})
     p = read_lens(LENS_FILE)
     psf = sequential_provider(p, SequentialLens(p), pitch_um=2.0, sampling="point", max_field_deg=3.0, coarse=True)
-    run = LensToleranceRun(psf, surface_grade("commercial"), 3, 0, (21.6, 27.6), 0.937, FAST_NUMERICS,
+    run = LensToleranceRun(psf, SurfaceTolerances.grade("commercial"), 3, 0, (21.6, 27.6), 0.937, FAST_NUMERICS,
                            angles_deg=(0.0,), chunk_copies=2)
     out = tmp_path / "tolerance.nc"
     ds = run_tolerance(run, out, show_progress=False)

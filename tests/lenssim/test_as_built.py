@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from lenssim import Camera
-from lenssim.model.tolerances import GRADES, Perturbations, Tolerances, grade
+from lenssim.model.tolerances import GRADES, Perturbations, Tolerances
 from lenssim.optics.aberrations import pupil_monomials, wavefront_coefficients
 from lenssim.optics.as_built import (AS_BUILT_TERMS, _figure_gradient_norm, as_built_coefficients, as_built_design,
                                      as_built_surfaces, field_points, nominal_as_built_coefficients)
@@ -171,7 +171,7 @@ def test_grades_and_the_tolerances_table():
     with pytest.raises(ValueError, match="unknown key.*despace_mu"):
         Tolerances.from_dict({"despace_mu": 3})
     with pytest.raises(ValueError, match="grade 'cheap' is not known; valid: none, commercial, precision"):
-        grade("cheap")
+        Tolerances.grade("cheap")
     with pytest.raises(ValueError, match="index=-0.001 is not allowed"):
         Tolerances(index=-1e-3)
     assert GRADES["commercial"].only("lens_tilt_arcmin").terms() == ("lens_tilt_arcmin",)

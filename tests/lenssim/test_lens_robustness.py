@@ -14,7 +14,7 @@ import xarray as xr
 
 from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
-from lenssim.model.surface_tolerances import SurfaceTolerances
+from lenssim.model.tolerances import SurfaceTolerances
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluation_angles
 from lenssim.tolerancing import run_lens_tolerance

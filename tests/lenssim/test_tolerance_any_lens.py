@@ -16,9 +16,8 @@ import torch
 from lenssim.io.prescription_file import read_lens
 from lenssim.model.numerics import Numerics
 from lenssim.model.misalignment import Misalignment
-from lenssim.model.surface_tolerances import (SURFACE_GRADES, SurfaceTolerances, copy_misalignments, lens_elements,
-                                              lens_surfaces, perturbed_prescription)
-from lenssim.model.tolerances import GRADES
+from lenssim.model.tolerances import (GRADES, SURFACE_GRADES, SurfaceTolerances, copy_misalignments, lens_elements,
+                                      lens_surfaces, perturbed_prescription)
 from lenssim.optics.sequential import SequentialLens
 from lenssim.metrics import evaluate_sequential
 from lenssim.tolerancing import copy_provider, manufactured_lens, run_lens_tolerance
