@@ -730,6 +730,9 @@ def surfaces_lens(surfaces: list[Surface]) -> SequentialLens:
     across, the image plane 1 mm after the last surface."""
     surfs, moved = [], {}
     for i, s in enumerate(surfaces):
+        if any(torch.is_tensor(v) and v.requires_grad for v in (s.curvature, s.conic, s.n_after, s.thickness_after_mm)):
+            raise ValueError("the real-ray trace takes the surfaces' numbers, not a gradient through them: give "
+                             "surfaces without requires_grad (the third-order route is differentiable)")
         n = float(s.n_after)
         surfs.append(PrescriptionSurface(float(s.curvature), 1.0 if i == len(surfaces) - 1 else float(s.thickness_after_mm),
                                          AIR if n == 1 else (n, 0.0), conic=float(s.conic),

@@ -129,3 +129,15 @@ def test_the_exact_defocus_is_the_opd_at_any_wavelength():
     cam = Camera(lens, PAPER_SENSOR, Spectrum.monochromatic(0.4861))
     c, res = exact_wavefront_fit(cam, Design(s=-0.775, Q_back=-2.4), 0.0)
     assert res < 1e-9 and torch.isfinite(c).all()
+
+
+def test_the_real_ray_trace_refuses_a_gradient_it_would_drop():
+    """The trace reads the surfaces' numbers (floats): a design that carries a gradient is refused in one line rather
+    than detached in silence (the gradient through real rays is central differences: ``design_opt``)."""
+    s = torch.tensor(-0.5, dtype=D, requires_grad=True)
+    with pytest.raises(ValueError, match="not a gradient through them"):
+        opd(PAPER_LENS, Design(s=s, Q_back=torch.tensor(-1.0, dtype=D)), 5.0, torch.tensor([0.5], dtype=D),
+            torch.tensor([0.0], dtype=D))
+    W, _ = opd(PAPER_LENS, Design(s=s.detach(), Q_back=torch.tensor(-1.0, dtype=D)), 5.0, torch.tensor([0.5], dtype=D),
+               torch.tensor([0.0], dtype=D))
+    assert bool(torch.isfinite(W).all())
