@@ -28,7 +28,8 @@ differentiated by central differences likewise, and :func:`optimise_on_iso_cost`
 scale (the working F-number) must not move with ``x``: a design that changes it is refused (hold the focal length:
 ``hold=("efl",)``). :class:`LensExactCriterion` is the same chain on the real rays' wavefront (``tradeoff --optimise
 --wavefront exact``): the first part is a real-ray trace and a degree-8 fit per field angle and wavelength (tenths of
-a second a design), its Jacobian by central differences of whole traces.
+a second a design) on the design's numbers as tensors, differentiated by autograd through the solves, the aiming, the
+trace and the fit; its cost too, where the file gives the apertures.
 """
 
 from __future__ import annotations
@@ -40,13 +41,13 @@ import torch
 
 from .model.camera import Camera
 from .model.prescription import Prescription
-from .optics.cost import prescription_costs, slope_departure_cost
+from .optics.cost import lens_cost, prescription_costs, slope_departure_cost
 from .criteria import OTFContext, quarter_weights, validate_criterion
 from .model.design import PARAMETERS, Design, parameter_name
 from .optics.image_model import image_psd_quarter, noise_variance
 from .model.numerics import DEFAULT_NUMERICS, Numerics
 from .optics.exact_wavefront import EXACT_TERMS, lens_exact_coefficients
-from .optics.lens_solves import solve_design
+from .optics.lens_solves import solve_design, solve_numbers
 from .optics.psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficients
 from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
 from .optics.sequential import SequentialLens
@@ -363,18 +364,39 @@ class LensExactCriterion(LensThirdOrderCriterion):
     """:class:`LensThirdOrderCriterion` on the real rays' wavefront: ``x -> coefficients`` is the real-ray OPD of the
     lens at ``x`` projected on :data:`lenssim.optics.exact_wavefront.EXACT_TERMS` (degree 8,
     :func:`lenssim.optics.exact_wavefront.lens_exact_coefficients`: rays aimed at the stop, the pupil the full disc,
-    the PSF about the primary wavelength's chief ray), its Jacobian by central differences of whole real-ray traces
-    (:data:`FD_STEP`), the rest (pupil -> PSF -> OTF -> criterion) by autograd, as the third-order route. Any free
-    parameter of the lens may move (no third-order restriction); the working F-number must not."""
+    the PSF about the primary wavelength's chief ray), differentiated by autograd end to end: the design's numbers as
+    tensors (:func:`lenssim.optics.lens_solves.solve_numbers`, the ``efl`` solve included), the real aiming (its last
+    Newton step carries the implicit derivative), the trace, the OPD and its fit, then pupil -> PSF -> OTF ->
+    criterion as the third-order route. The cost ``C_a`` likewise (:func:`lenssim.optics.cost.lens_cost`) where every
+    surface it counts has a semi-diameter in the file, else by central differences (the aperture then follows the
+    design's paraxial beam). Each design is first made by the float route (:meth:`lens_at`), which refuses what cannot
+    be made. Any free parameter of the lens may move (no third-order restriction); the working F-number must not."""
 
     terms = EXACT_TERMS
 
     def _check_parameters(self, parameters) -> None:
         pass
 
-    def _coefficients(self, x: torch.Tensor) -> torch.Tensor:
-        seq = self._checked_lens(x)
-        return lens_exact_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)
+    def _numbers(self, x: torch.Tensor):
+        """The batched lens at ``x`` (one design, numbers ``(1, 1)`` tensors carrying ``x``'s graph), after the float
+        route has checked the design."""
+        self._checked_lens(x.detach())
+        return solve_numbers(self.prescription, self.parameters, x.to(torch.float64).reshape(1, -1), hold=self.hold,
+                             image=self.image)
+
+    def coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        seq = self._numbers(x)
+        return lens_exact_coefficients(seq, self.angles, self.camera.spectrum.wavelengths_um)[0]
+
+    def cost(self, x: torch.Tensor, points: int) -> torch.Tensor:
+        """``C_a`` at ``x`` (:meth:`LensThirdOrderCriterion.cost`), by autograd where the file gives every counted
+        surface's semi-diameter."""
+        q = self.prescription
+        if any(s.semi_diameter_mm is None for s in q.surfaces if s.is_aspheric) or any(
+                q.surfaces[p.index].semi_diameter_mm is None for p in self.parameters
+                if p.kind == "conic" or p.kind.startswith("A")):
+            return super().cost(x, points)
+        return lens_cost(self._numbers(x), int(points))[0]
 
 
 GRADIENT_CRITERIA = {"third_order": LensThirdOrderCriterion, "exact": LensExactCriterion}

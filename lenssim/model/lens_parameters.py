@@ -34,11 +34,14 @@ import math
 import re
 from dataclasses import dataclass, replace
 
+import torch
+
 from .prescription import Prescription
 from .surface_kinds.standard import Standard
 from .tolerances import lens_elements
 
-__all__ = ["LensParameter", "lens_parameters", "parse_parameter", "apply_parameters", "parameter_values",
+__all__ = ["LensParameter", "lens_parameters", "parse_parameter", "apply_parameters", "parameter_numbers",
+           "parameter_values",
            "ASPHERIC_ORDERS", "FOCUS_PARAMETER"]
 
 ASPHERIC_ORDERS = (4, 6, 8, 10, 12, 14, 16)
@@ -149,14 +152,44 @@ def apply_parameters(p: Prescription, values: dict) -> tuple[Prescription, float
     the surfaces' own curvatures (``E1.bending`` with ``S1.curvature`` moves both). Errors: ``ValueError`` for a
     bad value (not finite, a bending of 1 or -1 on a flat-flat element...), :class:`PrescriptionError` for an invalid
     lens (the prescription's own checks: crossing surfaces, negative thickness...)."""
-    surfs = [s for s in p.surfaces]
-    shift_mm = 0.0
-    items = [(q if isinstance(q, LensParameter) else parse_parameter(p, q), v) for q, v in values.items()]
-    kinds = {}
-    for q, v in items:
+    items = []
+    for q, v in values.items():
+        q = q if isinstance(q, LensParameter) else parse_parameter(p, q)
         v = float(v)
         if not math.isfinite(v):
             raise ValueError(f"{q.name} = {v!r} is not allowed: a finite number")
+        items.append((q, v))
+    surfs, shift_mm = _applied(p, items)
+    return replace(p, surfaces=tuple(surfs)), shift_mm
+
+
+def parameter_numbers(p: Prescription, params, x):
+    """A batch of designs of the lens ``p`` as tensors, differentiable in ``x``: the free ``params``
+    (:class:`LensParameter` s) at the values ``x`` (a float64 tensor ``(B, P)``, or ``(P,)`` for one design, in each
+    parameter's unit). Returns ``(surfaces, image_shift_mm)``: ``p``'s surfaces with every number the parameters move
+    a tensor ``(B, 1)`` (the others as in the file), for :class:`lenssim.optics.sequential.SequentialLens`'s
+    ``numbers``, and the image shift (mm, ``(B, 1)``, or ``0.0`` without ``focus_um``). The same arithmetic as
+    :func:`apply_parameters`, which stays the route that checks a design (crossing surfaces...): check the batch's
+    designs there before trusting its rays."""
+    params = tuple(params)
+    x = x.reshape(-1, len(params)) if x.dim() < 2 else x
+    if x.dtype != torch.float64 or x.shape[-1] != len(params):
+        raise ValueError(f"x must be float64 (B, {len(params)}): one value per free parameter, not {x.dtype} "
+                         f"{tuple(x.shape)}")
+    return _applied(p, [(q, x[:, j:j + 1]) for j, q in enumerate(params)])
+
+
+def _any(condition) -> bool:
+    return bool(condition.any()) if hasattr(condition, "any") else bool(condition)
+
+
+def _applied(p: Prescription, items) -> tuple[list, float]:
+    """``p``'s surfaces with the ``(parameter, value)`` items applied (floats, or tensors of one batch shape) and the
+    image shift (mm): the one arithmetic of :func:`apply_parameters` and :func:`parameter_numbers`."""
+    surfs = [s for s in p.surfaces]
+    shift_mm = 0.0
+    kinds = {}
+    for q, v in items:
         kinds.setdefault(q.index if q.kind not in ("focus", "bending") else q.name, []).append(q.kind)
         if q.kind == "focus":
             shift_mm = v * 1e-3
@@ -167,7 +200,7 @@ def apply_parameters(p: Prescription, values: dict) -> tuple[Prescription, float
             if q.kind == "curvature":
                 s = replace(s, curvature_per_mm=v)
             elif q.kind == "radius":
-                if v == 0:
+                if _any(v == 0):
                     raise ValueError(f"{q.name} = 0 is not allowed: a radius (mm), or inf for a flat surface")
                 s = replace(s, curvature_per_mm=1.0 / v)
             elif q.kind == "conic":
@@ -188,10 +221,10 @@ def apply_parameters(p: Prescription, values: dict) -> tuple[Prescription, float
             continue
         a, b = q.index
         c1, c2 = surfs[a].curvature_per_mm, surfs[b].curvature_per_mm
-        if c1 == c2:
+        if _any(c1 == c2):
             raise ValueError(f"{q.name}: element {q.name[1:q.name.index('.')]} has equal outer curvatures (no power): "
                              "its bending is not defined")
-        delta = (float(v) * (c1 - c2) - (c1 + c2)) / 2
+        delta = (v * (c1 - c2) - (c1 + c2)) / 2
         for k in range(a, b + 1):
             surfs[k] = replace(surfs[k], curvature_per_mm=surfs[k].curvature_per_mm + delta)
-    return replace(p, surfaces=tuple(surfs)), shift_mm
+    return surfs, shift_mm

@@ -36,7 +36,8 @@ from ..model.surface_kinds.standard import conic_slope
 from ..torch_utils import HOST, as_tensor
 
 __all__ = ["DEFAULT_COST_POINTS", "conic_slope", "sphere_slope", "best_fit_sphere_curvature", "surface_cost",
-           "slope_departure_cost", "slope_departure_cost_third_order", "asphere_cost", "prescription_costs"]
+           "slope_departure_cost", "slope_departure_cost_third_order", "asphere_cost", "prescription_costs",
+           "lens_cost"]
 
 DEFAULT_COST_POINTS = DEFAULT_NUMERICS.cost_points
 
@@ -195,6 +196,36 @@ def asphere_cost(surface, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> f
     target = kind.slope(surface, r)
     k = _fit_sphere(target, r, y_mm, c + 0.3 * (Q * c**3 + 8 * a4) * y_mm**2)
     return float(torch.sqrt(((target - sphere_slope(r, k)) ** 2).mean()))
+
+
+def lens_cost(seq, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
+    """``C_a`` of a batch of designs (a :attr:`lenssim.optics.sequential.SequentialLens.batched` lens), ``(B,)``,
+    differentiable in its numbers: :func:`asphere_cost` of every surface that is aspheric in the file or whose conic
+    or coefficients the batch moves, summed (a sphere's is 0), each over its clear semi-diameter, which every such
+    surface must have (:func:`prescription_costs` takes the design's own paraxial beam where the file gives none: a
+    radius that moves with the design, not taken here). ``ValueError`` naming a surface without one."""
+    total = 0.0
+    for i, (s, q) in enumerate(zip(seq.numbers, seq.prescription.surfaces)):
+        free = any(torch.is_tensor(v) for v in (s.curvature_per_mm, s.conic, *s.aspheric_coefficients))
+        if not (q.is_aspheric or any(torch.is_tensor(v) for v in (s.conic, *s.aspheric_coefficients))):
+            continue
+        y = q.semi_diameter_mm
+        if y is None:
+            raise ValueError(f"surface {i + 1}: a batch's asphere cost needs the surface's semi-diameter (the file "
+                             "gives none)")
+        if not free:  # the file's surface: the same for every design
+            total = total + asphere_cost(q, y, n_points)
+            continue
+        kind = s.surface_kind
+        c, Q, a4 = (torch.as_tensor(v, dtype=torch.float64, device=seq.device).reshape(-1)
+                    for v in kind.seidel_terms(s))
+        r = _radii(y, n_points, c)
+        target = kind.slope(s, r)  # (B, n)
+        k = _fit_sphere(target, r, y, c + 0.3 * (Q * c**3 + 8 * a4) * y**2)
+        ms = ((target - sphere_slope(r, k[..., None])) ** 2).mean(-1)
+        # a sphere's cost is exactly 0, a kink: its derivative there is taken as 0 (the central differences' value)
+        total = total + torch.where(ms > 0, torch.sqrt(torch.where(ms > 0, ms, 1.0)), 0.0)
+    return torch.zeros(seq.batch_size, dtype=torch.float64, device=seq.device) + total
 
 
 def _why_not_finite(c: float, Q: float, y_mm: float, conic: str) -> str:

@@ -44,6 +44,9 @@ __all__ = ["EXACT_TERMS", "exact_wavefront_fit", "exact_wavefront_coefficients",
 EXACT_TERMS = tuple(Term(f"E{a}{b}", a, b) for a in range(5) for b in range(9) if 0 < 2 * a + b <= 8)
 """Pupil monomials ``rho^2a rho_r^b`` up to degree 8 (no piston)."""
 
+IMAGE_SIDE_TOLERANCE_MM = 1e-9
+"""A batch's chief rays may cross the axis by this (mm) at a field and still count as one side (the axis's own
+field images at 0 up to rounding)."""
 QUADRATURE_RINGS = 12
 """Gauss-Legendre nodes in ``rho^2`` of the pupil grid: the area integral of a polynomial of degree <= 46 in
 ``rho`` is exact, so the degree-8 projection is the continuous one."""
@@ -155,11 +158,15 @@ def exact_wavefront_fit(camera: Camera, design: Design, alpha_deg: float, wavele
 def fit_exact_terms(rr: torch.Tensor, rt: torch.Tensor, wt: torch.Tensor, W: torch.Tensor):
     """``(coefficients (T,), residual)``: the OPD ``W`` (waves) at pupil points ``(rr, rt)`` with area weights ``wt``
     (:func:`pupil_quadrature`) projected on :data:`EXACT_TERMS` (area-weighted least squares); ``residual`` is the
-    RMS (waves) of ``W`` minus the projection. The one fit of both lens routes."""
-    basis = pupil_monomials(rr, rt, EXACT_TERMS).T  # (P, T)
-    sw = wt.sqrt()
-    c = torch.linalg.lstsq(basis * sw[:, None], (W * sw)[:, None]).solution[:, 0]
-    return c, float(torch.sqrt((((W - basis @ c) ** 2) * wt).sum()))
+    RMS (waves) of ``W`` minus the projection. The one fit of both lens routes. ``W`` ``(B, P)`` (a batch of
+    designs): coefficients ``(B, T)`` and residuals ``(B,)`` as tensors, differentiable in ``W``."""
+    basis = pupil_monomials(rr, rt, EXACT_TERMS).T.to(W.device)  # (P, T)
+    sw = wt.sqrt().to(W.device)
+    if W.dim() == 1:
+        c = torch.linalg.lstsq(basis * sw[:, None], (W * sw)[:, None]).solution[:, 0]
+        return c, float(torch.sqrt((((W - basis @ c) ** 2) * wt).sum()))
+    c = torch.linalg.lstsq(basis * sw[:, None], (W * sw).T).solution.T  # (B, T)
+    return c, torch.sqrt((((W - c @ basis.T) ** 2) * wt.to(W.device)).sum(-1))
 
 
 def lens_exact_coefficients(seq, angles_deg, wavelengths_um) -> torch.Tensor:
@@ -169,15 +176,24 @@ def lens_exact_coefficients(seq, angles_deg, wavelengths_um) -> torch.Tensor:
     ``stop_size`` says) at the points of :func:`pupil_quadrature` (``rho_r`` along the field, toward the image point),
     the surfaces extended beyond their semi-diameters (the pupil is the full disc, as in the third-order route), the
     OPD referred to the sphere about the primary wavelength's real chief ray on the image plane (so the PSFs sit about
-    the chief ray, the lateral colour kept as a tilt). Raises ``ValueError`` where a ray cannot be traced."""
+    the chief ray, the lateral colour kept as a tilt). Raises ``ValueError`` where a ray cannot be traced.
+
+    A batched lens (:attr:`~lenssim.optics.sequential.SequentialLens.batched`, ``B`` designs): ``(B, A, K, T)`` on its
+    device, differentiable in its numbers (every design's image point on one side of the axis at each field)."""
     rr, rt, wt = pupil_quadrature()
     lam0 = seq.primary_wavelength_um
-    zero = torch.zeros(1, dtype=torch.float64, device=HOST)
+    batch = seq.batched
+    dev = seq.device
+    zero = torch.zeros(1, dtype=torch.float64, device=dev)
+    rr, rt = rr.to(dev), rt.to(dev)
     rows = []
     for a in angles_deg:
         a = float(a)
-        y0 = float(seq.wavefront(a, zero, zero, lam0).chief_mm[1])
-        toward = -1.0 if y0 < 0 else 1.0  # rho_r points from the axis to the image point
+        chief_y = seq.wavefront(a, zero, zero, lam0).chief_mm[..., 1]
+        y0 = chief_y if batch else float(chief_y)
+        toward = -1.0 if float(chief_y.detach().reshape(-1)[0]) < 0 else 1.0  # rho_r points from the axis to the image point
+        if batch and bool((chief_y * toward < -IMAGE_SIDE_TOLERANCE_MM).any()):
+            raise ValueError(f"field {a:g} deg: the designs of the batch image it on both sides of the axis")
         per = []
         for lam in wavelengths_um:
             w = seq.wavefront(a, rt, toward * rr, float(lam), reference_mm=(0.0, y0), vignette=False)
@@ -185,8 +201,8 @@ def lens_exact_coefficients(seq, angles_deg, wavelengths_um) -> torch.Tensor:
                 raise ValueError(f"field {a:g} deg, {float(lam):g} um: some rays of the pupil cannot be traced (a "
                                  "surface missed or a total internal reflection): no exact wavefront")
             per.append(fit_exact_terms(rr, rt, wt, w.opd_waves)[0])
-        rows.append(torch.stack(per))
-    return torch.stack(rows)
+        rows.append(torch.stack(per, dim=-2))
+    return torch.stack(rows, dim=-3)
 
 
 def exact_wavefront_coefficients(camera: Camera, design: Design, alpha_deg: float,

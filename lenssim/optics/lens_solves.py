@@ -23,11 +23,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from ..model.lens_parameters import LensParameter, apply_parameters
+import torch
+
+from ..model.lens_parameters import LensParameter, apply_parameters, parameter_numbers
 from ..model.prescription import Prescription
 from .sequential import SequentialLens
 
-__all__ = ["solve_design", "check_solves", "best_focus_shift", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
+__all__ = ["solve_design", "solve_numbers", "check_solves", "best_focus_shift", "SolveError", "HOLDS", "IMAGE_PLANES", "SOLVE_TOLERANCE", "default_solve_surface"]
 
 HOLDS = ("efl", "fnum")
 """What a design may hold: the focal length (by a surface's curvature) and the F-number (by the entrance pupil)."""
@@ -110,6 +112,66 @@ def _efl(p: Prescription) -> float:
     return SequentialLens(p).paraxial().efl_mm
 
 
+def _any(condition) -> bool:
+    return bool(condition.any()) if torch.is_tensor(condition) else bool(condition)
+
+
+def _efl_curvature(efl_at, c0, target: float, k: int):
+    """The curvature of surface ``k`` (0-based) that gives the focal length ``target`` (mm), ``efl_at(c)`` the
+    design's focal length at curvature ``c`` (floats, or tensors of a batch: differentiable): the power is affine in
+    ``c`` (module docstring), so one secant from ``c0`` is exact; :class:`SolveError` if the power does not depend on
+    it or the result misses the target by more than :data:`SOLVE_TOLERANCE`."""
+    step = max(abs(float(c0)), 1.0 / abs(target)) * 1e-2
+    phi0, phi1 = 1.0 / efl_at(c0), 1.0 / efl_at(c0 + step)
+    slope = (phi1 - phi0) / step
+    bad = ~torch.isfinite(slope) | (slope.abs() * abs(target) < 1e-12) if torch.is_tensor(slope) else (
+        not math.isfinite(slope) or abs(slope) * abs(target) < 1e-12)
+    if _any(bad):
+        raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: the system's power does "
+                         "not depend on it")
+    c = c0 + (1.0 / target - phi0) / slope
+    got = efl_at(c)
+    miss = ~torch.isfinite(got) | ((got / target - 1).abs() > SOLVE_TOLERANCE) if torch.is_tensor(got) else not (
+        math.isfinite(got) and abs(got / target - 1) <= SOLVE_TOLERANCE)
+    if _any(miss):
+        worst = float(got.reshape(-1)[0]) if torch.is_tensor(got) else got
+        raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: {worst:.6g} mm instead "
+                         f"of {target:.6g} mm")
+    return c
+
+
+def solve_numbers(p: Prescription, params, x, *, hold=(), solve_surface: int | None = None, image: str = "file"):
+    """:func:`solve_design` for a batch of designs as tensors (:func:`lenssim.model.lens_parameters.parameter_numbers`,
+    differentiable in ``x`` through the solves): the free ``params`` at ``x`` ``(B, P)`` or ``(P,)``, then the
+    ``efl`` solve (the same secant, in tensors) and the ``image`` plane (``file`` or ``paraxial``). Returns the
+    :class:`SequentialLens` of the batch (its :attr:`~SequentialLens.numbers` tensors ``(B, 1)``). ``fnum`` would move
+    the entrance pupil, which a batch shares, and ``best`` focus is a search: both are refused (``ValueError``)."""
+    hold = tuple(hold)
+    if "fnum" in hold or image not in ("file", "paraxial"):
+        raise ValueError("a batch of designs holds the entrance pupil and takes the image plane file or paraxial: "
+                         f"hold {', '.join(hold) or 'nothing'}, image {image!r} is not allowed")
+    params = tuple(params)
+    k = check_solves(p, params, hold=hold, solve_surface=solve_surface)
+    surfs, shift = parameter_numbers(p, params, x)
+    if "efl" in hold:
+
+        def at(c):
+            out = list(surfs)
+            out[k] = replace(out[k], curvature_per_mm=c)
+            return out
+
+        def efl_at(c):
+            if not torch.is_tensor(c):
+                c = torch.full_like(x.reshape(-1, len(params))[:, :1], c)
+            return SequentialLens(p, numbers=at(c)).paraxial().efl_mm
+
+        surfs = at(_efl_curvature(efl_at, surfs[k].curvature_per_mm, SequentialLens(p).paraxial().efl_mm, k))
+    seq = SequentialLens(p, numbers=surfs, image_shift_mm=shift)
+    if image == "paraxial":
+        seq = SequentialLens(p, numbers=surfs, image_shift_mm=shift + seq.paraxial().image_z_mm - seq.image_z_mm)
+    return seq
+
+
 def solve_design(p: Prescription, values: dict, *, hold=(), solve_surface: int | None = None,
                  image: str = "file") -> tuple[Prescription, float]:
     """The prescription of the design ``values`` (``{LensParameter or name: value}``) on the lens ``p`` with the
@@ -125,26 +187,13 @@ def solve_design(p: Prescription, values: dict, *, hold=(), solve_surface: int |
     q, shift = apply_parameters(p, values)
     par0 = SequentialLens(p).paraxial()
     if "efl" in hold:
-        target = par0.efl_mm
-        c0 = q.surfaces[k].curvature_per_mm
-        step = max(abs(c0), 1.0 / abs(target)) * 1e-2
 
         def at(c):
             surfs = list(q.surfaces)
             surfs[k] = replace(surfs[k], curvature_per_mm=c)
             return replace(q, surfaces=tuple(surfs))
 
-        phi0, phi1 = 1.0 / _efl(at(c0)), 1.0 / _efl(at(c0 + step))
-        slope = (phi1 - phi0) / step
-        if not math.isfinite(slope) or abs(slope) * abs(target) < 1e-12:
-            raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: the system's power does "
-                             "not depend on it")
-        c = c0 + (1.0 / target - phi0) / slope
-        q = at(c)
-        got = _efl(q)
-        if not (math.isfinite(got) and abs(got / target - 1) <= SOLVE_TOLERANCE):
-            raise SolveError(f"the focal length cannot be held by surface {k + 1}'s curvature: {got:.6g} mm instead "
-                             f"of {target:.6g} mm")
+        q = at(_efl_curvature(lambda c: _efl(at(c)), q.surfaces[k].curvature_per_mm, par0.efl_mm, k))
     if "fnum" in hold:
         efl = SequentialLens(q).paraxial().efl_mm
         epd = abs(efl) / par0.f_number

@@ -481,7 +481,7 @@ class SequentialPSF(PSFProvider):
         (as :meth:`extents_px`). A lower bound: 8-19% below the table's extent on the test singlet, the Cooke triplet,
         the double Gauss and a phone lens (the table also traces rays just beyond the pupil's rim), so a refusal
         from it is never wrong and a PSF it passes is checked again batch by batch (:meth:`check_fft_size`). The pupil
-        points are CPU float64 tensors, as every ray of :class:`SequentialLens` (its surfaces are Python floats)."""
+        points are CPU float64 tensors, as every ray of a :class:`SequentialLens` of floats (one design)."""
         n_rim = EXTENT_PUPIL_POINTS // 2
         t = torch.arange(n_rim, dtype=torch.float64, device=HOST) * (2 * math.pi / n_rim)
         g = torch.linspace(-1, 1, math.isqrt(EXTENT_PUPIL_POINTS - n_rim), dtype=torch.float64, device=HOST)

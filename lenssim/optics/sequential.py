@@ -46,6 +46,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -75,6 +76,11 @@ APERTURE_SLACK = 0.01
 semi-diameters are rounded to 0.1 mm)."""
 FD_STEP = 1e-7
 """Relative step (of the entrance-pupil radius) of the aiming's finite-difference Jacobian."""
+
+
+def _any(condition) -> bool:
+    """A condition on numbers that may be floats or tensors (a batch of designs): true if it holds for any."""
+    return bool(condition.any()) if torch.is_tensor(condition) else bool(condition)
 
 
 class RayTraceError(ValueError):
@@ -179,9 +185,15 @@ class SequentialLens:
     """
 
     def __init__(self, prescription: Prescription, *, image_shift_mm: float = 0.0, index_offsets=None,
-                 misalignments=None):
+                 misalignments=None, numbers=None):
         self.prescription = prescription
-        self.image_shift_mm = float(image_shift_mm)
+        self.numbers = None if numbers is None else tuple(numbers)
+        if self.numbers is None:
+            self.image_shift_mm = float(image_shift_mm)
+            self._surfs = prescription.surfaces
+        else:
+            self._surfs = self._check_numbers(prescription, self.numbers)
+            self.image_shift_mm = image_shift_mm
         self._glasses = []
         for i, s in enumerate(prescription.surfaces):
             self._glasses.append(self._material(s.material, i + 1))
@@ -197,6 +209,13 @@ class SequentialLens:
                 offsets[i] = float(dn)
         self.index_offsets = dict(sorted(offsets.items()))
         self._z = torch.tensor(prescription.vertex_z_mm, dtype=torch.float64, device=HOST)
+        if self.numbers is None:
+            self._vz = [float(z) for z in self._z]
+        else:  # each vertex from the design's own thicknesses
+            self._vz, z = [], 0.0
+            for s in self._surfs:
+                self._vz.append(z)
+                z = z + s.thickness_mm
         moved = {}
         for i, m in dict(misalignments or {}).items():
             if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(self._glasses):
@@ -221,6 +240,48 @@ class SequentialLens:
                 dec = torch.tensor([one.decentre_x_mm, one.decentre_y_mm, 0.0], dtype=torch.float64, device=HOST)
                 A, b = R @ A, R @ (b - pivot) + pivot + dec
             self._frames[i] = (A, b)
+
+    @staticmethod
+    def _check_numbers(prescription: Prescription, numbers) -> tuple:
+        """The design's surfaces (:attr:`numbers`): one per surface of ``prescription``, of the same kind, their
+        numbers floats or float64 tensors of one batch shape ``(B, 1)`` on one device."""
+        if len(numbers) != len(prescription.surfaces):
+            raise ValueError(f"numbers: {len(numbers)} surfaces given for a lens of {len(prescription.surfaces)}")
+        devices = set()
+        for i, (s, q) in enumerate(zip(numbers, prescription.surfaces)):
+            if type(s.surface_kind) is not type(q.surface_kind) and not (s.kind == q.kind == ""):
+                raise ValueError(f"numbers: surface {i + 1} is a {s.surface_kind.name}, the lens's a "
+                                 f"{q.surface_kind.name}")
+            for v in (s.curvature_per_mm, s.conic, s.thickness_mm, *s.aspheric_coefficients):
+                if torch.is_tensor(v):
+                    if v.dtype != torch.float64 or v.dim() != 2 or v.shape[1] != 1:
+                        raise ValueError(f"numbers: surface {i + 1}: a tensor number must be float64 of shape (B, 1), "
+                                         f"not {v.dtype} {tuple(v.shape)}")
+                    devices.add(v.device)
+        if len(devices) > 1:
+            raise ValueError(f"numbers: tensors on several devices ({', '.join(sorted(map(str, devices)))})")
+        return tuple(numbers)
+
+    @property
+    def batched(self) -> bool:
+        """The lens's numbers are tensors (:attr:`numbers`): a batch of ``B`` designs, rays ``(B, R, 3)``,
+        differentiable through every real-ray result."""
+        return self.numbers is not None
+
+    @property
+    def batch_size(self) -> int:
+        """``B``, the number of designs of a :attr:`batched` lens."""
+        return max(v.shape[0] for s in self._surfs for v in (s.curvature_per_mm, s.conic, s.thickness_mm,
+                                                               *s.aspheric_coefficients) if torch.is_tensor(v))
+
+    @property
+    def device(self) -> torch.device:
+        """Where the rays are traced: the numbers' device (:data:`HOST` for a lens of floats)."""
+        for s in self._surfs:
+            for v in (s.curvature_per_mm, s.conic, s.thickness_mm, *s.aspheric_coefficients):
+                if torch.is_tensor(v):
+                    return v.device
+        return HOST
 
     # -- materials -------------------------------------------------------------------------------------------------
     @staticmethod
@@ -287,8 +348,11 @@ class SequentialLens:
 
     @property
     def image_z_mm(self) -> float:
-        """The image plane (mm on the axis): the prescription's, moved by ``image_shift_mm``."""
-        return self.prescription.image_z_mm + self.image_shift_mm
+        """The image plane (mm on the axis): the prescription's, moved by ``image_shift_mm`` (a tensor ``(B, 1)`` for
+        a :attr:`batched` lens)."""
+        if self.numbers is None:
+            return self.prescription.image_z_mm + self.image_shift_mm
+        return self._vz[-1] + self._surfs[-1].thickness_mm + self.image_shift_mm
 
     def surfaces(self, wavelength_um: float | None = None) -> list[Surface]:
         """The model's :class:`lenssim.model.surface.Surface` list at ``wavelength_um`` (default the primary)."""
@@ -306,7 +370,7 @@ class SequentialLens:
         surface and the slope after each, as lists (floats)."""
         n = 1.0
         hs, us = [], []
-        surfs = self.prescription.surfaces
+        surfs = self._surfs
         for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
             n2 = self.index_after(i, lam)
             u = (n * u - h * s.paraxial_curvature_per_mm * (n2 - n)) / n2
@@ -325,7 +389,7 @@ class SequentialLens:
         ubar = 1e-3
         h_a = self._ynu(0.0, ubar, lam, k)[0][k]
         h_b = self._ynu(1.0, ubar, lam, k)[0][k]
-        if h_b == h_a:
+        if _any(h_b == h_a):
             raise PrescriptionError(f"surface {k + 1}: the stop is imaged to infinity in object space (an object-space "
                                     "telecentric lens); not supported")
         h1 = -h_a / (h_b - h_a)  # the chief ray's height at surface 1
@@ -336,14 +400,14 @@ class SequentialLens:
         lens: misalignments are left out."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         p = self.prescription
-        surfs = p.surfaces
+        surfs = self._surfs
         n_img = self.index_after(len(surfs) - 1, lam)
         hs, us = self._ynu(1.0, 0.0, lam)
         u_last, h_last = us[-1], hs[-1]
-        if u_last == 0:
+        if _any(u_last == 0):
             raise PrescriptionError("the lens is afocal (a parallel beam leaves it parallel): no focal length")
         efl = -1.0 / u_last * n_img / n_img  # f' = -h1 / u'_k (image-space focal length f' = n' f; air: equal)
-        z_last = float(self._z[-1])
+        z_last = self._vz[-1]
         bfl = -h_last / u_last
         z_ep = self._entrance_pupil_z(lam)
         r_ep = p.entrance_pupil_diameter_mm / 2
@@ -357,10 +421,21 @@ class SequentialLens:
         mh, mu = self._ynu(h0, u0, lam)
         stop_r = abs(mh[k])
         u_img = mu[-1]
-        image_z = z_last + (-mh[-1] / u_img if u_img != 0 else math.inf)
+        if torch.is_tensor(u_img):
+            if _any(u_img == 0):
+                raise PrescriptionError("a design's image of the object is at infinity (afocal in image space)")
+            image_z = z_last - mh[-1] / u_img
+        else:
+            image_z = z_last + (-mh[-1] / u_img if u_img != 0 else math.inf)
         # the chief ray (unit slope in object space through the entrance pupil's centre) in image space
         ch, cu = self._ynu(-z_ep * 1e-3, 1e-3, lam)
-        if cu[-1] == 0:
+        if torch.is_tensor(cu[-1]):
+            if _any(cu[-1] == 0):
+                raise PrescriptionError("a design's exit pupil is at infinity (telecentric in image space): a batch of "
+                                        "designs needs a finite exit pupil")
+            z_xp = z_last - ch[-1] / cu[-1]
+            d_xp = 2 * abs(mh[-1] + mu[-1] * (z_xp - z_last))
+        elif cu[-1] == 0:
             z_xp, d_xp = math.inf, math.inf
         else:
             z_xp = z_last - ch[-1] / cu[-1]
@@ -377,7 +452,8 @@ class SequentialLens:
             heights.append(chh[-1] + chu[-1] * (image_z - z_last))
         return ParaxialData(lam, efl, bfl, p.entrance_pupil_diameter_mm, z_ep, z_xp, d_xp, stop_r,
                             efl / p.entrance_pupil_diameter_mm,
-                            1 / (2 * n_img * abs(u_img)) if u_img != 0 else math.inf, image_z, tuple(heights))
+                            1 / (2 * n_img * abs(u_img)) if torch.is_tensor(u_img) or u_img != 0 else math.inf, image_z,
+                            tuple(heights))
 
     def seidel_surfaces(self, field: float, wavelength_um: float | None = None) -> torch.Tensor:
         """Seidel sums ``(S_I .. S_V)`` (mm) of each surface at ``field`` (deg or mm): ``(N, 5)``, float64; the marginal
@@ -441,7 +517,10 @@ class SequentialLens:
     def _intersect(self, P, d, s, z_v, valid):
         """Intersection with surface ``s`` (vertex at ``z_v``), by its kind: points, unit normals (towards -z),
         distances, the rays that meet it, and ``x^2 + y^2`` there."""
-        v = torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
+        if torch.is_tensor(z_v):  # a batch of designs: (B, 1) vertices, rays (B, R, 3)
+            v = torch.stack([torch.zeros_like(z_v), torch.zeros_like(z_v), z_v], dim=-1)
+        else:
+            v = torch.tensor([0.0, 0.0, z_v], dtype=P.dtype, device=P.device)
         X, N, t, ok, rho = s.surface_kind.intersect(s, P - v, d, valid)
         return X + v, N, t, ok, rho
 
@@ -459,19 +538,19 @@ class SequentialLens:
         n = 1.0
         opl = n * (P * d).sum(-1) if opl_start is None else opl_start.to(torch.float64)
         valid = torch.isfinite(P).all(-1) & torch.isfinite(d).all(-1)
-        clipped = torch.zeros(P.shape[0], dtype=torch.int64, device=P.device)
+        clipped = torch.zeros(P.shape[:-1], dtype=torch.int64, device=P.device)
         reflected = torch.zeros_like(clipped)
         inside = torch.ones_like(valid)
-        ratio = torch.zeros(P.shape[0], dtype=torch.float64, device=P.device)
-        surfs = self.prescription.surfaces
+        ratio = torch.zeros(P.shape[:-1], dtype=torch.float64, device=P.device)
+        surfs = self._surfs
         stop = self.prescription.stop_index
         for i, s in enumerate(surfs if upto is None else surfs[:upto + 1]):
             frame = self._frames.get(i)
             if frame is None:
-                X, N, t, ok, rho = self._intersect(P, d, s, float(self._z[i]), valid)
+                X, N, t, ok, rho = self._intersect(P, d, s, self._vz[i], valid)
             else:  # in the surface's nominal frame (its motion undone), then back: distances and angles kept
                 A, b = frame
-                X, N, t, ok, rho = self._intersect((P - b) @ A, d @ A, s, float(self._z[i]), valid)
+                X, N, t, ok, rho = self._intersect((P - b) @ A, d @ A, s, self._vz[i], valid)
                 X = X @ A.T + b
                 N = N @ A.T
             if s.semi_diameter_mm is not None and i != stop:
@@ -498,10 +577,13 @@ class SequentialLens:
         p = self.prescription
         if p.object_at_infinity:
             a = math.radians(field)
-            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64, device=x.device).expand(x.shape[0], 3)
-            P = torch.stack([x, y, torch.full_like(x, z_start)], dim=-1)
+            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64, device=x.device).expand(*x.shape, 3)
+            z = z_start.expand_as(x) if torch.is_tensor(z_start) else torch.full_like(x, z_start)
+            P = torch.stack([x, y, z], dim=-1)
             return P, d, None
         O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64, device=x.device)
+        if self.numbers is not None:  # surface 1's vertex is at z = 0 whatever the design: the object does not move
+            O = O.expand(*x.shape, 3)
         target = torch.stack([x, y, torch.zeros_like(x)], dim=-1)
         d = target - O
         P = O.expand_as(d)
@@ -516,13 +598,16 @@ class SequentialLens:
         par = self.paraxial(lam)
         if self.prescription.stop_size == "paraxial":
             return par.stop_radius_mm
-        one = torch.ones(1, dtype=torch.float64, device=HOST)
+        one = torch.ones(1, dtype=torch.float64, device=self.device)
         P, d, o = self.aim(0.0, 0 * one, one, lam, method="paraxial")
         b = self.trace(P, d, lam, upto=self.prescription.stop_index, opl_start=o, vignette=False)
         if not bool(b.valid.all()):
             raise RayTraceError(f"the axial ray through the entrance pupil's rim ({lam:g} um) does not reach the stop "
                                 f"(surface {self.prescription.stop_surface}): the stop cannot be sized by real rays")
-        return float(self._to_local(self.prescription.stop_index, b.points)[0, :2].norm())
+        local = self._to_local(self.prescription.stop_index, b.points)
+        if self.numbers is not None:
+            return local[..., :2].norm(dim=-1)  # (B, 1)
+        return float(local[0, :2].norm())
 
     def aim(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
             method: str = "real"):
@@ -532,18 +617,27 @@ class SequentialLens:
         :class:`RayTraceError`). ``method``: ``"real"`` (each ray meets the stop surface at
         ``(px, py)`` times the stop's radius,
         in the stop's own frame if it is decentred or tilted; Newton on real rays) or ``"paraxial"`` (through the
-        paraxial entrance pupil at ``(px, py)`` times its radius)."""
+        paraxial entrance pupil at ``(px, py)`` times its radius).
+
+        A :attr:`batched` lens gives rays ``(B, R, 3)`` (its device), the same pupil points for every design; the
+        real aiming's Newton steps run without a gradient and one last step carries it (the implicit function
+        theorem: at convergence the aimed ray's derivative in the design's numbers is ``-J^-1 dr/dnumbers``, ``J`` the
+        stop point's Jacobian in the ray), leaving the rays' values those of the converged search."""
         if method not in AIM_METHODS:
             raise ValueError(f"ray aiming {method!r} is not known; one of {', '.join(AIM_METHODS)}")
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         p = self.prescription
         par = self.paraxial(lam)
         r_ep = p.entrance_pupil_diameter_mm / 2
+        batch = self.numbers is not None
         px = px.to(torch.float64).reshape(-1)
         py = py.to(torch.float64).reshape(-1)
+        if batch:
+            px, py = px.to(self.device), py.to(self.device)
         z_ep = par.entrance_pupil_z_mm
         if p.object_at_infinity:
-            z_start = min(0.0, z_ep) - r_ep  # a plane before the lens and the entrance pupil
+            # a plane before the lens and the entrance pupil
+            z_start = (torch.clamp(z_ep, max=0.0) if torch.is_tensor(z_ep) else min(0.0, z_ep)) - r_ep
             t = math.tan(math.radians(field))
             x0, y0 = px * r_ep, py * r_ep + (z_start - z_ep) * t
         else:
@@ -551,35 +645,56 @@ class SequentialLens:
             s = p.object_distance_mm / (p.object_distance_mm + z_ep)  # from the object through the pupil to z = 0
             x0 = px * r_ep * s
             y0 = -field + (py * r_ep + field) * s
+        if batch:  # every design's rays (B, R)
+            shape = (self.batch_size, px.shape[0])
+            x0, y0 = torch.broadcast_to(x0, shape), torch.broadcast_to(y0, shape)
         x, y = x0.clone(), y0.clone()
         if method == "paraxial":
             return self._beam(field, x, y, lam, z_start)
         k = p.stop_index
         stop_r = self.aimed_stop_radius_mm(lam)
-        target = torch.stack([px, py], dim=-1) * stop_r
+        target = torch.stack([px, py], dim=-1) * (stop_r.unsqueeze(-1) if torch.is_tensor(stop_r) else stop_r)
 
         def at_stop(xv, yv):
             P, d, o = self._beam(field, xv, yv, lam, z_start)
             b = self.trace(P, d, lam, upto=k, opl_start=o, vignette=False)
-            return self._to_local(k, b.points)[:, :2], b.valid  # in the stop's own frame if it is misaligned
+            return self._to_local(k, b.points)[..., :2], b.valid  # in the stop's own frame if it is misaligned
 
         h = FD_STEP * r_ep
-        for _ in range(AIM_ITERATIONS):
+
+        def newton_step(s0, ok, r):
+            """The Newton step ``J^-1 r`` (where it can be taken, else 0) at ``(x, y)``, ``J`` by differences (no
+            gradient: only ``r`` may carry one)."""
+            with torch.no_grad():
+                s0 = s0.detach()
+                sx, okx = at_stop(x + h, y)
+                sy, oky = at_stop(x, y + h)
+                J = torch.stack([(sx - s0) / h, (sy - s0) / h], dim=-1)  # (R, 2 [stop xy], 2 [x, y])
+                det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+                good = ok & okx & oky & (det.abs() > 0)
+                det = torch.where(good, det, torch.ones_like(det))
+            dx = (J[..., 1, 1] * r[..., 0] - J[..., 0, 1] * r[..., 1]) / det
+            dy = (-J[..., 1, 0] * r[..., 0] + J[..., 0, 0] * r[..., 1]) / det
+            return torch.where(good, dx, torch.zeros_like(dx)), torch.where(good, dy, torch.zeros_like(dy))
+
+        grad = batch and torch.is_grad_enabled()
+        with torch.no_grad() if grad else contextlib.nullcontext():
+            converged = False
+            for _ in range(AIM_ITERATIONS):
+                s0, ok = at_stop(x, y)
+                r = s0 - target
+                if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok).all()):
+                    converged = True
+                    break
+                dx, dy = newton_step(s0, ok, r)
+                x = x - dx
+                y = y - dy
+        if grad:  # the implicit step: zero in value, -J^-1 dr/dnumbers in derivative
             s0, ok = at_stop(x, y)
-            r = s0 - target
-            if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok).all()):
-                break
-            sx, okx = at_stop(x + h, y)
-            sy, oky = at_stop(x, y + h)
-            J = torch.stack([(sx - s0) / h, (sy - s0) / h], dim=-1)  # (R, 2 [stop xy], 2 [x, y])
-            det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-            good = ok & okx & oky & (det.abs() > 0)
-            det = torch.where(good, det, torch.ones_like(det))
-            dx = (J[:, 1, 1] * r[:, 0] - J[:, 0, 1] * r[:, 1]) / det
-            dy = (-J[:, 1, 0] * r[:, 0] + J[:, 0, 0] * r[:, 1]) / det
-            x = x - torch.where(good, dx, torch.zeros_like(dx))
-            y = y - torch.where(good, dy, torch.zeros_like(dy))
-        else:
+            dx, dy = newton_step(s0, ok, s0 - target)
+            x = x - (dx - dx.detach())
+            y = y - (dy - dy.detach())
+        if not converged:
             s0, ok = at_stop(x, y)
             bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * stop_r)
             if bool(bad.any()):
@@ -605,47 +720,63 @@ class SequentialLens:
         go), through the chief ray's point on the paraxial exit pupil's plane (a plane there if the exit pupil is at
         infinity: then the chief ray's point is the reference). ``vignette=False``: the OPD also where a ray crosses
         a semi-diameter (the surfaces extended), ``valid`` still False there (the smooth continuation of the wavefront
-        beyond the vignetting's edge)."""
+        beyond the vignetting's edge).
+
+        A :attr:`batched` lens gives every design's map at once: ``opd_waves``, ``valid (B, R)``, ``chief_mm (B, 3)``,
+        ``image_mm (B, R, 3)``, the radius ``(B,)``, differentiable in the design's numbers; ``reference_mm`` may then
+        hold tensors ``(B,)``."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         par = self.paraxial(lam)
         n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
-        zero = torch.zeros(1, dtype=torch.float64, device=px.device)
+        batch = self.numbers is not None
+        dev = self.device if batch else px.device
+        zero = torch.zeros(1, dtype=torch.float64, device=dev)
         P0, d0, o0 = self.aim(field, zero, zero, lam, aim)
         chief = self.trace(P0, d0, lam, opl_start=o0)
         if not bool(chief.valid.all()):
-            where = int(chief.clipped_at[0])
+            where = int(chief.clipped_at.reshape(-1)[int(torch.nonzero(~chief.valid.reshape(-1))[0])])
             raise RayTraceError(f"field {field:g}: the chief ray does not pass (stopped at surface {where}: its "
                                 "semi-diameter, a missed surface or total internal reflection)")
         P, d, o = self.aim(field, px, py, lam, aim)
         rays = self.trace(P, d, lam, opl_start=o, vignette=vignette)
         z_img = self.image_z_mm
-        cp, cd = chief.points[0], chief.directions[0]
-        Q = cp + ((z_img - cp[2]) / cd[2]) * cd
         z_xp = par.exit_pupil_z_mm
+        if batch:  # as (B, 1) tensors whichever numbers are free
+            z_img, z_xp = (torch.as_tensor(v, dtype=torch.float64, device=dev).expand(self.batch_size, 1)
+                           for v in (z_img, z_xp))
+        cp, cd = chief.points[..., 0, :], chief.directions[..., 0, :]  # (3,), or (B, 3) for a batch
+        Q = cp + ((z_img - cp[..., 2:]) / cd[..., 2:]) * cd
+        finite_xp = True if torch.is_tensor(z_xp) else math.isfinite(z_xp)  # a batch's is finite (paraxial())
         if reference_mm is not None:
-            if not math.isfinite(z_xp):
+            if not finite_xp:
                 raise ValueError("reference_mm needs an exit pupil at a finite distance (this lens is telecentric in "
                                  "image space)")
-            Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64, device=px.device)
-        if math.isfinite(z_xp):
-            E = cp + ((z_xp - cp[2]) / cd[2]) * cd
-            R2 = ((Q - E) ** 2).sum()
-            rc = chief.opl[0] + n_img * ((E - cp) * cd).sum()  # the chief ray's path to the sphere (at E)
-            b = ((rays.points - Q) * rays.directions).sum(-1)
-            c = ((rays.points - Q) ** 2).sum(-1) - R2
+            if batch:
+                rx, ry = (torch.as_tensor(v, dtype=torch.float64, device=dev).reshape(-1, 1) for v in reference_mm)
+                Q = torch.cat([rx.expand_as(z_img), ry.expand_as(z_img), z_img], dim=-1)
+            else:
+                Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64,
+                                 device=px.device)
+        Qr = Q.unsqueeze(-2)  # against the rays (R, 3) or (B, R, 3)
+        if finite_xp:
+            E = cp + ((z_xp - cp[..., 2:]) / cd[..., 2:]) * cd
+            R2 = ((Q - E) ** 2).sum(-1, keepdim=True)
+            rc = chief.opl[..., :1] + n_img * ((E - cp) * cd).sum(-1, keepdim=True)  # the chief ray's path to the sphere
+            b = ((rays.points - Qr) * rays.directions).sum(-1)
+            c = ((rays.points - Qr) ** 2).sum(-1) - R2
             root = torch.sqrt(torch.clamp(b * b - c, min=0.0))
-            s_plane = (z_xp - rays.points[:, 2]) / rays.directions[:, 2]
+            s_plane = (z_xp - rays.points[..., 2]) / rays.directions[..., 2]
             s1, s2 = -b - root, -b + root
             s = torch.where((s1 - s_plane).abs() <= (s2 - s_plane).abs(), s1, s2)
             valid = rays.valid & (b * b - c >= 0)
-            radius = float(torch.sqrt(R2))
+            radius = torch.sqrt(R2)[..., 0] if batch else float(torch.sqrt(R2))
         else:  # image-space telecentric: the reference "sphere" is the plane through the chief ray normal to it
-            rc = chief.opl[0]
-            s = ((cp - rays.points) * cd).sum(-1) / (rays.directions * cd).sum(-1)
+            rc = chief.opl[..., :1]
+            s = ((cp.unsqueeze(-2) - rays.points) * cd.unsqueeze(-2)).sum(-1) / (rays.directions * cd.unsqueeze(-2)).sum(-1)
             valid = rays.valid
             radius = math.inf
         W = (rc - (rays.opl + n_img * s)) / (lam * 1e-3)
-        img = rays.points + ((z_img - rays.points[:, 2]) / rays.directions[:, 2]).unsqueeze(-1) * rays.directions
+        img = rays.points + ((z_img - rays.points[..., 2]) / rays.directions[..., 2]).unsqueeze(-1) * rays.directions
         W = torch.where(valid, W, torch.full_like(W, math.nan))  # traced (through extended surfaces if not vignette)
         valid = valid & rays.passed
         return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
