@@ -109,6 +109,25 @@ def cooke_triplet_rays():
 
 
 @case
+def cooke_triplet_batched_rays():
+    """A batch of designs as tensors (the real aiming, trace, fit and cost of the batched route)."""
+    from lenssim.model.lens_parameters import parse_parameter
+    from lenssim.optics.cost import lens_cost
+    from lenssim.optics.exact_wavefront import lens_exact_coefficients
+    from lenssim.optics.lens_solves import solve_numbers
+
+    p, _ = _lens(COOKE)
+    p = dataclasses.replace(p, wavelengths_um=(p.primary_wavelength_um,), fields=(0.0, 6.0))
+    pars = [parse_parameter(p, n, aspherize=(6,)) for n in ("E1.bending", "S6.conic")]
+    x = torch.tensor([[0.8, 0.0], [0.85, -0.3]], dtype=torch.float64)
+
+    def call():
+        seq = solve_numbers(p, pars, x, hold=("efl",))
+        return lens_exact_coefficients(seq, p.fields, p.wavelengths_um), lens_cost(seq)
+    return call
+
+
+@case
 def cooke_triplet_psfs():
     from lenssim.optics.psf_bank import image_scale_mm, psfs_from_table, wavefront_table
 
