@@ -688,6 +688,19 @@ def _as_built_report(built, seed) -> dict:
             "units": {k: u for k, (_, u) in lens.variables().items()}}
 
 
+def _method_columns(names, mean, chain, angles) -> dict:
+    """A psnr-table row's method, chain and score columns: the first method's ``psnr_restored_db`` and
+    ``ssim_restored`` (the table's columns with one method), and with several methods ``psnr_NAME_db`` and
+    ``ssim_NAME`` of each."""
+    out = {"method": " ".join(names), **_chain_columns(chain), "angles_deg": " ".join(f"{a:g}" for a in angles),
+           "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(names[0], "psnr_db"),
+           "ssim_restored": mean(names[0], "ssim")}
+    if len(names) > 1:
+        for m in names:
+            out[f"psnr_{m}_db"], out[f"ssim_{m}"] = mean(m, "psnr_db"), mean(m, "ssim")
+    return out
+
+
 def cmd_psnr_table(args) -> int:
     from lenssim.io.files import check_output_dir, staged_output_dir
     from pipeline import crop_at_field_angle, simulate_crops
@@ -713,16 +726,21 @@ def cmd_psnr_table(args) -> int:
     camera = PAPER_CAMERA
     wells = [_iso_well(table, i, args) for i in args.isos]
     from pipeline.restoration import parse_restoration
+    from pipeline.simulate import check_methods
 
-    spec = parse_restoration(args.method or args.restore)
-    spec.check(PAPER_SCHEME)  # the windows psnr-table restores in
+    specs = check_methods([parse_restoration(m) for m in ([args.method] if args.method else args.restore)],
+                          scheme=PAPER_SCHEME)  # the windows psnr-table restores in
     if args.method is not None:  # after the check: an error stays one line
         print("note: --method is the former name of --restore", file=sys.stderr)
+    spec, names = specs[0], [r.name for r in specs]
     method = spec.name
     lens = None
     if args.as_built is not None:
         if args.as_built < 0:
             raise ValueError(f"--as-built {args.as_built} is not allowed: a seed >= 0")
+        if len(specs) > 1:
+            raise ValueError(f"--as-built compares the nominal and the lens's own PSFs with one restoration; "
+                             f"{len(specs)} were given ({', '.join(names)}): give one with --restore")
         lens = tolerances_from_args(args).sample(1, seed=args.as_built)
     out = check_output_dir(args.out, _inputs(photos))
     rows = []
@@ -757,7 +775,7 @@ def cmd_psnr_table(args) -> int:
             nominal = LensPSF(camera, d)
             blur = nominal if lens is None else AsBuiltPSF(camera, d, lens)
             with _window_bar(f"{source} | {name}") as bar:
-                per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=(spec,),
+                per_iso = simulate_crops(ideal, blur, wells, boxes, seed=args.seed, methods=specs,
                                          sensor=chain or camera.sensor, restoration_psf=nominal, progress=bar.update,
                                          progress_total=bar.reset, blur_zones="auto")
             calibrated = None if lens is None else simulate_crops(ideal, blur, wells, boxes, seed=args.seed,
@@ -765,11 +783,8 @@ def cmd_psnr_table(args) -> int:
                                                                   blur_zones="auto")
             for j, (iso, res) in enumerate(zip(args.isos, per_iso)):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
-                rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso, "method": method,
-                             **_chain_columns(chain),
-                             "angles_deg": " ".join(f"{a:g}" for a in angles),
-                             "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
-                             "ssim_restored": mean(method, "ssim")})
+                rows.append({"photo": source, "design": name, **d.complete().floats(), "iso": iso,
+                             **_method_columns(names, mean, chain, angles)})
                 if calibrated is not None:  # the lens restored with its own PSFs; the columns above: nominal PSFs
                     cal = calibrated[j]
                     rows[-1].update({"as_built_seed": args.as_built,
@@ -779,21 +794,18 @@ def cmd_psnr_table(args) -> int:
         for ns, psf, angles, boxes in lens_jobs:
             name = lens_label(ns)
             with _window_bar(f"{source} | {name}") as bar:
-                per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=(spec,),
+                per_iso = simulate_crops(ideal, psf, wells, boxes, seed=args.seed, methods=specs,
                                          sensor=chain or psf.sensor, progress=bar.update, progress_total=bar.reset,
                                          blur_zones="auto")
             for iso, res in zip(args.isos, per_iso):
                 mean = lambda kind, key, res=res: sum(r.scores[kind][key] for r in res) / len(res)  # noqa: E731
                 rows.append({"photo": source, "design": name, "lens_file": ns.lens,
-                             "pixel_pitch_um": round(psf.sensor.pixel_pitch_um, 6), "iso": iso, "method": method,
-                             **_chain_columns(chain),
-                             "angles_deg": " ".join(f"{a:g}" for a in angles),
-                             "psnr_sensor_db": mean("sensor", "psnr_db"), "psnr_restored_db": mean(method, "psnr_db"),
-                             "ssim_restored": mean(method, "ssim")})
+                             "pixel_pitch_um": round(psf.sensor.pixel_pitch_um, 6), "iso": iso,
+                             **_method_columns(names, mean, chain, angles)})
                 print(f"{source} | {name} | ISO {iso}: restored {rows[-1]['psnr_restored_db']:.2f} dB", file=sys.stderr)
     for r in rows:
         for k in ("psnr_sensor_db", "psnr_restored_db", "ssim_restored", "psnr_restored_calibrated_db",
-                  "ssim_restored_calibrated"):
+                  "ssim_restored_calibrated", *(f"{q}_{m}{u}" for m in names for q, u in (("psnr", "_db"), ("ssim", "")))):
             if k in r and not math.isfinite(r[k]):
                 raise ValueError(f"{k} of {r['photo']} / {r['design']} / ISO {r['iso']} is not finite (identical "
                                  "images?): not written")
@@ -805,19 +817,31 @@ def cmd_psnr_table(args) -> int:
     csv_module.writer(buf, lineterminator="\n").writerows([keys] + [[r.get(k, "") for k in keys] for r in rows])
     where = (f"at {', '.join(f'{a:g}' for a in args.angles)} deg" if args.angles is not None
              else "at the angles that fit each photo (column angles_deg of the CSV)")
+    label = lambda r: r.method.label + (f" ({', '.join(f'{k}={v}' for k, v in r.options.items())})"  # noqa: E731
+                                        if r.options else "")
+    if len(specs) == 1:
+        head = "| PSNR restored [dB] | SSIM restored |"
+        cells = lambda r: f" {r['psnr_restored_db']:.2f} | {r['ssim_restored']:.3f} |"  # noqa: E731
+    else:  # a column per method
+        head = "".join(f"| PSNR {m} [dB] " for m in names) + "".join(f"| SSIM {m} " for m in names) + "|"
+        cells = lambda r: ("".join(f" {r[f'psnr_{m}_db']:.2f} |" for m in names)  # noqa: E731
+                           + "".join(f" {r[f'ssim_{m}']:.3f} |" for m in names))
+    worse = [(r, m) for r in rows for m in names
+             if r[f"psnr_{m}_db" if len(specs) > 1 else "psnr_restored_db"] < r["psnr_sensor_db"]]
     md = (f"Mean over crops {where} ({args.crop} px), sRGB PSNR/SSIM vs the "
-          f"ideal image; restoration: {spec.method.label}"
-          + (f" ({', '.join(f'{k}={v}' for k, v in spec.options.items())})" if spec.options else "") + ".\n\n"
+          f"ideal image; restoration: {'; '.join(label(r) for r in specs)}.\n\n"
           + (f"One manufactured lens per design (--as-built {args.as_built}): restored with the nominal PSFs and with "
              "the lens's own (calibrated).\n\n" if lens is not None else "")
           + (f"Camera chain: {chain.label()}.\n\n" if chain is not None else "")
-          + ("| photo | design | ISO | PSNR sensor [dB] | PSNR restored [dB] | SSIM restored |"
-             + (" PSNR calibrated [dB] | SSIM calibrated |" if lens is not None else "") + "\n|---|---|---|---|---|---|"
-             + ("---|---|" if lens is not None else "") + "\n")
-          + "".join(f"| {_photo_name(r['photo'])} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} | {r['psnr_restored_db']:.2f} | "
-                    f"{r['ssim_restored']:.3f} |"
+          + ("| photo | design | ISO | PSNR sensor [dB] " + head
+             + (" PSNR calibrated [dB] | SSIM calibrated |" if lens is not None else "")
+             + "\n|---|---|---|---|" + "---|" * (2 * len(specs)) + ("---|---|" if lens is not None else "") + "\n")
+          + "".join(f"| {_photo_name(r['photo'])} | {r['design']} | {r['iso']} | {r['psnr_sensor_db']:.2f} |" + cells(r)
                     + (f" {r['psnr_restored_calibrated_db']:.2f} | {r['ssim_restored_calibrated']:.3f} |" if lens is not None
-                       else "") + "\n" for r in rows))
+                       else "") + "\n" for r in rows)
+          + ("".join(f"\nNote: {m} restored {_photo_name(r['photo'])} / {r['design']} / ISO {r['iso']} below its sensor "
+                     f"image ({r[f'psnr_{m}_db' if len(specs) > 1 else 'psnr_restored_db']:.2f} dB against "
+                     f"{r['psnr_sensor_db']:.2f} dB)." for r, m in worse) + "\n" if worse else ""))
     with staged_output_dir(out) as stage:
         for name, text in (("psnr_table.csv", buf.getvalue()), ("psnr_table.md", md)):
             atomic_write_text(stage / name, text)
@@ -958,8 +982,9 @@ def register(sub) -> None:
     t.add_argument("--designs-file", metavar="FILE", help="TOML file of named designs (added to the built-in ones)")
     t.add_argument("--isos", type=int, nargs="+", default=None,
                    help=f"ISOs (default: the sensor's, highest first; the paper's {' '.join(map(str, sorted(isos, reverse=True)))})")
-    t.add_argument("--restore", default="wiener", metavar="NAME[:KEY=VALUE,...]",
-                   help=f"restoration method and its options ({methods}; default: wiener)")
+    t.add_argument("--restore", nargs="+", default=["wiener"], metavar="NAME[:KEY=VALUE,...]",
+                   help=f"restoration methods and their options ({methods}; default: wiener); several: a column "
+                        "each")
     t.add_argument("--method", default=None, help="former name of --restore")
     t.add_argument("--angles", type=float, nargs="+", default=None,
                    help=f"crop field angles (deg); default {' '.join(f'{a:g}' for a in TABLE_ANGLES_DEG)}, those that fit "

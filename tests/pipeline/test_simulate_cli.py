@@ -108,6 +108,32 @@ def test_psnr_table(tmp_path, capsys):
     assert main(["psnr-table", "--designs", "nope", "--out", str(out)]) == 2
 
 
+def test_the_psnr_table_gets_a_column_per_restoration_and_notes_a_restoration_below_the_sensor_image(tmp_path, capsys):
+    """Several --restore methods (issue 45, item 3): one PSNR and SSIM column each, the same numbers as each method
+    alone (the same noise draw), and a note wherever a method restores below the sensor image (tikhonov with almost
+    no regularisation amplifies the noise)."""
+    import csv
+
+    args = ["psnr-table", "skimage:camera", "--designs", "end_to_end_paper", "--isos", "100", "--angles", "0",
+            "--crop", "64"]
+    assert main([*args, "--restore", "wiener", "tikhonov:weight=1e-7", "--out", str(tmp_path / "both")]) == 0
+    assert main([*args, "--out", str(tmp_path / "one")]) == 0
+    (both,) = csv.DictReader((tmp_path / "both" / "psnr_table.csv").read_text().splitlines())
+    (one,) = csv.DictReader((tmp_path / "one" / "psnr_table.csv").read_text().splitlines())
+    assert both["method"] == "wiener tikhonov" and one["method"] == "wiener"
+    assert float(both["psnr_wiener_db"]) == float(both["psnr_restored_db"]) == float(one["psnr_restored_db"])
+    assert float(both["ssim_wiener"]) == float(one["ssim_restored"])
+    assert float(both["psnr_tikhonov_db"]) < float(both["psnr_sensor_db"]) < float(both["psnr_wiener_db"])
+    md = (tmp_path / "both" / "psnr_table.md").read_text()
+    assert "| PSNR wiener [dB] | PSNR tikhonov [dB] | SSIM wiener | SSIM tikhonov |" in md
+    assert "Note: tikhonov restored skimage:camera / end_to_end_paper / ISO 100 below its sensor image" in md
+    assert "Note:" not in (tmp_path / "one" / "psnr_table.md").read_text()
+    assert main([*args, "--restore", "wiener", "wiener", "--out", str(tmp_path / "dup")]) == 2
+    assert "given more than once" in capsys.readouterr().err
+    assert main([*args, "--restore", "wiener", "tikhonov", "--as-built", "1", "--out", str(tmp_path / "ab")]) == 2
+    assert "--as-built compares the nominal and the lens's own PSFs with one restoration" in capsys.readouterr().err
+
+
 def test_fig8_mosaic(tmp_path):
     out = tmp_path / "f8"
     assert main(["fig8", "skimage:camera", "--angles", "0", "--crop", "48", "--out", str(out)]) == 0
