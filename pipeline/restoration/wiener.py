@@ -18,11 +18,11 @@ blended linearly) and for every channel:
 With no blur (``H = 1``) and no noise (``NoiseModel(math.inf)``) this is the identity.
 
 The window's deviation from its local mean, ``y - mu``, is tapered to zero towards the window's edges before the
-transform (a raised cosine over the outer :data:`WIENER_TAPER` of the window's side at each end, never reaching the
-core; option ``taper``, 0: the paper's plain window). The transform treats the window as periodic: without the taper
+transform (a raised cosine over the outer :data:`WIENER_TAPER_PX` px along each edge, never reaching the core; option
+``taper``, in px, 0: the paper's plain window). The transform treats the window as periodic: without the taper
 the jump between a bright structure at one edge of the window and a dark region at the opposite edge is restored as
 if it were an edge of the scene, and the filter, close to the inverse filter where the signal is strong, rings from it
-into the core (see :data:`WIENER_TAPER` for the measurements).
+into the core (see :data:`WIENER_TAPER_PX` for the measurements).
 
 Option ``local="pixel"`` (``wiener:local=pixel``): a per-pixel adaptive signal variance. Local variance maps over
 ``pixel_stats`` x ``pixel_stats`` px boxes (kornia ``box_blur`` over each window's core and its halo) give each pixel's
@@ -54,7 +54,7 @@ from ..checks import check_image
 from . import RestorationMethod, register
 
 __all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
-           "WIENER_PIXEL_STATS_PX", "WIENER_TAPER", "window_taper"]
+           "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX", "window_taper"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
@@ -77,30 +77,38 @@ sharp photo near the axis (scikit-image's astronaut at ISO 100, supports of 20-4
 restored SSIM by -0.0043 and PSNR by -0.025 dB from 512 px windows, 320 px by -0.0012 / -0.011 dB, 384 px by -0.0002
 / -0.004 dB, 448 px by -0.0003 / -0.001 dB (issue 33's bounds: 0.001 and 0.02 dB)."""
 
-WIENER_TAPER = 0.25
-"""Fraction of a window's side, at each end, over which the window's deviation from its local mean is tapered to zero
-(raised cosine) before the filter's transform, so that the periodic window the transform assumes has no jump at its
-edges; capped at ``(window - core) / 2`` so the core is never tapered. Root cause of issue 45's "restored below the
-sensor image": on the pier sunset photo (RMS_W design, 10 deg, crop rows 3259-3515, cols 4954-5210) a bright band
-(linear ~0.07) at the top of the crop's 384 px windows faced their dark bottom (~0.004) across the periodic wrap, and
-the restored crop rang with a period of ~37 px: ISO 100 27.84 dB against the sensor image's 30.60, ISO 400 29.33 against
-29.19; fixed 512 / 1024 px windows without a taper gave 29.87 / 31.32 (ISO 100); smaller statistics boxes only hid
-it by regularising more (32 px: 30.68, at -1.25 dB on the centre crop). With the taper over the outer 0.15 / 0.25 of
-each side: 31.88 / 32.26 dB (ISO 400: 32.25). On the frame's corner crops (pier, portrait; both designs; ISO 100 and
-400) the fractions 0.15 / 0.25 / 0.35 were within 0.45 dB of each other, 0.25 at most 0.22 dB below the best of the
-three; the centre crops of the three photos moved by 0.02 dB or less. Blending the edges with the circularly blurred
-window instead (MATLAB's ``edgetaper``) scored within 0.35 dB of the plain taper, at two more transforms per window."""
+WIENER_TAPER_PX = 96
+"""Width (px) of the band along each edge of a window over which the window's deviation from its local mean is tapered
+to zero (raised cosine) before the filter's transform, so that the periodic window the transform assumes has no jump
+at its edges; at most a quarter of a smaller window's side, and ``(window - core) / 2``, so the core is never tapered.
+
+Root cause of issue 45's "restored below the sensor image": on the pier sunset photo (RMS_W design, 10 deg, crop rows
+3259-3515, cols 4954-5210) a bright band (linear ~0.07) at the top of the crop's 384 px windows faced their dark
+bottom (~0.004) across the periodic wrap, and the restored crop rang with a period of ~37 px: ISO 100 27.84 dB against
+the sensor image's 30.60, ISO 400 29.33 against 29.19; fixed 512 / 1024 px windows without a taper gave 29.87 / 31.32
+(ISO 100); smaller statistics boxes only hid it by regularising more (32 px: 30.68, at -1.25 dB on the centre crop).
+Tapering 48 / 56 / 64 / 96 px: 30.90 / 31.54 / 31.88 / 32.26 dB (ISO 400 with 96 px: 32.25). On a synthetic band over
+a dark region (tests/pipeline/test_restoration_edges.py) 48 and 56 px still left a crop below the sensor image
+(39.58 / 40.90 dB against 43.60); 96 px none. On the frame's corner crops (pier, portrait; both designs; ISO 100 and
+400) 15 / 25 / 35 % of a 384 px window's side were within 0.45 dB of each other, 25 % (96 px) at most 0.22 dB below
+the best; the centre crops of the three photos moved by 0.02 dB or less. The cost: tapered data near the window's edges
+no longer reach the core. On the astronaut frame of ``tests/pins.json`` (sharp, 280-1000 px off axis, ISO 100) 56 / 96
+px moved the restored PSNR by -0.016 / -0.026 dB and SSIM by -0.0028 / -0.0045, and the 384 px windows fitted to the
+PSF fell 0.0011 / 0.0020 in SSIM below 512 px windows with the same band (48 px: 0.0009; issue 33 bounds the plain
+filter's to 0.001). Blending the edges with the circularly blurred window instead (MATLAB's ``edgetaper``) scored
+within 0.35 dB of the plain taper at two more transforms per window; the periodic-plus-smooth decomposition (Moisan
+2011, the smooth part left unfiltered) 31.20 dB on the pier crop and -0.74 dB on the astronaut frame."""
 
 WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
 
 
-def window_taper(window: int, core: int, fraction: float, dtype=torch.float64, device=HOST) -> torch.Tensor:
-    """The ``(window, window)`` separable raised-cosine taper: 1 over the centre, falling to near 0 over the outer
-    ``round(fraction * window)`` px of each side (at most ``(window - core) / 2``, so the central ``core`` px stay 1);
-    all ones for ``fraction = 0``."""
-    n = min(int(round(fraction * window)), (window - core) // 2)
+def window_taper(window: int, core: int, width: int, dtype=torch.float64, device=HOST) -> torch.Tensor:
+    """The ``(window, window)`` separable raised-cosine taper: 1 over the centre, ``0.5 - 0.5 cos(pi (i + 1/2) / n)``
+    at the ``i``-th pixel from each edge, over the outer ``n = min(width, window / 4, (window - core) / 2)`` px of each
+    side (so the central half of a small window and the ``core`` px stay 1); all ones for ``width = 0``."""
+    n = min(int(width), window // 4, (window - core) // 2)
     t = torch.ones(window, dtype=torch.float64, device=HOST)
     if n > 0:
         ramp = 0.5 - 0.5 * torch.cos(math.pi * (torch.arange(n, dtype=torch.float64, device=HOST) + 0.5) / n)
@@ -113,7 +121,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
                     pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None,
-                    taper: float = WIENER_TAPER) -> torch.Tensor:
+                    taper: int = WIENER_TAPER_PX) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with the noise ``noise``
     describes (:class:`pipeline.camera_chain.NoiseModel`: a camera chain's ``noise_model()``, or
     ``NoiseModel(electrons_per_unit)`` for photon noise alone, ``math.inf``: none).
@@ -121,7 +129,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     ``fit`` (default ``scheme.fit``): each window's transform sized to the local PSF's support plus the core as the
     blur's are (:func:`pipeline.blur.fitted_windows`), but at least :data:`WIENER_FIT_LEAST_PX`, its statistics still
     over the central ``stats`` px (docs/performance.md); off where ``stats`` is over that size. ``taper``: the
-    fraction of each window's side, at each end, over which ``y - mu`` is tapered (:data:`WIENER_TAPER`; 0: none).
+    width (px) of the band along each edge of a window over which ``y - mu`` is tapered (:data:`WIENER_TAPER_PX`; 0:
+    none).
     Returns the same shape.
     """
     check_image(observed, "observed")
@@ -135,8 +144,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
             and pixel_stats % 2 == 1 and pixel_stats <= scheme.window - scheme.core):
         raise ValueError(f"pixel_stats={pixel_stats!r} is not allowed: an odd number of px, >= 3 and at most the "
                          f"window less the core ({scheme.window - scheme.core})")
-    if isinstance(taper, bool) or not (isinstance(taper, (int, float)) and 0 <= taper < 0.5):
-        raise ValueError(f"taper={taper!r} is not allowed: a fraction of the window's side in [0, 0.5)")
+    if isinstance(taper, bool) or not (isinstance(taper, int) and taper >= 0):
+        raise ValueError(f"taper={taper!r} is not allowed: a width in px, an integer >= 0 (0: no taper)")
     fit = scheme.fit if fit is None else fit
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
@@ -235,7 +244,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
 
 
 def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,
-            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window", taper=WIENER_TAPER):
+            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window", taper=WIENER_TAPER_PX):
     return wiener_windowed(observed, psf, noise=noise, stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
                            progress=progress, local=local, taper=taper)
 
@@ -247,9 +256,9 @@ def _check(options, scheme):
                          + (f" ({top} px)" if top else ""))
     if not 0 < options["rho0"] < 1:
         raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
-    if not 0 <= options["taper"] < 0.5:
-        raise ValueError(f"wiener option taper={options['taper']!r} is not allowed: a fraction of the window's side "
-                         "in [0, 0.5) (0: no taper, the paper's filter)")
+    if options["taper"] < 0:
+        raise ValueError(f"wiener option taper={options['taper']!r} is not allowed: a width in px, >= 0 (0: no taper, "
+                         "the paper's filter)")
     if options["local"] not in WIENER_LOCAL:
         raise ValueError(f"wiener option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
     if scheme is not None and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:  # wiener_windowed's own rule
@@ -259,5 +268,5 @@ def _check(options, scheme):
 
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
                            _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window"),
-                                     ("taper", WIENER_TAPER)),
+                                     ("taper", WIENER_TAPER_PX)),
                            check=_check))

@@ -1,5 +1,5 @@
 """Issue 45, item 1: the default restoration is never worse than the sensor image, at every edge and corner of a
-frame, next to a bright band (the periodic window the Wiener filter's transform assumes; see WIENER_TAPER)."""
+frame, next to a bright band (the periodic window the Wiener filter's transform assumes; see WIENER_TAPER_PX)."""
 
 import math
 
@@ -12,7 +12,7 @@ from pipeline import NoiseModel, add_poisson_noise
 from pipeline.blur import PAPER_SCHEME, blur_windowed
 from pipeline.quality import psnr_srgb
 from pipeline.restoration import parse_restoration, restore
-from pipeline.restoration.wiener import WIENER_TAPER, window_taper
+from pipeline.restoration.wiener import WIENER_TAPER_PX, window_taper
 
 FRAME_PX = 384
 """Side (px) of the synthetic frame: one fitted Wiener window (384 px) spans it, so every window holds the bright band
@@ -58,8 +58,8 @@ def test_default_restoration_beats_the_sensor_image_beside_a_bright_band_at_ever
 def test_window_taper_spares_the_core_and_reaches_zero_at_the_edges():
     core = 64
     for window in (256, 384, 448):
-        t = window_taper(window, core, WIENER_TAPER)
-        n = round(WIENER_TAPER * window)
+        t = window_taper(window, core, WIENER_TAPER_PX)
+        n = min(WIENER_TAPER_PX, window // 4)  # a small window keeps its central half
         lo = window // 2 - core // 2
         assert t.shape == (window, window)
         assert bool((t[n:window - n, n:window - n] == 1).all())  # flat beyond the ramps: the core untouched
@@ -71,20 +71,21 @@ def test_window_taper_spares_the_core_and_reaches_zero_at_the_edges():
         ref = 0.5 - 0.5 * torch.cos(math.pi * (torch.arange(n, dtype=torch.float64) + 0.5) / n)
         torch.testing.assert_close(ramp, ref, rtol=0, atol=1e-15)
         torch.testing.assert_close(t[:n, window // 2], ref, rtol=0, atol=1e-15)
+        torch.testing.assert_close(t[window - n:, window // 2], ref.flip(0), rtol=0, atol=1e-15)
         torch.testing.assert_close(t, t[window // 2][:, None] * t[:, window // 2][None, :], rtol=0, atol=1e-15)
-    assert bool((window_taper(256, 64, 0.0) == 1).all())
+    assert bool((window_taper(256, 64, 0) == 1).all())
     # the cap: a core almost as wide as the window keeps its ramps outside the core
-    t = window_taper(128, 96, 0.45)
-    assert bool((t[16:112, 16:112] == 1).all()) and float(t[0, 64]) < 0.1
+    t = window_taper(128, 96, 60)  # n = min(60, 32, 16)
+    assert bool((t[16:112, 16:112] == 1).all()) and float(t[0, 64]) < 0.01
 
 
 def test_wiener_taper_option_is_checked_and_zero_is_the_plain_window():
-    with pytest.raises(ValueError, match="taper=0.5"):
-        parse_restoration("wiener:taper=0.5")
-    with pytest.raises(ValueError, match="taper=-0.1"):
-        parse_restoration("wiener:taper=-0.1")
+    with pytest.raises(ValueError, match="taper=-1"):
+        parse_restoration("wiener:taper=-1")
+    with pytest.raises(ValueError, match="taper='0.5'"):
+        parse_restoration("wiener:taper=0.5")  # a width in px
     from pipeline.restoration import wiener_windowed
-    with pytest.raises(ValueError, match="taper=0.7"):
-        wiener_windowed(torch.ones(1, 1, 8, 8), LensPSF(PAPER_CAMERA, PAPER_DESIGNS["rms_w_paper"]),
-                        noise=NoiseModel(100.0), taper=0.7)
-    assert parse_restoration("wiener").to_dict()["options"]["taper"] == WIENER_TAPER
+    psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["rms_w_paper"])
+    with pytest.raises(ValueError, match="taper=-3"):
+        wiener_windowed(torch.ones(1, 1, 8, 8), psf, noise=NoiseModel(100.0), taper=-3)
+    assert parse_restoration("wiener").to_dict()["options"]["taper"] == WIENER_TAPER_PX
