@@ -17,6 +17,13 @@ blended linearly) and for every channel:
 
 With no blur (``H = 1``) and no noise (``NoiseModel(math.inf)``) this is the identity.
 
+The window's deviation from its local mean, ``y - mu``, is tapered to zero towards the window's edges before the
+transform (a raised cosine over the outer :data:`WIENER_TAPER_PX` px along each edge, never reaching the core; option
+``taper``, in px, 0: the paper's plain window). The transform treats the window as periodic: without the taper
+the jump between a bright structure at one edge of the window and a dark region at the opposite edge is restored as
+if it were an edge of the scene, and the filter, close to the inverse filter where the signal is strong, rings from it
+into the core (see :data:`WIENER_TAPER_PX` for the measurements).
+
 Option ``local="pixel"`` (``wiener:local=pixel``): a per-pixel adaptive signal variance. Local variance maps over
 ``pixel_stats`` x ``pixel_stats`` px boxes (kornia ``box_blur`` over each window's core and its halo) give each pixel's
 signal variance relative to the window's, ``r = max(var_y(p) - sigma_n^2(p), floor) / max(mean over the core, floor)``
@@ -33,6 +40,8 @@ References
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from lenssim import PSFProvider, image_psd
@@ -45,7 +54,7 @@ from ..checks import check_image
 from . import RestorationMethod, register
 
 __all__ = ["wiener_windowed", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
-           "WIENER_PIXEL_STATS_PX"]
+           "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX", "window_taper"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
@@ -68,23 +77,61 @@ sharp photo near the axis (scikit-image's astronaut at ISO 100, supports of 20-4
 restored SSIM by -0.0043 and PSNR by -0.025 dB from 512 px windows, 320 px by -0.0012 / -0.011 dB, 384 px by -0.0002
 / -0.004 dB, 448 px by -0.0003 / -0.001 dB (issue 33's bounds: 0.001 and 0.02 dB)."""
 
+WIENER_TAPER_PX = 96
+"""Width (px) of the band along each edge of a window over which the window's deviation from its local mean is tapered
+to zero (raised cosine) before the filter's transform, so that the periodic window the transform assumes has no jump
+at its edges; at most a quarter of a smaller window's side, and ``(window - core) / 2``, so the core is never tapered.
+
+Root cause of issue 45's "restored below the sensor image": on the pier sunset photo (RMS_W design, 10 deg, crop rows
+3259-3515, cols 4954-5210) a bright band (linear ~0.07) at the top of the crop's 384 px windows faced their dark
+bottom (~0.004) across the periodic wrap, and the restored crop rang with a period of ~37 px: ISO 100 27.84 dB against
+the sensor image's 30.60, ISO 400 29.33 against 29.19; fixed 512 / 1024 px windows without a taper gave 29.87 / 31.32
+(ISO 100); smaller statistics boxes only hid it by regularising more (32 px: 30.68, at -1.25 dB on the centre crop).
+Tapering 48 / 56 / 64 / 96 px: 30.90 / 31.54 / 31.88 / 32.26 dB (ISO 400 with 96 px: 32.25). On a synthetic band over
+a dark region (tests/pipeline/test_restoration_edges.py) 48 and 56 px still left a crop below the sensor image
+(39.58 / 40.90 dB against 43.60); 96 px none. On the frame's corner crops (pier, portrait; both designs; ISO 100 and
+400) 15 / 25 / 35 % of a 384 px window's side were within 0.45 dB of each other, 25 % (96 px) at most 0.22 dB below
+the best; the centre crops of the three photos moved by 0.02 dB or less. The cost: tapered data near the window's edges
+no longer reach the core. On the astronaut frame of ``tests/pins.json`` (sharp, 280-1000 px off axis, ISO 100) 56 / 96
+px moved the restored PSNR by -0.016 / -0.026 dB and SSIM by -0.0028 / -0.0045, and the 384 px windows fitted to the
+PSF fell 0.0011 / 0.0020 in SSIM below 512 px windows with the same band (48 px: 0.0009; issue 33 bounds the plain
+filter's to 0.001). Blending the edges with the circularly blurred window instead (MATLAB's ``edgetaper``) scored
+within 0.35 dB of the plain taper at two more transforms per window; the periodic-plus-smooth decomposition (Moisan
+2011, the smooth part left unfiltered) 31.20 dB on the pier crop and -0.74 dB on the astronaut frame."""
+
 WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
+
+
+def window_taper(window: int, core: int, width: int, dtype=torch.float64, device=HOST) -> torch.Tensor:
+    """The ``(window, window)`` separable raised-cosine taper: 1 over the centre, ``0.5 - 0.5 cos(pi (i + 1/2) / n)``
+    at the ``i``-th pixel from each edge, over the outer ``n = min(width, window / 4, (window - core) / 2)`` px of each
+    side (so the central half of a small window and the ``core`` px stay 1); all ones for ``width = 0``."""
+    n = min(int(width), window // 4, (window - core) // 2)
+    t = torch.ones(window, dtype=torch.float64, device=HOST)
+    if n > 0:
+        ramp = 0.5 - 0.5 * torch.cos(math.pi * (torch.arange(n, dtype=torch.float64, device=HOST) + 0.5) / n)
+        t[:n], t[window - n:] = ramp, ramp.flip(0)
+    return (t[:, None] * t[None, :]).to(dtype=dtype, device=device)
 
 
 def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
                     rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
-                    pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None) -> torch.Tensor:
+                    pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None,
+                    taper: int = WIENER_TAPER_PX) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with the noise ``noise``
     describes (:class:`pipeline.camera_chain.NoiseModel`: a camera chain's ``noise_model()``, or
     ``NoiseModel(electrons_per_unit)`` for photon noise alone, ``math.inf``: none).
 
     ``fit`` (default ``scheme.fit``): each window's transform sized to the local PSF's support plus the core as the
     blur's are (:func:`pipeline.blur.fitted_windows`), but at least :data:`WIENER_FIT_LEAST_PX`, its statistics still
-    over the central ``stats`` px (docs/performance.md); off where ``stats`` is over that size. Returns the same shape.
+    over the central ``stats`` px (docs/performance.md); off where ``stats`` is over that size. ``taper``: the
+    width (px) of the band along each edge of a window over which ``y - mu`` is tapered (:data:`WIENER_TAPER_PX`; 0:
+    none).
+    Returns the same shape.
     """
     check_image(observed, "observed")
     if not isinstance(noise, NoiseModel):
@@ -97,6 +144,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
             and pixel_stats % 2 == 1 and pixel_stats <= scheme.window - scheme.core):
         raise ValueError(f"pixel_stats={pixel_stats!r} is not allowed: an odd number of px, >= 3 and at most the "
                          f"window less the core ({scheme.window - scheme.core})")
+    if isinstance(taper, bool) or not (isinstance(taper, int) and taper >= 0):
+        raise ValueError(f"taper={taper!r} is not allowed: a width in px, an integer >= 0 (0: no taper)")
     fit = scheme.fit if fit is None else fit
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
@@ -104,22 +153,27 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     grids = {}
 
     def grid_terms(win):
-        """The image PSD ``P`` on a ``win`` px window (half-plane, mean 1) and the half-plane's column weights
-        (the scheme's window, or a larger one where the PSF outgrows it: see :func:`pipeline.blur.window_sizes`)."""
+        """The image PSD ``P`` on a ``win`` px window (half-plane, mean 1), the half-plane's column weights
+        (the scheme's window, or a larger one where the PSF outgrows it: see :func:`pipeline.blur.window_sizes`) and
+        the window's taper."""
         if win not in grids:
             half = win // 2
             P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
             w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
             w[0] = w[-1] = 1
-            grids[win] = (P / P.mean(), w)
+            grids[win] = (P / P.mean(), w, window_taper(win, scheme.core, taper, observed.dtype, observed.device))
         return grids[win]
+
+    def deviation_spectrum(patches, mu):
+        """``rfft2`` of the window's deviation from its local mean, tapered towards the window's edges."""
+        return torch.fft.rfft2((patches - mu).mul_(grid_terms(patches.shape[-1])[2]))
 
     def window_terms(patches, H):
         """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
         win/2+1)``), and ``P``."""
         win = patches.shape[-1]
         half = win // 2
-        P, w = grid_terms(win)
+        P, w, _ = grid_terms(win)
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
@@ -136,9 +190,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
         # G = conj(H) sx P / (|H|^2 sx P + var_n) = conj(H) P / (|H|^2 P + var_n / sx), built in place
         G = HP + var_n / sx
         torch.div(P, G.clamp_min_(tiny), out=G)
-        out = torch.fft.rfft2(patches)
-        dc = mu[..., 0, 0] * (win * win)  # the local mean's DC term: filter y - mu, then add mu back
-        out[..., 0, 0] -= dc
+        out = deviation_spectrum(patches, mu)  # filter y - mu, then add mu back (its DC term)
+        dc = mu[..., 0, 0] * (win * win)
         out.mul_(H.conj().resolve_conj())  # a conj view broadcast over the channels is ~2x slower (measured)
         torch.view_as_real(out).mul_(G[..., None])  # the real G scales both parts: no complex copy of G
         out[..., 0, 0] += dc
@@ -167,9 +220,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
         local_sx = (m2 - m1.square() - noise.variance(m1)).clamp_min(floor)
         ratio = local_sx / local_sx.mean(dim=(-2, -1), keepdim=True)
         t = ratio.to(torch.float64).log().clamp(float(levels[0]), float(levels[-1]))
-        spec = torch.fft.rfft2(patches)
-        dc = mu[..., 0, 0] * (win * win)
-        spec[..., 0, 0] -= dc
+        spec = deviation_spectrum(patches, mu)
         spec.mul_(H.conj().resolve_conj())
         out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
         for j, level in enumerate(WIENER_PIXEL_LEVELS):
@@ -193,9 +244,9 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
 
 
 def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,
-            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window"):
+            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window", taper=WIENER_TAPER_PX):
     return wiener_windowed(observed, psf, noise=noise, stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
-                           progress=progress, local=local)
+                           progress=progress, local=local, taper=taper)
 
 
 def _check(options, scheme):
@@ -205,6 +256,9 @@ def _check(options, scheme):
                          + (f" ({top} px)" if top else ""))
     if not 0 < options["rho0"] < 1:
         raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
+    if options["taper"] < 0:
+        raise ValueError(f"wiener option taper={options['taper']!r} is not allowed: a width in px, >= 0 (0: no taper, "
+                         "the paper's filter)")
     if options["local"] not in WIENER_LOCAL:
         raise ValueError(f"wiener option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
     if scheme is not None and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:  # wiener_windowed's own rule
@@ -213,5 +267,6 @@ def _check(options, scheme):
 
 
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
-                           _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window")),
+                           _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window"),
+                                     ("taper", WIENER_TAPER_PX)),
                            check=_check))
