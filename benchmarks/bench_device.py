@@ -2,17 +2,17 @@
 same machine, in one process, the result beside each time; one Markdown table and one JSON line at the end.
 
     python benchmarks/bench_device.py [--device auto|cuda|cpu] [--quick]
-        [--frame-px 4000 6000] [--cpu-crop-px 2000 3000] [--sweep-s-every 16] [--sweep-q-every 1]
+        [--frame-px 4000 6000] [--cpu-crop-px 0 0] [--sweep-s-every 16] [--sweep-q-every 1]
         [--tradeoff-designs 256] [--lenses 64]
 
 1. frame: the 24 MP colour full frame of ``lenssim simulate --full-frame`` (``simulate_frame`` + ``score_frame``,
    as benchmarks/profile_full_frame.py runs them): the generated default scene of the paper's camera (6000 x 4000 x 3,
    nothing read or downloaded), the paper's E2E design, ISO 100 (3200 e-), seed 0, the paper's scheme with the CLI's
-   default zoned blur windows; the restored whole-frame PSNR (sRGB, dB) is the result. The device runs the whole
-   frame; the CPU runs the centre crop ``--cpu-crop-px`` of it (a frame of its own: its own centre, so its field
-   angles are smaller) and its time is scaled to the whole frame by the windows' count (``est.``); the device runs
-   the same crop too, so the two columns compare on the same work (a row of its own). ``--cpu-crop-px 0 0``: the
-   CPU runs the whole frame (~70 s on 16 cores).
+   default zoned blur windows; the restored whole-frame PSNR (sRGB, dB) is the result. By default both run the whole
+   frame (the CPU's ~60-70 s on 16 cores). With ``--cpu-crop-px ROWS COLS`` the CPU runs that centre crop of it
+   instead (a frame of its own: its own centre, so its field angles are smaller), its time scaled to the whole frame
+   by the windows' count (``est.`` in the table), and the device runs the same crop too, so the two columns compare
+   on the same work (a row of its own).
 2. sweep: ``run_sweep`` of the paper grid (``paper_grid``: 122 s x 113 Q x 15 angles, 3 SNRs) on every
    ``--sweep-s-every``-th value of s and ``--sweep-q-every``-th value of Q (a stated fraction of the grid, as
    benchmarks/bench_sweep.py takes it), the same subset on both; the result: the mean restored MSE over the subset,
@@ -67,6 +67,11 @@ FULL_WELL = 3200.0
 """ISO 100's full well (e-), the paper's (as benchmarks/profile_full_frame.py)."""
 AS_BUILT_SNR_DB = [27.6]
 """The as-built Monte Carlo's SNR (dB): ISO 100, as benchmarks/bench_as_built.py."""
+PARTS = ("frame", "sweep", "tradeoff", "as_built")
+"""The pieces of work, in the order they run."""
+BUDGET_S = 300.0
+"""Seconds after the start past which a part not yet begun is skipped: the defaults' run is ~3.5 min on an H200 with
+16 CPU cores (estimated), and the lead's limit is 6 min for the whole call, so a part begun before 300 s ends in it."""
 WARM_FRAME_PX = (256, 384)
 """The untimed warm-up frame (rows, columns): one 256 px tile of the PSNR map high, a few seconds on a CPU."""
 QUICK = {"frame_px": (256, 384), "cpu_crop_px": (0, 0), "sweep_s_every": 122, "sweep_q_every": 113,
@@ -117,34 +122,40 @@ def frame_run(ideal_cpu: torch.Tensor, dev: torch.device) -> tuple[float, float,
     return t, float(psnr), window_count(ideal_cpu.shape, PAPER_SCHEME)
 
 
+def columns(use_gpu: bool) -> dict[str, torch.device]:
+    """The table's columns and their devices, in the order each part runs them: ``"device"`` (CUDA) where used,
+    then ``"cpu"``."""
+    return ({"device": torch.device("cuda")} if use_gpu else {}) | {"cpu": torch.device("cpu")}
+
+
 def bench_frame(a, devs) -> list[dict]:
     H, W = a.frame_px
     ideal = resolution_scene(H, W, geometry=PAPER_CAMERA.geometry)
     crop = tuple(a.cpu_crop_px)
     whole_on_cpu = crop == (0, 0) or crop == (H, W)
     small = _centre_crop(ideal, *WARM_FRAME_PX) if H >= WARM_FRAME_PX[0] and W >= WARM_FRAME_PX[1] else ideal
-    for d in devs:
+    for d in devs.values():
         frame_run(small, d)  # warm-up
     label = f"24 MP colour frame {W} x {H}" if (H, W) == (4000, 6000) else f"colour frame {W} x {H}"
     row = {"work": label + ", simulate + restore + score (restored PSNR, dB)"}
     rows = [row]
-    gpu = next((d for d in devs if d.type == "cuda"), None)
+    gpu, cpu = devs.get("device"), devs["cpu"]
     if gpu is not None:
         t, p, _ = frame_run(ideal, gpu)
         row.update(device_s=t, device_result=p)
         print(f"frame {W} x {H} on {gpu}: {t:.1f} s, restored {p:.2f} dB", flush=True)
     if whole_on_cpu:
-        t, p, _ = frame_run(ideal, torch.device("cpu"))
+        t, p, _ = frame_run(ideal, cpu)
         row.update(cpu_s=t, cpu_result=p)
         print(f"frame {W} x {H} on the CPU: {t:.1f} s, restored {p:.2f} dB", flush=True)
         return rows
     part = _centre_crop(ideal, *crop)
-    t, p, n = frame_run(part, torch.device("cpu"))
+    t, p, n = frame_run(part, cpu)
     scale = window_count(ideal.shape, PAPER_SCHEME) / n
     row.update(cpu_s=t * scale, cpu_estimated=True,
                cpu_note=f"est.: the {crop[1]} x {crop[0]} crop's time x {scale:.2f} (windows)")
-    crow = {"work": f"  the same, centre crop {crop[1]} x {crop[0]} as a frame (both measured)", "cpu_s": t,
-            "cpu_result": p}
+    crow = {"work": f"  the same, centre crop {crop[1]} x {crop[0]} as a frame (both measured; restored PSNR, dB)",
+            "cpu_s": t, "cpu_result": p}
     print(f"crop {crop[1]} x {crop[0]} on the CPU: {t:.1f} s, restored {p:.2f} dB (x {scale:.2f} windows to the "
           "whole frame)", flush=True)
     if gpu is not None:
@@ -172,23 +183,22 @@ def _sweep_config(s_every: int, q_every: int):
 def bench_sweep(a, devs) -> list[dict]:
     cfg, n_psf, n_full = _sweep_config(a.sweep_s_every, a.sweep_q_every)
     warm, _, _ = _sweep_config(10**6, 10**6)  # one design: the warm-up
-    row = {"work": f"sweep paper_grid: every {a.sweep_s_every}th s, every {a.sweep_q_every}th Q = {n_psf} PSFs "
-                   f"({n_psf / n_full:.2%} of {n_full}) (mean restored MSE)"}
+    row = {"work": f"sweep paper_grid: 1 in {a.sweep_s_every} values of s, 1 in {a.sweep_q_every} of Q = {n_psf} "
+                   f"PSFs ({n_psf / n_full:.2%} of {n_full}) (mean restored MSE)"}
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for k, d in enumerate(devs):
-            run_sweep(warm, Path(tmp) / f"warm{k}.nc", device=str(d), show_progress=False)
-            ds, t = _timed(lambda: run_sweep(cfg, Path(tmp) / f"{d.type}.nc", device=str(d), show_progress=False), d)
+        for col, d in devs.items():
+            run_sweep(warm, Path(tmp) / f"warm_{col}.nc", device=str(d), show_progress=False)
+            ds, t = _timed(lambda: run_sweep(cfg, Path(tmp) / f"{col}.nc", device=str(d), show_progress=False), d)
             res = {v: torch.as_tensor(ds[v].values) for v in ds.data_vars if ds[v].dtype.kind == "f"}
-            results[d.type] = res
+            results[col] = res
             key = "mse_r" if "mse_r" in res else sorted(res)[0]
             row["result_name"] = key
-            col = "device" if d.type == "cuda" else "cpu"
             row.update({f"{col}_s": t, f"{col}_result": float(res[key].double().nanmean())})
             print(f"sweep on {d}: {t:.1f} s ({n_psf / t:.0f} PSFs/s); {key} mean {row[f'{col}_result']:.6g}",
                   flush=True)
     if len(results) == 2:
-        row["rel_diff"] = max(_rel_diff(results["cuda"][v].nan_to_num(), results["cpu"][v].nan_to_num())
+        row["rel_diff"] = max(_rel_diff(results["device"][v].nan_to_num(), results["cpu"][v].nan_to_num())
                               for v in results["cpu"])
     return [row]
 
@@ -213,17 +223,16 @@ def bench_tradeoff(a, devs) -> list[dict]:
     row = {"work": f"trade-off: {a.tradeoff_designs} Cooke triplets on real rays, value + gradient "
                    f"({len(NAMES)} parameters; sum of squared coefficients)"}
     results = {}
-    for d in devs:
+    for col, d in devs.items():
         work(xs[:2].to(d))  # warm-up
         (c, value, grad), t = _timed(lambda: work(xs.to(d)), d)
-        results[d.type] = (c, grad)
-        col = "device" if d.type == "cuda" else "cpu"
+        results[col] = (c, grad)
         row.update({f"{col}_s": t, f"{col}_result": value})
         print(f"trade-off on {d}: {t:.2f} s ({t / a.tradeoff_designs * 1e3:.2f} ms a design); value {value:.9g}",
               flush=True)
     if len(results) == 2:
-        row["rel_diff"] = max(_rel_diff(results["cuda"][0], results["cpu"][0]),
-                              _rel_diff(results["cuda"][1], results["cpu"][1]))
+        row["rel_diff"] = max(_rel_diff(results["device"][0], results["cpu"][0]),
+                              _rel_diff(results["device"][1], results["cpu"][1]))
     return [row]
 
 
@@ -235,20 +244,19 @@ def bench_as_built(a, devs) -> list[dict]:
     row = {"work": f"as-built Monte Carlo: {a.lenses} lenses, commercial grade, {angles} angles, fast numerics "
                    "(mean mse_r)"}
     results = {}
-    for d in devs:
+    for col, d in devs.items():
         def work(q):
             return as_built_criteria(PAPER_CAMERA, DESIGN, q, AS_BUILT_SNR_DB, rho0=PAPER_RHO0, numerics=FAST_NUMERICS,
                                      device=d)["mse_r"]
 
         work(warm)  # warm-up
         mse, t = _timed(lambda: work(pert), d)
-        results[d.type] = mse
-        col = "device" if d.type == "cuda" else "cpu"
+        results[col] = mse
         row.update({f"{col}_s": t, f"{col}_result": float(mse.double().mean())})
         print(f"as-built on {d}: {t:.2f} s ({a.lenses / t:.1f} lenses/s); mean mse_r {row[f'{col}_result']:.6g}",
               flush=True)
     if len(results) == 2:
-        row["rel_diff"] = _rel_diff(results["cuda"], results["cpu"])
+        row["rel_diff"] = _rel_diff(results["device"], results["cpu"])
     return [row]
 
 
@@ -285,13 +293,16 @@ def main() -> int:
                     help="'auto' (default): the device column where CUDA is present; 'cpu': the CPU column only")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (a check of the script; the times mean nothing)")
     ap.add_argument("--frame-px", type=int, nargs=2, default=[4000, 6000], metavar=("ROWS", "COLS"))
-    ap.add_argument("--cpu-crop-px", type=int, nargs=2, default=[2000, 3000], metavar=("ROWS", "COLS"),
-                    help="the CPU's centre crop of the frame (default 2000 3000, a quarter); 0 0: the whole frame")
+    ap.add_argument("--cpu-crop-px", type=int, nargs=2, default=[0, 0], metavar=("ROWS", "COLS"),
+                    help="the CPU's centre crop of the frame, its time scaled to the whole frame by the windows' count "
+                         "(e.g. 2000 3000, a quarter); default 0 0: the whole frame on the CPU too")
     ap.add_argument("--sweep-s-every", type=int, default=16, help="every N-th s of the paper grid (default 16: 8 of 122)")
     ap.add_argument("--sweep-q-every", type=int, default=1, help="every N-th Q of the paper grid (default 1: all 113)")
     ap.add_argument("--tradeoff-designs", type=int, default=256)
     ap.add_argument("--lenses", type=int, default=64, help="as-built lenses (default 64)")
-    ap.add_argument("--skip", nargs="*", default=[], choices=("frame", "sweep", "tradeoff", "as_built"))
+    ap.add_argument("--skip", nargs="*", default=[], choices=PARTS)
+    ap.add_argument("--budget-s", type=float, default=BUDGET_S,
+                    help=f"a part not started by then is skipped, and the table says so (default {BUDGET_S:g} s)")
     a = ap.parse_args()
     if a.quick:
         for k, v in QUICK.items():
@@ -307,16 +318,19 @@ def main() -> int:
     if a.device == "cuda" and not torch.cuda.is_available():
         ap.error("--device cuda: no CUDA device here; use --device auto or cpu")
     use_gpu = a.device != "cpu" and torch.cuda.is_available()
-    devs = ([torch.device("cuda")] if use_gpu else []) + [torch.device("cpu")]
+    devs = columns(use_gpu)
     gpu_name = torch.cuda.get_device_name(0) if use_gpu else None
     print(f"devices: {gpu_name or 'no GPU: the CPU column only'}; CPU {torch.get_num_threads()} threads; torch "
           f"{torch.__version__}", flush=True)
     warnings.simplefilter("ignore", ModelValidityWarning)
     t_all = time.perf_counter()
     rows, seconds = [], {}
-    for name, fn in (("frame", bench_frame), ("sweep", bench_sweep), ("tradeoff", bench_tradeoff),
-                     ("as_built", bench_as_built)):
+    for name, fn in zip(PARTS, (bench_frame, bench_sweep, bench_tradeoff, bench_as_built)):
         if name in a.skip:
+            continue
+        if time.perf_counter() - t_all > a.budget_s:
+            rows.append({"work": f"{name}: skipped, the run past its budget of {a.budget_s:g} s"})
+            print(f"({name}: skipped: {time.perf_counter() - t_all:.0f} s gone of a budget of {a.budget_s:g} s)")
             continue
         t0 = time.perf_counter()
         rows += fn(a, devs)
@@ -331,7 +345,7 @@ def main() -> int:
           f"{torch.get_num_threads()} CPU threads")
     summary = {"gpu": gpu_name, "cpu_threads": torch.get_num_threads(), "torch": torch.__version__,
                "seconds_total": round(total, 1), "seconds_parts": {k: round(v, 1) for k, v in seconds.items()},
-               "rows": [{k: (round(v, 6) if isinstance(v, float) and math.isfinite(v) else v) for k, v in r.items()}
+               "rows": [{k: (float(f"{v:.7g}") if isinstance(v, float) and math.isfinite(v) else v) for k, v in r.items()}
                         for r in rows]}
     if use_gpu:
         summary["gpu_peak_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
