@@ -309,9 +309,12 @@ def main() -> int:
             setattr(a, k, v)
     H, W = a.frame_px
     crop = tuple(a.cpu_crop_px)
-    if min(H, W) < 256 or (crop != (0, 0) and not (256 <= crop[0] <= H and 256 <= crop[1] <= W)):
+    sensor = (PAPER_CAMERA.sensor.height_px, PAPER_CAMERA.sensor.width_px)
+    if not (256 <= H <= sensor[0] and 256 <= W <= sensor[1]) or (
+            crop != (0, 0) and not (256 <= crop[0] <= H and 256 <= crop[1] <= W)):
         ap.error(f"--frame-px {H} {W} and --cpu-crop-px {crop[0]} {crop[1]}: at least 256 px each way (one tile of "
-                 "the PSNR map), the crop inside the frame (or 0 0)")
+                 f"the PSNR map), the frame at most the paper's sensor ({sensor[0]} {sensor[1]}), the crop inside the "
+                 "frame (or 0 0)")
     for name in ("sweep_s_every", "sweep_q_every", "tradeoff_designs", "lenses"):
         if getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')} {getattr(a, name)}: at least 1")
@@ -345,7 +348,8 @@ def main() -> int:
           f"{torch.get_num_threads()} CPU threads")
     summary = {"gpu": gpu_name, "cpu_threads": torch.get_num_threads(), "torch": torch.__version__,
                "seconds_total": round(total, 1), "seconds_parts": {k: round(v, 1) for k, v in seconds.items()},
-               "rows": [{k: (float(f"{v:.7g}") if isinstance(v, float) and math.isfinite(v) else v) for k, v in r.items()}
+               "rows": [{k: ((float(f"{v:.7g}") if math.isfinite(v) else None) if isinstance(v, float) else v)
+                         for k, v in r.items()}
                         for r in rows]}
     if use_gpu:
         summary["gpu_peak_gib"] = round(torch.cuda.max_memory_allocated() / 2**30, 2)
