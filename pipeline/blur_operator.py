@@ -38,8 +38,8 @@ from .checks import check_image, check_provider
 __all__ = ["BlurOperator", "OPERATOR_OTF_BYTES"]
 
 OPERATOR_OTF_BYTES = 1 << 30
-"""Most bytes of window OTFs an operator keeps per dtype and device (1 GiB: a 256 px crop with its context takes
-20-60 MB in one channel; a 24 MP frame's ~24,000 windows would take 6 GB, so a frame's OTFs are computed again on
+"""Most bytes of window OTFs (and their conjugates, for the adjoint) an operator keeps per dtype and device (1 GiB: a
+256 px crop with its context takes 40-120 MB in one channel; a 24 MP frame's ~24,000 windows would take 6 GB, so a frame's OTFs are computed again on
 every pass instead of kept)."""
 
 
@@ -102,18 +102,19 @@ class BlurOperator:
         itemsize = torch.empty((), dtype=x.dtype).element_size() * 2  # complex
         need = sum(int(w) * (int(w) // 2 + 1) for w in self.plan.sizes.tolist()) * itemsize * self.psf.channels
         batches = lambda: window_batches(self.plan, self.psf, x, None, pedestal=True)  # noqa: E731
-        if need <= self.otf_bytes:
+        if 2 * need <= self.otf_bytes:  # the OTFs and their conjugates (a conjugate view multiplies ~2x slower)
             kept = list(batches())
-            found = (kept, weight_sum(self.plan, kept, x.dtype, x.device))
+            found = (kept, weight_sum(self.plan, kept, x.dtype, x.device),
+                     [otf.conj().resolve_conj() for _, _, _, otf in kept])
         else:  # too many to keep: the OTFs again on every pass (the same ones, in the same order)
-            found = (_Replay(batches), weight_sum(self.plan, batches(), x.dtype, x.device))
+            found = (_Replay(batches), weight_sum(self.plan, batches(), x.dtype, x.device), None)
         self._kept[key] = found
         return found
 
     def forward(self, x: torch.Tensor, progress=None) -> torch.Tensor:
         """``A x`` for ``x`` ``(B, C, H, W)``: :func:`pipeline.blur.blur_windowed` of ``x``."""
         self._check(x, "x")
-        batches, _ = self._windows(x)
+        batches, _, _ = self._windows(x)
 
         def convolve(patches, otf):
             return torch.fft.rfft2(patches).mul_(otf)
@@ -132,7 +133,7 @@ class BlurOperator:
         """``A^T y`` for ``y`` ``(B, C, H, W)`` (only its region is read): the transpose of :meth:`forward`."""
         self._check(y, "y")
         plan = self.plan
-        batches, wsum = self._windows(y)
+        batches, wsum, conjugates = self._windows(y)
         B, C, H, W = y.shape
         r0, r1, c0, c1 = plan.region
         m, pad = plan.core, plan.pad
@@ -140,7 +141,7 @@ class BlurOperator:
         z[..., m + r0:m + r1, m + c0:m + c1] = y[..., r0:r1, c0:c1] / wsum[m + r0:m + r1, m + c0:m + c1]
         grad = torch.zeros(B, C, H + 2 * pad, W + 2 * pad, dtype=y.dtype, device=y.device)
         tents = plan.tents(y.dtype, y.device)
-        for w, c, anchors, otf in batches:
+        for i, (w, c, anchors, otf) in enumerate(batches):
             hw, lo = w // 2, w // 2 - c // 2
             cores = torch.stack([z[:, :, s0, s1] for s0, s1 in (core_slices(plan, c, a, b) for a, b in anchors)])
             cores.mul_(tents[c])  # (k, B, C, c, c)
@@ -148,7 +149,8 @@ class BlurOperator:
             # then the column transforms of the w rows (K_w^T, the transpose of core_irfft2's pruned inverse)
             rows = torch.fft.rfft(torch.nn.functional.pad(cores, (lo, w - lo - c)), dim=-1)
             spec = torch.fft.fft(torch.nn.functional.pad(rows, (0, 0, lo, w - lo - c)), dim=-2)
-            patches = torch.fft.irfft2(spec.mul_(otf.conj()), s=(w, w))  # h~ (*): the conjugate OTF
+            otf_conj = conjugates[i] if conjugates is not None else otf.conj().resolve_conj()
+            patches = torch.fft.irfft2(spec.mul_(otf_conj), s=(w, w))  # h~ (*): the conjugate OTF
             for j, (a, b) in enumerate(anchors):
                 grad[:, :, a + pad - hw: a + pad + hw, b + pad - hw: b + pad + hw] += patches[j]
             if progress is not None:
