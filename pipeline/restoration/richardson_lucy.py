@@ -32,8 +32,13 @@ from . import RestorationMethod, register, windowed_margin
 
 __all__ = ["richardson_lucy_windowed", "RL_ITERATIONS", "MAX_RL_ITERATIONS", "RL_CONTEXT_PX"]
 
-RL_ITERATIONS = 20
-"""Default number of Richardson-Lucy iterations (named once: the function, the registry and the CLI)."""
+RL_ITERATIONS = 8
+"""Default number of Richardson-Lucy iterations (named once: the function, the registry and the CLI). Unregularised,
+the iteration fits the noise after a while; sRGB PSNR (dB) measured per iteration on 256 px crops of the photos (the
+paper's sensor, flat start): forest 5 deg, E2E design, no context: ISO 400 peaks at 4 iterations (38.91; 8: 38.34,
+10: 37.85), ISO 100 at 9 (39.77; 8: 39.76); with 32 px of context: RMS_W design, ISO 400 peaks at 7 (38.61; 10: 38.50,
+20: 37.30), ISO 100 at 16 (39.41; 8: 39.13); pier 10 deg, E2E, still rising at 15 (ISO 400 32.83, ISO 100 33.12; 8:
+32.34, 32.40). Eight stays within 0.6 dB of each crop's best where it is reached, in 0.4x the former 20's iterations."""
 
 MAX_RL_ITERATIONS = 1000
 """Most Richardson-Lucy iterations a run may ask for. Unregularised, the iteration fits the noise: on the paper's
@@ -41,8 +46,11 @@ noise levels its error is lowest after tens of iterations and rises after; 1000 
 bounds the work (a forward and an adjoint pass of the blur per iteration: about ten minutes for one 256 px crop on
 two CPU cores)."""
 
-RL_CONTEXT_PX = 32
-"""Observed pixels (px) around the region that the iteration fits as data besides the region's own."""
+RL_CONTEXT_PX = 0
+"""Observed pixels (px) around the region that the iteration fits as data besides the region's own. None by default:
+with unknown boundaries the region's own data suffices (forest 5 deg, E2E, 10 iterations: 32 px of context gained
+0.34 dB at ISO 400 and 0.10 dB at ISO 100, for 1.4x the windows and time; 8 iterations without context scored as 10
+with it)."""
 
 RL_SUPPORT_FLOOR = 1e-3
 """Pixels whose ``A^T 1`` is below this (less than 0.1% of their light lands in the data) keep their starting value:
