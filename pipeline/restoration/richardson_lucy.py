@@ -42,9 +42,9 @@ paper's sensor, flat start): forest 5 deg, E2E design, no context: ISO 400 peaks
 
 MAX_RL_ITERATIONS = 1000
 """Most Richardson-Lucy iterations a run may ask for. Unregularised, the iteration fits the noise: on the paper's
-noise levels its error is lowest after tens of iterations and rises after; 1000 is far past any useful count, and
-bounds the work (a forward and an adjoint pass of the blur per iteration: about ten minutes for one 256 px crop on
-two CPU cores)."""
+noise levels its error is lowest after a few to tens of iterations and rises after; 1000 is far past any useful count,
+and bounds the work (a forward and an adjoint pass of the blur's operator per iteration, 0.15-0.2 s for a 256 px crop
+on two quiet CPU cores: a few minutes for 1000)."""
 
 RL_CONTEXT_PX = 0
 """Observed pixels (px) around the region that the iteration fits as data besides the region's own. None by default:
