@@ -47,7 +47,8 @@ __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "
            "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "grown_window",
            "window_sizes", "largest_window", "fold_psf", "StrideZones", "choose_stride_zones",
            "interpolation_error_db", "BLUR_ZONE_TOL_DB",
-           "apply_windowed", "blur_windowed", "box_mean", "blur_exact"]
+           "apply_windowed", "blur_windowed", "WindowPlan", "window_plan", "window_batches",
+           "run_windows", "weight_sum", "core_slices", "box_mean", "blur_exact"]
 
 
 WINDOW_ANCHORS = ("axis", "origin")
@@ -555,14 +556,51 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     (:class:`StrideZones`): windows of a coarser stride and core in the rings it names (the scheme's elsewhere).
     """
     check_image(image)
+    plan = window_plan(image.shape, psf, scheme, optical_center, region, fit=fit, zones=zones, least_fit=least_fit)
+    batches = window_batches(plan, psf, image, chunk, pedestal)
+    return run_windows(image, plan, batches, op, progress)
+
+
+@dataclass(frozen=True)
+class WindowPlan:
+    """Where a windowed pass over an image of ``H x W`` px puts its windows (:func:`window_plan`): the optical
+    ``center`` (row, col, px), the ``region`` ``(r0, r1, c0, c1)`` it computes, the window positions ``Y``, ``X``
+    (px, float64) with each one's ``cores`` and ``sizes`` (px, int64), the largest ``core``, the fraction of a pixel
+    ``shift_y``, ``shift_x`` each window lies before its anchor pixel, whether mirror groups share a PSF
+    (``symmetric``), the reflect ``pad`` (px) and the scheme's ``window`` (the PSFs' least grid)."""
+
+    shape: tuple
+    center: tuple
+    region: tuple
+    Y: torch.Tensor
+    X: torch.Tensor
+    cores: torch.Tensor
+    sizes: torch.Tensor
+    core: int
+    shift_y: float
+    shift_x: float
+    symmetric: bool
+    pad: int
+    window: int
+
+    def tents(self, dtype, device) -> dict:
+        """Each core's 2-D tent ``(c, c)`` (:func:`tent_weights` at the plan's shifts), by core."""
+        return {c: (tent_weights(c, dtype, self.shift_y)[:, None] * tent_weights(c, dtype, self.shift_x)[None, :]
+                    ).to(device) for c in torch.unique(self.cores).tolist()}
+
+
+def window_plan(shape, psf: PSFProvider, scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, *,
+                fit: bool = False, zones: StrideZones | None = None, least_fit: int | None = None) -> WindowPlan:
+    """The windows of a pass over an image of ``shape`` ``(..., H, W)`` (see :func:`apply_windowed` for the
+    arguments): positions, cores, sizes and padding, before any transform."""
     check_provider(psf)
-    B, C, H, W = image.shape
-    if psf.channels not in (1, C):
-        raise ValueError(f"the PSF provider has {psf.channels} channels and the image {C}: expected 1 or {C}")
-    center = optical_center if optical_center is not None else frame_center(image.shape)
-    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    win = scheme.window
-    Y, X, cores = _zoned_positions(image.shape, scheme, center, region, zones)  # positions (px, float64), cores
+    H, W = shape[-2], shape[-1]
+    if len(shape) == 4 and psf.channels not in (1, shape[1]):
+        raise ValueError(f"the PSF provider has {psf.channels} channels and the image {shape[1]}: expected 1 or "
+                         f"{shape[1]}")
+    center = optical_center if optical_center is not None else frame_center(shape)
+    region = tuple(region) if region is not None else (0, H, 0, W)
+    Y, X, cores = _zoned_positions(shape, scheme, center, region, zones)  # positions (px, float64), cores
     core = int(cores.max()) if cores.numel() else scheme.core  # the accumulators' margin: the largest core
     # each window's patch and core sit on the pixel ceil(position); along an axis the positions are evenly
     # spaced from the optical centre, so every window lies the same fraction of a pixel before its pixel
@@ -575,41 +613,79 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
     sizes = torch.zeros_like(extents)
     for c in torch.unique(cores).tolist():
         sel = cores == c
-        sub = WindowScheme(win, scheme.stride if c == scheme.core else c // 2, c, scheme.anchor, scheme.fit)
+        sub = WindowScheme(scheme.window, scheme.stride if c == scheme.core else c // 2, c, scheme.anchor, scheme.fit)
         sizes[sel] = window_sizes(extents[sel], sub, fit, least_fit)
-    pad = max([win] + sizes.tolist()) // 2 + core
+    pad = max([scheme.window] + sizes.tolist()) // 2 + core
+    return WindowPlan((H, W), center, region, Y, X, cores, sizes, core, shift_y, shift_x, symmetric, pad,
+                      scheme.window)
+
+
+def window_batches(plan: WindowPlan, psf: PSFProvider, image: torch.Tensor, chunk: int | None = None,
+                   pedestal: bool = False):
+    """The plan's windows in batches ``(w, c, anchors, otf)``: the window size ``w`` and core ``c`` (px), the anchor
+    pixels ``[(row, col), ...]`` and their OTFs ``(k, 1, 1 or C, w, w/2 + 1)`` in ``image``'s dtype and on its device
+    (see :func:`apply_windowed`), in the order :func:`apply_windowed` visits them."""
+    win = plan.window
+    for w in torch.unique(plan.sizes).tolist():
+        k_chunk = chunk if chunk is not None else window_chunk(image, w)
+        otfs = _WindowOTFs(psf, plan.center, w, image.dtype, image.device, symmetric=plan.symmetric, n=max(w, win),
+                           pedestal=win if pedestal else None)
+        for c in torch.unique(plan.cores[plan.sizes == w]).tolist():
+            sel = (plan.sizes == w) & (plan.cores == c)
+            for gy, gx in otfs.chunks(plan.Y[sel], plan.X[sel], max(PSF_BATCH, k_chunk)):
+                group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
+                for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
+                    ys, xs = gy[k:k + k_chunk], gx[k:k + k_chunk]
+                    anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(),
+                                       torch.ceil(xs).to(torch.int64).tolist()))
+                    yield w, c, anchors, group_otf[k:k + k_chunk]
+
+
+def core_slices(plan: WindowPlan, c: int, y: int, x: int) -> tuple[slice, slice]:
+    """The rows and columns of a ``c`` px core anchored at pixel ``(y, x)`` in the accumulators of :func:`run_windows`
+    (the image with ``plan.core`` px each side)."""
+    m = plan.core
+    return slice(y + m - c // 2, y + m + c // 2), slice(x + m - c // 2, x + m + c // 2)
+
+
+def weight_sum(plan: WindowPlan, batches, dtype, device) -> torch.Tensor:
+    """The sum of the windows' tents over the accumulators ``(H + 2 core, W + 2 core)`` (each pixel's normaliser)."""
+    H, W = plan.shape
+    tents = plan.tents(dtype, device)
+    wsum = torch.zeros(H + 2 * plan.core, W + 2 * plan.core, dtype=dtype, device=device)
+    for _, c, anchors, _ in batches:
+        for y, x in anchors:
+            sl = core_slices(plan, c, y, x)
+            wsum[sl[0], sl[1]] += tents[c]
+    return wsum
+
+
+def run_windows(image: torch.Tensor, plan: WindowPlan, batches, op, progress=None) -> torch.Tensor:
+    """Run ``op(patches, otf)`` in every window of ``batches`` (from :func:`window_batches`, or a list of them kept)
+    and blend the cores over the plan's region (zeros elsewhere): :func:`apply_windowed`'s work."""
+    B, C, H, W = image.shape
+    r0, r1, c0, c1 = plan.region
+    core, pad = plan.core, plan.pad
     padded = _pad(image, pad)
     out = torch.zeros(B, C, H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
     wsum = torch.zeros(H + 2 * core, W + 2 * core, dtype=image.dtype, device=image.device)
-    tents = {c: (tent_weights(c, image.dtype, shift_y)[:, None] * tent_weights(c, image.dtype, shift_x)[None, :]
-                 ).to(image.device) for c in torch.unique(cores).tolist()}
-    for w in torch.unique(sizes).tolist():
+    tents = plan.tents(image.dtype, image.device)
+    for w, c, anchors, otf in batches:
         hw = w // 2
-        k_chunk = chunk if chunk is not None else window_chunk(image, w)
-        otfs = _WindowOTFs(psf, center, w, image.dtype, image.device, symmetric=symmetric, n=max(w, win),
-                           pedestal=win if pedestal else None)
-        for c in torch.unique(cores[sizes == w]).tolist():
-            sel = (sizes == w) & (cores == c)
-            tent2 = tents[c]
-            for gy, gx in otfs.chunks(Y[sel], X[sel], max(PSF_BATCH, k_chunk)):
-                group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
-                for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
-                    ys, xs, otf = gy[k:k + k_chunk], gx[k:k + k_chunk], group_otf[k:k + k_chunk]
-                    anchors = list(zip(torch.ceil(ys).to(torch.int64).tolist(),
-                                       torch.ceil(xs).to(torch.int64).tolist()))
-                    patches = torch.stack([padded[:, :, y + pad - hw: y + pad + hw, x + pad - hw: x + pad + hw]
-                                           for y, x in anchors])  # (k, B, C, w, w)
-                    res = op(patches, otf)
-                    if res.is_complex():
-                        cores_k = core_irfft2(res, w, c)
-                    else:
-                        cores_k = res[..., hw - c // 2: hw + c // 2, hw - c // 2: hw + c // 2]
-                    for j, (y, x) in enumerate(anchors):
-                        sl = (slice(y + core - c // 2, y + core + c // 2), slice(x + core - c // 2, x + core + c // 2))
-                        out[:, :, sl[0], sl[1]] += cores_k[j] * tent2
-                        wsum[sl[0], sl[1]] += tent2
-                    if progress is not None:
-                        progress(len(ys))
+        tent2 = tents[c]
+        patches = torch.stack([padded[:, :, y + pad - hw: y + pad + hw, x + pad - hw: x + pad + hw]
+                               for y, x in anchors])  # (k, B, C, w, w)
+        res = op(patches, otf)
+        if res.is_complex():
+            cores_k = core_irfft2(res, w, c)
+        else:
+            cores_k = res[..., hw - c // 2: hw + c // 2, hw - c // 2: hw + c // 2]
+        for j, (y, x) in enumerate(anchors):
+            sl = core_slices(plan, c, y, x)
+            out[:, :, sl[0], sl[1]] += cores_k[j] * tent2
+            wsum[sl[0], sl[1]] += tent2
+        if progress is not None:
+            progress(len(anchors))
     out = out[:, :, core:core + H, core:core + W]
     wsum = wsum[core:core + H, core:core + W]
     result = torch.zeros_like(image)

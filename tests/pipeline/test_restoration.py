@@ -1,5 +1,6 @@
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -69,27 +70,57 @@ def test_quality_metrics_against_closed_forms():
         psnr_srgb(x, x[..., :32])
 
 
-def test_richardson_lucy_matches_scikit_image():
-    """On a periodic image whose period is the window, every window's circular RL is the periodic RL,
-    which scikit-image's RL reproduces away from its own (zero-padded) borders."""
-    from skimage.restoration import richardson_lucy
+def test_richardson_lucy_is_the_unknown_boundary_iteration_on_the_blur():
+    """Inside a frame, with windows wide enough that no PSF wraps into a core, the blur's operator is the linear
+    convolution: Richardson-Lucy over a region (no context) is then Bertero and Boccacci's iteration with unknown
+    boundaries, written here with scipy: ``u`` on the region and the PSF's reach around it, ``A u`` the 'valid'
+    convolution onto the region, ``A^T`` its correlation, ``A^T 1`` the normaliser, a flat start."""
+    from scipy.signal import convolve2d, correlate2d
 
     from pipeline.restoration import richardson_lucy_windowed
 
-    n = 64
+    n, r = 64, 3
     g = torch.Generator().manual_seed(5)
-    y0 = torch.rand(n, n, generator=g, dtype=torch.float64) * 0.8 + 0.1
+    img = torch.rand(1, 1, 160, 160, generator=g, dtype=torch.float64) * 0.8 + 0.1
     psf = torch.zeros(n, n, dtype=torch.float64)
     psf[n // 2 - 2:n // 2 + 3, n // 2 - 1:n // 2 + 2] = 1.0
     psf[n // 2, n // 2 + 2] = 3.0  # asymmetric, to catch a mirrored kernel
     psf /= psf.sum()
-    tiled = y0.repeat(5, 5)
     measured = FunctionPSF(lambda x, y, m: psf.expand(len(x), m, m), PAPER_CAMERA.geometry)
-    ours = richardson_lucy_windowed(tiled[None, None], measured, iterations=10, scheme=WindowScheme(n, 32, 64))
-    ref = richardson_lucy(tiled.numpy(), psf[n // 2 - 3:n // 2 + 4, n // 2 - 3:n // 2 + 4].numpy(), num_iter=10,
-                          clip=False)
-    mid = slice(2 * n, 3 * n)
-    torch.testing.assert_close(ours[0, 0, mid, mid], torch.from_numpy(ref)[mid, mid], rtol=1e-5, atol=1e-8)
+    region = (48, 112, 40, 120)
+    ours = richardson_lucy_windowed(img, measured, iterations=10, scheme=WindowScheme(n, 16, 32), region=region,
+                                    context=0)
+    k = psf[n // 2 - r:n // 2 + r + 1, n // 2 - r:n // 2 + r + 1].numpy()
+    y = img[0, 0, region[0]:region[1], region[2]:region[3]].numpy()
+    norm = correlate2d(np.ones_like(y), k, mode="full")
+    live = norm > 1e-3  # pixels none of whose light reaches the region keep the start
+    u = np.full(norm.shape, y.mean())
+    for _ in range(10):
+        u = np.where(live, u * correlate2d(y / convolve2d(u, k, mode="valid"), k, mode="full") / np.where(live, norm, 1),
+                     u)
+    torch.testing.assert_close(ours[0, 0, region[0]:region[1], region[2]:region[3]],
+                               torch.from_numpy(u[r:-r, r:-r]), rtol=1e-9, atol=1e-12)
+    assert float(ours[..., :region[0], :].abs().max()) == 0  # outside the region: zeros
+
+
+def test_richardson_lucy_from_a_flat_start_matches_scikit_image():
+    """Scikit-image's iteration (start 0.5, 'same' convolutions with zeros beyond the image) is the same map where
+    neither boundary reaches: far inside a large image, after few iterations (the flat start's level cancels)."""
+    from skimage.restoration import richardson_lucy
+
+    from pipeline.restoration import richardson_lucy_windowed
+
+    g = torch.Generator().manual_seed(6)
+    img = torch.rand(1, 1, 192, 192, generator=g, dtype=torch.float64) * 0.8 + 0.1
+    psf = torch.zeros(64, 64, dtype=torch.float64)
+    psf[30:35, 31:34] = 1.0
+    psf[32, 34] = 3.0
+    psf /= psf.sum()
+    measured = FunctionPSF(lambda x, y, m: psf.expand(len(x), m, m), PAPER_CAMERA.geometry)
+    ours = richardson_lucy_windowed(img, measured, iterations=3, scheme=WindowScheme(64, 16, 32))
+    ref = richardson_lucy(img[0, 0].numpy(), psf[29:36, 29:36].numpy(), num_iter=3, clip=False)
+    mid = slice(64, 128)
+    torch.testing.assert_close(ours[0, 0, mid, mid], torch.from_numpy(ref)[mid, mid], rtol=1e-9, atol=1e-12)
 
 
 def test_richardson_lucy_errors():

@@ -1,0 +1,181 @@
+"""The windowed, spatially varying blur as a linear operator with its adjoint (for iterative restorations).
+
+``A = BlurOperator(psf, shape, scheme=..., optical_center=..., region=...)`` is the map
+:func:`pipeline.blur.blur_windowed` computes, ``A.forward(x) == blur_windowed(x, psf, ...)`` (the same windows, OTFs
+and order of work), kept: the windows are placed once and their OTFs computed once per dtype and device (while they
+fit :data:`OPERATOR_OTF_BYTES`; else again on every pass), so an iteration pays for the transforms alone.
+
+Written out, with ``P_w`` the window ``w``'s patch of the reflect-padded image, ``h_w`` its PSF (pedestal taken out,
+folded onto the window), ``K_w`` the central core of a circular convolution over the window, ``T_w`` its tent,
+``S`` the sum of the tents and ``f`` the pedestal fraction (:func:`pipeline.blur.box_mean` over the scheme's
+window ``n``)::
+
+    A x = (1 / S) sum_w T_w K_w (h_w (*) P_w pad(x)) + f box_n(x)        (over the region; 0 elsewhere)
+
+and its adjoint, the exact transpose (``<A x, y> = <x, A^T y>``)::
+
+    A^T y = pad^T sum_w P_w^T (h~_w (*) K_w^T (T_w y / S)) + f box_n^T(y)
+
+``h~`` the mirrored PSF (the conjugate OTF), ``K_w^T`` the core placed in a window of zeros, ``P_w^T`` the patch added
+back where it was read, ``pad^T`` the reflect padding folded back onto the pixels it copied. The padding's and the box
+mean's transposes are autograd's vector-Jacobian products of those (linear, cheap) maps; the windows' is written out
+(no graph over the transforms: memory stays that of one pass).
+
+Tensors are ``(B, C, H, W)`` (checked by :func:`pipeline.checks.check_image`), batched over ``B``, on any device and in
+any floating dtype: each pass follows its input's (kornia style).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from lenssim import PSFProvider
+
+from .blur import (PAPER_SCHEME, WindowScheme, _pad, box_mean, core_slices, run_windows, weight_sum, window_batches,
+                   window_plan)
+from .checks import check_image, check_provider
+
+__all__ = ["BlurOperator", "OPERATOR_OTF_BYTES"]
+
+OPERATOR_OTF_BYTES = 1 << 30
+"""Most bytes of window OTFs (and their conjugates, for the adjoint) an operator keeps per dtype and device (1 GiB: a
+256 px crop with its context takes 40-120 MB in one channel; a 24 MP frame's ~24,000 windows would take 6 GB, so a frame's OTFs are computed again on
+every pass instead of kept)."""
+
+
+def _vjp(fn, x_shape, dtype, device, g: torch.Tensor) -> torch.Tensor:
+    """``J^T g`` of the linear map ``fn`` at inputs of ``x_shape`` (its transpose applied to ``g``)."""
+    with torch.enable_grad():
+        x = torch.zeros(x_shape, dtype=dtype, device=device, requires_grad=True)
+        return torch.autograd.grad(fn(x), x, g)[0]
+
+
+class BlurOperator:
+    """The windowed blur of ``psf`` over images of ``shape`` ``(..., H, W)`` as a linear operator (module docstring):
+    :meth:`forward` is :func:`pipeline.blur.blur_windowed` with the same ``scheme``, ``optical_center`` (row, col,
+    px; default the image's centre) and ``region`` ``(r0, r1, c0, c1)`` (the output pixels computed; zeros
+    elsewhere), :meth:`adjoint` its transpose."""
+
+    def __init__(self, psf: PSFProvider, shape, *, scheme: WindowScheme = PAPER_SCHEME, optical_center=None,
+                 region=None, otf_bytes: int = OPERATOR_OTF_BYTES):
+        check_provider(psf)
+        self.psf, self.scheme, self.otf_bytes = psf, scheme, int(otf_bytes)
+        H, W = int(shape[-2]), int(shape[-1])
+        if region is not None:
+            r0, r1, c0, c1 = (int(v) for v in region)
+            if not (0 <= r0 < r1 <= H and 0 <= c0 < c1 <= W):
+                raise ValueError(f"region {tuple(region)} is not allowed: (r0, r1, c0, c1) inside the {H} x {W} image "
+                                 "with r0 < r1 and c0 < c1")
+            region = (r0, r1, c0, c1)
+        self.plan = window_plan(tuple(shape), psf, scheme, optical_center, region, fit=scheme.fit)
+        self.fractions = psf.pedestal_fractions(scheme.window)
+        self._kept = {}  # (dtype, device, B, C) -> (the window batches, the weight sum)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """The image size ``(H, W)`` (px) the operator maps from and to."""
+        return self.plan.shape
+
+    @property
+    def region(self) -> tuple[int, int, int, int]:
+        return self.plan.region
+
+    @property
+    def windows(self) -> int:
+        """The number of windows a pass visits."""
+        return int(self.plan.Y.numel())
+
+    def _check(self, x: torch.Tensor, name: str):
+        sizes = check_image(x, name)
+        if (sizes["H"], sizes["W"]) != self.shape:
+            raise ValueError(f"{name} is {sizes['H']} x {sizes['W']} px: this operator maps images of "
+                             f"{self.shape[0]} x {self.shape[1]} px")
+        if self.psf.channels not in (1, sizes["C"]):
+            raise ValueError(f"the PSF provider has {self.psf.channels} channels and {name} {sizes['C']}: expected "
+                             f"1 or {self.psf.channels}")
+
+    def _windows(self, x: torch.Tensor):
+        """The window batches for images like ``x`` and the tents' sum: kept after the first pass where they fit."""
+        key = (x.dtype, x.device, x.shape[0], x.shape[1])  # the batches' sizes follow B and C (a cache's worth)
+        if key in self._kept:
+            return self._kept[key]
+        itemsize = torch.empty((), dtype=x.dtype).element_size() * 2  # complex
+        need = sum(int(w) * (int(w) // 2 + 1) for w in self.plan.sizes.tolist()) * itemsize * self.psf.channels
+        batches = lambda: window_batches(self.plan, self.psf, x, None, pedestal=True)  # noqa: E731
+        if 2 * need <= self.otf_bytes:  # the OTFs and their conjugates (a conjugate view multiplies ~2x slower)
+            kept = list(batches())
+            found = (kept, weight_sum(self.plan, kept, x.dtype, x.device),
+                     [otf.conj().resolve_conj() for _, _, _, otf in kept])
+        else:  # too many to keep: the OTFs again on every pass (the same ones, in the same order)
+            found = (_Replay(batches), weight_sum(self.plan, batches(), x.dtype, x.device), None)
+        self._kept[key] = found
+        return found
+
+    def forward(self, x: torch.Tensor, progress=None) -> torch.Tensor:
+        """``A x`` for ``x`` ``(B, C, H, W)``: :func:`pipeline.blur.blur_windowed` of ``x``."""
+        self._check(x, "x")
+        batches, _, _ = self._windows(x)
+
+        def convolve(patches, otf):
+            return torch.fft.rfft2(patches).mul_(otf)
+
+        out = run_windows(x, self.plan, batches, convolve, progress)
+        if any(self.fractions):
+            out = out.add_(box_mean(x, self.scheme.window, self.plan.region).mul_(self._fractions(x)))
+        return out
+
+    __call__ = forward
+
+    def _fractions(self, x):
+        return torch.tensor(self.fractions, dtype=x.dtype, device=x.device).reshape(1, -1, 1, 1)
+
+    def adjoint(self, y: torch.Tensor, progress=None) -> torch.Tensor:
+        """``A^T y`` for ``y`` ``(B, C, H, W)`` (only its region is read): the transpose of :meth:`forward`."""
+        self._check(y, "y")
+        plan = self.plan
+        batches, wsum, conjugates = self._windows(y)
+        B, C, H, W = y.shape
+        r0, r1, c0, c1 = plan.region
+        m, pad = plan.core, plan.pad
+        z = torch.zeros(B, C, H + 2 * m, W + 2 * m, dtype=y.dtype, device=y.device)
+        z[..., m + r0:m + r1, m + c0:m + c1] = y[..., r0:r1, c0:c1] / wsum[m + r0:m + r1, m + c0:m + c1]
+        grad = torch.zeros(B, C, H + 2 * pad, W + 2 * pad, dtype=y.dtype, device=y.device)
+        tents = plan.tents(y.dtype, y.device)
+        for i, (w, c, anchors, otf) in enumerate(batches):
+            hw, lo = w // 2, w // 2 - c // 2
+            cores = torch.stack([z[:, :, s0, s1] for s0, s1 in (core_slices(plan, c, a, b) for a, b in anchors)])
+            cores.mul_(tents[c])  # (k, B, C, c, c)
+            # rfft2 of the core placed at [lo, lo + c) in a w x w window of zeros: the row transforms of its c rows,
+            # then the column transforms of the w rows (K_w^T, the transpose of core_irfft2's pruned inverse)
+            rows = torch.fft.rfft(torch.nn.functional.pad(cores, (lo, w - lo - c)), dim=-1)
+            spec = torch.fft.fft(torch.nn.functional.pad(rows, (0, 0, lo, w - lo - c)), dim=-2)
+            otf_conj = conjugates[i] if conjugates is not None else otf.conj().resolve_conj()
+            patches = torch.fft.irfft2(spec.mul_(otf_conj), s=(w, w))  # h~ (*): the conjugate OTF
+            for j, (a, b) in enumerate(anchors):
+                grad[:, :, a + pad - hw: a + pad + hw, b + pad - hw: b + pad + hw] += patches[j]
+            if progress is not None:
+                progress(len(anchors))
+        out = _vjp(lambda t: _pad(t, pad), y.shape, y.dtype, y.device, grad)
+        if any(self.fractions):
+            g = torch.zeros_like(y)
+            g[..., r0:r1, c0:c1] = y[..., r0:r1, c0:c1] * self._fractions(y)
+            out += _vjp(lambda t: box_mean(t, self.scheme.window, plan.region), y.shape, y.dtype, y.device, g)
+        return out
+
+    def ones_adjoint(self, like: torch.Tensor) -> torch.Tensor:
+        """``A^T 1`` over the region, in ``like``'s dtype and on its device (``(B, C, H, W)`` of ``like``): how much
+        of each pixel's light lands in the region (Richardson-Lucy's normaliser)."""
+        ones = torch.zeros_like(like)
+        r0, r1, c0, c1 = self.plan.region
+        ones[..., r0:r1, c0:c1] = 1
+        return self.adjoint(ones)
+
+
+class _Replay:
+    """Window batches made afresh on every iteration (OTFs too large to keep)."""
+
+    def __init__(self, make):
+        self.make = make
+
+    def __iter__(self):
+        return iter(self.make())
