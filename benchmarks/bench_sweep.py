@@ -12,6 +12,7 @@ y-transform first, on zero-padded columns), kept below as :func:`otf_from_psf_ha
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tempfile
 import time
@@ -68,10 +69,10 @@ def main() -> int:
                     ("fast (oversample 1)", FAST_NUMERICS, current))
             for label, numerics, stage2 in runs:
                 psf_bank._otf_from_psf_half = stage2
-                cfg = load_config(config_path("paper_grid"))
-                cfg.grid = {"s": (float(picked[0]), float(picked[-1]), step * args.every),
-                            **{k: v for k, v in cfg.grid.items() if k != "s"}}
-                cfg.numerics = numerics
+                cfg = load_config(config_path("paper_grid"))  # a frozen config: replaced, not assigned to
+                cfg = dataclasses.replace(cfg, grid={"s": (float(picked[0]), float(picked[-1]), step * args.every),
+                                                     **{k: v for k, v in cfg.grid.items() if k != "s"}},
+                                          numerics=numerics)
                 n_psf = cfg.n_designs() * len(cfg.lens.field_angles_deg)
                 with PeakRSS() as mem:
                     t0 = time.perf_counter()
