@@ -382,7 +382,7 @@ def build_app(explorer, photo_arg=None, *, max_upload_mb: float = DEFAULT_MAX_UP
         "demosaic": pn.widgets.Select(label="demosaicing", options=list(DEMOSAIC_METHODS), value="Malvar2004"),
         "restore": pn.widgets.TextInput(label="restoration", value="wiener"),
         "method_a": pn.widgets.TextInput(label="method A", value="wiener"),  # the lab's first picks (controls below)
-        "method_b": pn.widgets.TextInput(label="method B", value="richardson_lucy:iterations=20"),
+        "method_b": pn.widgets.TextInput(label="method B", value="richardson_lucy"),
         "grade": pn.widgets.Select(label="tolerance grade", options=list(GRADES), value="commercial",
                                    sizing_mode="stretch_width"),
         "lens_seed": pn.widgets.IntInput(label="lens seed", value=0, start=0, sizing_mode="stretch_width"),

@@ -99,7 +99,7 @@ class BlurOperator:
         key = (x.dtype, x.device, x.shape[0], x.shape[1])  # the batches' sizes follow B and C (a cache's worth)
         if key in self._kept:
             return self._kept[key]
-        itemsize = torch.empty((), dtype=x.dtype).element_size() * 2  # complex
+        itemsize = x.element_size() * 2  # complex
         need = sum(int(w) * (int(w) // 2 + 1) for w in self.plan.sizes.tolist()) * itemsize * self.psf.channels
         batches = lambda: window_batches(self.plan, self.psf, x, None, pedestal=True)  # noqa: E731
         if 2 * need <= self.otf_bytes:  # the OTFs and their conjugates (a conjugate view multiplies ~2x slower)
