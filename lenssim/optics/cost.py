@@ -192,10 +192,18 @@ def asphere_cost(surface, y_mm: float, n_points: int = DEFAULT_COST_POINTS) -> f
     defined out to ``y``."""
     kind = surface.surface_kind
     c, Q, a4 = (torch.tensor(float(v), dtype=torch.float64, device=HOST) for v in kind.seidel_terms(surface))
+    return float(_slope_departure(kind, surface, y_mm, n_points, c, Q, a4))
+
+
+def _slope_departure(kind, surface, y_mm: float, n_points: int, c, Q, a4) -> torch.Tensor:
+    """The RMS slope departure of ``surface`` (its ``kind``) from its best-fit sphere over ``y_mm``, its third-order
+    terms ``c, Q, a4`` (tensors ``()`` or ``(B,)``) seeding the fit; ``(B,)`` or ``()``. A sphere's departure is
+    exactly 0, a kink: its derivative there is taken as 0 (the central differences' value)."""
     r = _radii(y_mm, n_points, c)
     target = kind.slope(surface, r)
     k = _fit_sphere(target, r, y_mm, c + 0.3 * (Q * c**3 + 8 * a4) * y_mm**2)
-    return float(torch.sqrt(((target - sphere_slope(r, k)) ** 2).mean()))
+    ms = ((target - sphere_slope(r, k[..., None])) ** 2).mean(-1)
+    return torch.where(ms == 0, 0.0, torch.sqrt(torch.where(ms == 0, 1.0, ms)))  # NaN stays NaN (a fit that failed)
 
 
 def lens_cost(seq, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
@@ -219,12 +227,11 @@ def lens_cost(seq, n_points: int = DEFAULT_COST_POINTS) -> torch.Tensor:
         kind = s.surface_kind
         c, Q, a4 = (torch.as_tensor(v, dtype=torch.float64, device=seq.device).reshape(-1)
                     for v in kind.seidel_terms(s))
-        r = _radii(y, n_points, c)
-        target = kind.slope(s, r)  # (B, n)
-        k = _fit_sphere(target, r, y, c + 0.3 * (Q * c**3 + 8 * a4) * y**2)
-        ms = ((target - sphere_slope(r, k[..., None])) ** 2).mean(-1)
-        # a sphere's cost is exactly 0, a kink: its derivative there is taken as 0 (the central differences' value)
-        total = total + torch.where(ms > 0, torch.sqrt(torch.where(ms > 0, ms, 1.0)), 0.0)
+        cost = _slope_departure(kind, s, y, n_points, c, Q, a4)
+        if not bool(torch.isfinite(cost).all()):
+            raise LensError(f"surface {i + 1}: its asphere cost is not finite over the radius {y:g} mm for a design "
+                            "of the batch (the conic at its limit, or a best-fit sphere that did not converge)")
+        total = total + cost
     return torch.zeros(seq.batch_size, dtype=torch.float64, device=seq.device) + total
 
 

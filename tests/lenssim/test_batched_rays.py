@@ -135,6 +135,10 @@ def test_what_a_batch_cannot_hold_is_refused(cooke):
     surfs[5] = dataclasses.replace(surfs[5], conic=torch.zeros(2, 1, dtype=torch.float32))
     with pytest.raises(ValueError, match="float64 of shape"):
         SequentialLens(p, numbers=surfs)
+    steep = designs.clone()
+    steep[1, 2] = 400.0  # S6's conic beyond its limit over the semi-diameter: (1 + k) c^2 y^2 >= 1
+    with pytest.raises(ValueError, match="surface 6: its asphere cost is not finite over the radius 11.6 mm"):
+        lens_cost(solve_numbers(p, pars, steep, hold=HOLD), COST_POINTS)
     bare = dataclasses.replace(p, surfaces=tuple(dataclasses.replace(s, semi_diameter_mm=None) for s in p.surfaces))
     with pytest.raises(ValueError, match="surface 6: a batch's asphere cost needs the surface's semi-diameter"):
         lens_cost(solve_numbers(bare, pars, designs, hold=HOLD), COST_POINTS)
