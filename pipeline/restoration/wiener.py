@@ -48,7 +48,7 @@ from lenssim import PSFProvider, image_psd
 
 from lenssim.torch_utils import HOST
 
-from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
+from ..blur import PAPER_SCHEME, StrideZones, WindowScheme, apply_windowed
 from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, register
@@ -121,7 +121,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
                     pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None,
-                    taper: int = WIENER_TAPER_PX) -> torch.Tensor:
+                    taper: int = WIENER_TAPER_PX, zones: StrideZones | None = None) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with the noise ``noise``
     describes (:class:`pipeline.camera_chain.NoiseModel`: a camera chain's ``noise_model()``, or
     ``NoiseModel(electrons_per_unit)`` for photon noise alone, ``math.inf``: none).
@@ -130,7 +130,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     blur's are (:func:`pipeline.blur.fitted_windows`), but at least :data:`WIENER_FIT_LEAST_PX`, its statistics still
     over the central ``stats`` px (docs/performance.md); off where ``stats`` is over that size. ``taper``: the
     width (px) of the band along each edge of a window over which ``y - mu`` is tapered (:data:`WIENER_TAPER_PX`; 0:
-    none).
+    none). ``zones``: coarser windows where the PSF varies slowly (:class:`pipeline.blur.StrideZones`, as the blur's;
+    None: the scheme's stride everywhere, the paper's restoration).
     Returns the same shape.
     """
     check_image(observed, "observed")
@@ -146,6 +147,8 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
                          f"window less the core ({scheme.window - scheme.core})")
     if isinstance(taper, bool) or not (isinstance(taper, int) and taper >= 0):
         raise ValueError(f"taper={taper!r} is not allowed: a width in px, an integer >= 0 (0: no taper)")
+    if zones is not None and not zones.uniform and local == "pixel":
+        raise ValueError("zones are not allowed with local='pixel' (its per-pixel bank is sized to the scheme's core)")
     fit = scheme.fit if fit is None else fit
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
@@ -240,7 +243,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
 
     return apply_windowed(observed, psf, restore_per_pixel if local == "pixel" else restore, scheme=scheme,
                           optical_center=optical_center, region=region, chunk=chunk, progress=progress,
-                          fit=fit, least_fit=WIENER_FIT_LEAST_PX)
+                          fit=fit, least_fit=WIENER_FIT_LEAST_PX, zones=zones)
 
 
 def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,

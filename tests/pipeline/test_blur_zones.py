@@ -154,3 +154,33 @@ def test_the_estimates_are_kept_per_provider(e2e, monkeypatch):
     assert choose_stride_zones(e2e, shape) == first and not calls
     choose_stride_zones(e2e, (1, 1, 901, 1300))  # other radii: estimated
     assert calls
+
+
+def test_a_zoned_wiener_restoration():
+    """The Wiener restoration in stride rings (issue 46's lever): with a delta PSF and no noise it is the identity;
+    inside the inner ring, beyond the reach of the outer ring's windows, it is the unzoned restoration bit for bit;
+    the per-pixel filter refuses zones."""
+    from pipeline import NoiseModel
+    from pipeline.restoration.wiener import wiener_windowed
+
+    delta = FunctionPSF(lambda x, y, n: torch.zeros(len(x), n, n, dtype=torch.float64).index_put_(
+        (torch.arange(len(x)), torch.full((len(x),), n // 2), torch.full((len(x),), n // 2)),
+        torch.tensor(1.0, dtype=torch.float64)), GEOM)
+    img = torch.rand(1, 2, 300, 320, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    scheme = WindowScheme(128, 16, 32, fit=False)
+    zones = StrideZones((100.0,), (1, 2))
+    out = wiener_windowed(img, delta, noise=NoiseModel(math.inf), scheme=scheme, zones=zones, taper=0)
+    assert torch.allclose(out, img, atol=1e-10)
+    blur = FunctionPSF(_mix(lambda x, y: (x.square() + y.square()).sqrt() / 0.4), GEOM)
+    noisy = blur_windowed(img, blur, scheme=scheme) + 0.01 * torch.randn(
+        img.shape, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    plain = wiener_windowed(noisy, blur, noise=NoiseModel(1e4), scheme=scheme)
+    zoned = wiener_windowed(noisy, blur, noise=NoiseModel(1e4), scheme=scheme, zones=zones)
+    # about the optical centre (the frame's): an outer-ring window is used where its tent (64 px core) reaches into its
+    # ring, so from up to 32 px inside the edge, and its tent reaches 32 px further in: pixels within 36 px are clear
+    cy, cx = 150, 160
+    inner = slice(cy - 25, cy + 25), slice(cx - 25, cx + 25)
+    assert torch.equal(zoned[..., inner[0], inner[1]], plain[..., inner[0], inner[1]])
+    assert not torch.allclose(zoned, plain)  # the outer ring is restored with other windows
+    with pytest.raises(ValueError, match="zones are not allowed with local='pixel'"):
+        wiener_windowed(noisy, blur, noise=NoiseModel(1e4), scheme=scheme, zones=zones, local="pixel")
