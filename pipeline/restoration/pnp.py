@@ -132,33 +132,41 @@ PNP_CONTEXT_PX = 0
 """Observed pixels (px) around the region fitted as data besides the region's own (as Richardson-Lucy's)."""
 
 
-def conjugate_gradient(apply, b: torch.Tensor, x: torch.Tensor, steps: int, dims=(-2, -1)) -> torch.Tensor:
+def conjugate_gradient(apply, b: torch.Tensor, x: torch.Tensor, steps: int, dims=(-2, -1), Ax=None):
     """``steps`` conjugate-gradient steps on ``apply(x) = b`` (``apply`` symmetric positive definite) from ``x``, the
-    systems over ``dims`` independent (one per image and channel: inner products over ``dims`` alone)."""
-    r = b - apply(x)
+    systems over ``dims`` independent (one per image and channel: inner products over ``dims`` alone). ``Ax``:
+    ``apply(x)`` where known (saves a product). Returns ``x`` and ``apply(x)`` (kept along: no further product)."""
+    Ax = apply(x) if Ax is None else Ax
+    r = b - Ax
     p = r.clone()
     rr = (r * r).sum(dim=dims, keepdim=True)
+    tiny = torch.finfo(b.dtype).tiny
     for _ in range(steps):
         Ap = apply(p)
         pAp = (p * Ap).sum(dim=dims, keepdim=True)
-        alpha = torch.where(pAp > 0, rr / pAp.clamp_min(torch.finfo(b.dtype).tiny), torch.zeros_like(pAp))
+        alpha = torch.where(pAp > 0, rr / pAp.clamp_min(tiny), torch.zeros_like(pAp))
         x = x + alpha * p
+        Ax = Ax + alpha * Ap
         r = r - alpha * Ap
         rr_new = (r * r).sum(dim=dims, keepdim=True)
-        p = r + torch.where(rr > 0, rr_new / rr.clamp_min(torch.finfo(b.dtype).tiny), torch.zeros_like(rr)) * p
+        p = r + torch.where(rr > 0, rr_new / rr.clamp_min(tiny), torch.zeros_like(rr)) * p
         rr = rr_new
-    return x
+    return x, Ax
 
 
 def hqs_data_step(A: BlurOperator, weight: torch.Tensor, s: torch.Tensor, xi: torch.Tensor, z: torch.Tensor,
                   mu: float, *, y: torch.Tensor | None = None, rhs: torch.Tensor | None = None,
-                  steps: int = PNP_CG_STEPS) -> torch.Tensor:
+                  steps: int = PNP_CG_STEPS, normal_xi: torch.Tensor | None = None):
     """The HQS data step: ``steps`` conjugate-gradient steps from ``xi`` towards
     ``argmin 1/2 ||A (s xi) - y||^2_W + mu/2 ||xi - z||^2``, i.e. ``(S A^T W A S + mu) xi = S A^T W y + mu z``
-    (``rhs``: ``S A^T W y`` where already computed, else from ``y``)."""
+    (``rhs``: ``S A^T W y`` where already computed, else from ``y``; ``normal_xi``: ``S A^T W A S xi`` where known).
+    Returns the new ``xi`` and its ``S A^T W A S xi`` (for the next step: two passes of the operator fewer)."""
     if rhs is None:
         rhs = s * A.adjoint(weight * y)
-    return conjugate_gradient(lambda v: s * A.adjoint(weight * A.forward(s * v)) + mu * v, rhs + mu * z, xi, steps)
+    Ax = None if normal_xi is None else normal_xi + mu * xi
+    xi, Ax = conjugate_gradient(lambda v: s * A.adjoint(weight * A.forward(s * v)) + mu * v, rhs + mu * z, xi, steps,
+                                Ax=Ax)
+    return xi, Ax - mu * xi
 
 
 def _host(x: torch.Tensor) -> np.ndarray:
@@ -292,12 +300,12 @@ def pnp_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
     else:
         rhs = s * Aty
         sigmas = [PNP_SIGMA_START * (1.0 / PNP_SIGMA_START) ** (k / max(iterations - 1, 1)) for k in range(iterations)]
-        z = xi
+        z, normal_xi = xi, None
         m = PNP_DENOISE_MARGIN_PX
         box = (max(d[0] - m, 0), d[1] + m, max(d[2] - m, 0), d[3] + m)
         for k, sig in enumerate(sigmas):
             mu = PNP_LAMBDA / sig ** 2 if strength > 0 else 0.0
-            xi = hqs_data_step(A, weight, s, xi, z, mu, rhs=rhs)
+            xi, normal_xi = hqs_data_step(A, weight, s, xi, z, mu, rhs=rhs, normal_xi=normal_xi)
             if strength > 0:
                 z = xi.clone()
                 z[..., box[0]:box[1], box[2]:box[3]] = _denoise(denoiser, xi[..., box[0]:box[1], box[2]:box[3]],

@@ -55,8 +55,9 @@ def test_conjugate_gradient_solves_a_dense_system():
     m = torch.randn(2, 3, n, n, generator=g, dtype=torch.float64)
     M = m @ m.transpose(-1, -2) + 0.5 * torch.eye(n, dtype=torch.float64)  # 2 x 3 independent SPD systems
     b = torch.randn(2, 3, n, 1, generator=g, dtype=torch.float64)
-    x = conjugate_gradient(lambda v: M @ v, b, torch.zeros_like(b), n)  # n steps: exact in exact arithmetic
+    x, Mx = conjugate_gradient(lambda v: M @ v, b, torch.zeros_like(b), n)  # n steps: exact in exact arithmetic
     torch.testing.assert_close(x, torch.linalg.solve(M, b), rtol=1e-8, atol=1e-10)
+    torch.testing.assert_close(Mx, M @ x, rtol=1e-8, atol=1e-10)  # the product kept along the steps
 
 
 def test_data_step_with_a_delta_psf_is_the_closed_form():
@@ -71,9 +72,13 @@ def test_data_step_with_a_delta_psf_is_the_closed_form():
     s = 0.5 + torch.rand(shape, generator=g, dtype=torch.float64)
     mu = 0.3
     # diagonal entries in [0.3, 4.5]: CG's error falls by (sqrt(15) - 1) / (sqrt(15) + 1) ~ 0.6 a step, 1e-11 in 50
-    got = hqs_data_step(A, weight, s, xi0, z, mu, y=y, steps=50)
+    got, normal = hqs_data_step(A, weight, s, xi0, z, mu, y=y, steps=50)
     want = (s * weight * y + mu * z) / (s * s * weight + mu)
     torch.testing.assert_close(got, want, rtol=1e-8, atol=1e-10)
+    torch.testing.assert_close(normal, s * s * weight * got, rtol=1e-8, atol=1e-10)  # S A^T W A S xi, kept
+    # from there, with the product given, the next step needs no extra pass and reaches the same solution
+    again, _ = hqs_data_step(A, weight, s, got, z, 2 * mu, y=y, steps=50, normal_xi=normal)
+    torch.testing.assert_close(again, (s * weight * y + 2 * mu * z) / (s * s * weight + 2 * mu), rtol=1e-8, atol=1e-10)
 
 
 def test_data_step_is_the_direct_solve_on_a_tiny_blur():
@@ -92,7 +97,7 @@ def test_data_step_is_the_direct_solve_on_a_tiny_blur():
     S, Wd = torch.diag(s.flatten()), torch.diag(weight.flatten())
     M = S @ Amat.T @ Wd @ Amat @ S + mu * torch.eye(n * n, dtype=torch.float64)
     want = torch.linalg.solve(M, S @ Amat.T @ Wd @ y.flatten() + mu * z.flatten()).reshape(shape)
-    got = hqs_data_step(A, weight, s, torch.zeros(shape, dtype=torch.float64), z, mu, y=y, steps=60)
+    got, _ = hqs_data_step(A, weight, s, torch.zeros(shape, dtype=torch.float64), z, mu, y=y, steps=60)
     torch.testing.assert_close(got, want, rtol=1e-7, atol=1e-9)
 
 
