@@ -269,8 +269,9 @@ def pnp_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
     inside[..., d[0]:d[1], d[2]:d[3]] = 1
     # the warm start: the adaptive Wiener over the data; beyond them the observed image
     u = y.clone()
-    u[..., d[0]:d[1], d[2]:d[3]] = wiener_windowed(observed, psf, noise=noise, scheme=scheme, optical_center=center,
-                                                    region=data, stats=min(WIENER_STATS_PX, scheme.window))[..., data[0]:data[1], data[2]:data[3]]
+    start = wiener_windowed(observed, psf, noise=noise, scheme=scheme, optical_center=center, region=data,
+                            stats=min(WIENER_STATS_PX, scheme.window))
+    u[..., d[0]:d[1], d[2]:d[3]] = start[..., data[0]:data[1], data[2]:data[3]]
     # the noise: variance floored at one photo-electron's signal; none at all -> plain least squares, no prior
     floor = noise.variance(1.0 / noise.electrons_per_unit) if math.isfinite(noise.electrons_per_unit) else 0.0
     floor = max(floor, noise.signal_independent_var)
