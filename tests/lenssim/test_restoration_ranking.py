@@ -87,7 +87,9 @@ def test_a_stopped_ranking_resumes_its_finished_designs_and_refuses_another_runs
 
     monkeypatch.setattr(rr, "_design_unit", fake)
     monkeypatch.setattr(rr, "closed_form", lambda camera, designs, snrs, rho0, numerics: {  # the same order
-        k: {"cost": 1e-3, "rms_w": 1.0, "mse_r": {27.6: 0.04 * (1 + i)}, "mse_s": {27.6: 0.3 * (1 + i)}}
+        k: {"cost": 1e-3, "rms_w": 1.0, "mse_r": {27.6: 0.04 * (1 + i)}, "mse_s": {27.6: 0.3 * (1 + i)},
+            "alpha_deg": [0.0, 1.0], "mse_r_alpha": {27.6: [0.03 * (1 + i), 9.0]},
+            "mse_s_alpha": {27.6: [0.2 * (1 + i), 9.0]}}
         for i, k in enumerate(designs)})
     out, log = tmp_path / "r", []
     with pytest.raises(KeyboardInterrupt):
@@ -103,7 +105,9 @@ def test_a_stopped_ranking_resumes_its_finished_designs_and_refuses_another_runs
     rows = list(csv.DictReader((out / "ranking.csv").read_text().splitlines()))
     assert {(r["design"], r["method"], r["rank_psnr"]) for r in rows} >= {("sharp", "wiener", "1"), ("other", "wiener", "2")}
     assert "| sharp |" in (out / "ranking.md").read_text()
-    assert all(a["tau_psnr"] == 1.0 for a in tables["agreement"])
+    assert all(a["tau_psnr"] == 1.0 == a["tau_psnr_at_crops"] for a in tables["agreement"])
+    (sharp,) = [r for r in tables["means"] if r["design"] == "sharp" and r["method"] == "wiener"]
+    assert sharp["closed_form_at_crops"] == pytest.approx(0.03)  # the crop at 0 deg: the first field angle's
 
 
 def test_a_defocused_design_ranks_below_the_sharp_one_under_every_restoration_and_the_closed_form(tmp_path, capsys):
@@ -120,7 +124,8 @@ def test_a_defocused_design_ranks_below_the_sharp_one_under_every_restoration_an
     assert {a["method"] for a in agree} == {"sensor", "wiener", "richardson_lucy"}
     for a in agree:
         assert float(a["tau_psnr"]) == 1.0 and float(a["tau_nmse"]) == 1.0
-        assert a["best_psnr"] == a["best_closed_form"] == "end_to_end_paper"
+        assert a["best_psnr"] == a["best_closed_form"] == a["best_closed_form_at_crops"] == "end_to_end_paper"
+        assert float(a["tau_psnr_at_crops"]) == 1.0
     rows = list(csv.DictReader((out / "ranking.csv").read_text().splitlines()))
     by = {(r["design"], r["method"]): r for r in rows}
     assert float(by[("end_to_end_paper", "wiener")]["psnr_db"]) > float(by[("defocused", "wiener")]["psnr_db"]) + 1
