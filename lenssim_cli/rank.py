@@ -57,7 +57,7 @@ def cmd_rank_designs(args) -> int:
     from lenssim import select_device
     from lenssim.validate import listed, quoted
     from lenssim_studies.restoration_ranking import (MAX_RANKING_DESIGNS, MAX_RANKING_METHODS, MAX_RANKING_PHOTOS,
-                                                     RankingStudy, iso_cost_optima, optimum_name,
+                                                     RankingStudy, ranking_angles, iso_cost_optima, optimum_name,
                                                      rank_designs)
     from pipeline.blur import PAPER_SCHEME
     from pipeline.photo import PHOTO_KEEP_BYTES
@@ -113,6 +113,7 @@ def cmd_rank_designs(args) -> int:
         kept += ideal.nbytes() if ideal.in_memory else 0
         opened.append((source, ideal))
     size = min(_crop_size(args, ideal, source) for source, ideal in opened)
+    ranking_angles([(source, ideal.shape) for source, ideal in opened], size, PAPER_CAMERA.geometry, angles)  # bounds
     t0 = time.perf_counter()
     found = iso_cost_optima(PAPER_CAMERA, levels, optimise, snrs[len(snrs) // 2], PAPER_RHO0,
                             s_range=RANK_S_RANGE, s_step=RANK_S_STEP, Q_range=PAPER_GRID["Q_back"][:2],

@@ -48,7 +48,7 @@ from lenssim.optics.psf_provider import LensPSF
 
 from .study import parabola_minimum
 
-__all__ = ["RankingStudy", "iso_cost_optima", "optimum_name", "closed_form", "rank_designs", "ranking_tables",
+__all__ = ["RankingStudy", "iso_cost_optima", "optimum_name", "closed_form", "ranking_angles", "rank_designs", "ranking_tables",
            "ranking_report", "write_ranking", "MAX_RANKING_DESIGNS", "MAX_RANKING_METHODS", "MAX_RANKING_PHOTOS",
            "MAX_RANKING_CROPS", "SENSOR"]
 
@@ -212,26 +212,37 @@ def _design_unit(study: RankingStudy, name: str, photos, angles: dict, progress=
     return rows
 
 
+def ranking_angles(shapes, crop_px: int, geometry, angles_deg) -> dict:
+    """``{source: angles}``: for each photo of ``shapes`` (``[(source, shape)]``) the angles of ``angles_deg`` whose
+    ``crop_px`` crop fits it (:func:`pipeline.simulate.fitting_angles`; not others: every design sees the same crops;
+    where fewer than two fit, those within its reach, else the axis). Refuses (``ValueError``) more than
+    :data:`MAX_RANKING_PHOTOS` photos or :data:`MAX_RANKING_CROPS` crops."""
+    from pipeline.simulate import fitting_angles
+
+    if len(shapes) > MAX_RANKING_PHOTOS or not shapes:
+        raise ValueError(f"{len(shapes)} photos: give 1 to {MAX_RANKING_PHOTOS}")
+    out = {}
+    for src, shape in shapes:
+        fit = fitting_angles(shape, crop_px, geometry, tuple(angles_deg))
+        if not set(fit) <= set(angles_deg):
+            fit = tuple(a for a in angles_deg if a <= max(fit)) or (0.0,)
+        out[src] = fit
+    crops = sum(len(a) for a in out.values())
+    if crops > MAX_RANKING_CROPS:
+        raise ValueError(f"{crops} crops per design (photos x angles): at most {MAX_RANKING_CROPS}")
+    return out
+
+
 def rank_designs(study: RankingStudy, photos, out, *, log: Callable[[str], None] = print, progress=None) -> dict:
     """Run ``study`` on ``photos`` (``[(source, ideal)]``: linear ``(1, C, H, W)`` tensors or
     :class:`pipeline.photo.Photo`) and write ``ranking.csv``, ``ranking_crops.csv`` and ``ranking.md`` into ``out``
     (atomically, every file at the end; each design's crops go to ``OUT.partial/`` as they finish, and a rerun with
     the same settings resumes there; another run's partial folder is refused). Returns :func:`ranking_tables`."""
-    from pipeline.simulate import fitting_angles
-
     from .chunks import partial_folder
 
-    if len(photos) > MAX_RANKING_PHOTOS or not photos:
-        raise ValueError(f"{len(photos)} photos: give 1 to {MAX_RANKING_PHOTOS}")
-    angles = {}
-    for src, ideal in photos:  # the study's angles that fit each photo (not others: every design sees the same crops)
-        fit = fitting_angles(ideal.shape, study.crop_px, study.camera.geometry, study.angles_deg)
-        if not set(fit) <= set(study.angles_deg):  # fewer than two fit: those within its reach, else the axis
-            fit = tuple(a for a in study.angles_deg if a <= max(fit)) or (0.0,)
-        angles[src] = fit
+    angles = ranking_angles([(src, ideal.shape) for src, ideal in photos], study.crop_px, study.camera.geometry,
+                            study.angles_deg)
     crops = sum(len(a) for a in angles.values())
-    if crops > MAX_RANKING_CROPS:
-        raise ValueError(f"{crops} crops per design (photos x angles): at most {MAX_RANKING_CROPS}")
     snrs = sorted(set(study.snr_db))
     theory = closed_form(study.camera, study.designs, snrs, study.rho0, study.numerics)  # before the long work
     out = Path(out)

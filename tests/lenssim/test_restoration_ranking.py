@@ -160,3 +160,14 @@ def test_parabola_minimum_finds_a_parabolas_vertex_and_keeps_an_end_sample():
     xv, yv = parabola_minimum(x, 3.0 * (x - 0.33) ** 2 + 1.0)  # exact for a parabola, off the samples
     assert xv == pytest.approx(0.33, abs=1e-12) and yv == pytest.approx(1.0, abs=1e-12)
     assert parabola_minimum(x, -x) == (1.0, -1.0)  # the least sample at an end: itself
+
+
+def test_ranking_angles_keep_the_asked_angles_that_fit_and_bound_the_crops():
+    """Only asked angles, never the evenly spaced fallback of fitting_angles: a photo that reaches fewer than two of
+    them is cropped where it reaches (here: on the axis); more crops than MAX_RANKING_CROPS are refused."""
+    g = PAPER_CAMERA.geometry
+    big, small = (1, 3, 4000, 6000), (1, 3, 1000, 1000)
+    got = rr.ranking_angles([("big", big), ("small", small)], 128, g, (0.0, 5.0, 10.0))
+    assert got == {"big": (0.0, 5.0, 10.0), "small": (0.0,)}
+    with pytest.raises(ValueError, match="72 crops per design"):
+        rr.ranking_angles([(f"p{i}", big) for i in range(8)], 128, g, tuple(float(a) for a in range(9)))
