@@ -13,10 +13,10 @@ from lenssim import LensError, __version__
 from lenssim_studies.cluster import ClusterError
 from lenssim.validate import ResourceLimitError
 
-from . import camera, design, explore, lens, optics, tolerance
+from . import camera, design, explore, lens, optics, rank, tolerance
 from .common import check_arguments
 
-COMMAND_MODULES = (optics, tolerance, camera, lens, design, explore)
+COMMAND_MODULES = (optics, tolerance, camera, rank, lens, design, explore)
 """Each module's ``register(subparsers)`` adds its subcommands."""
 
 EXPECTED_ERRORS = (LensError, ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
@@ -34,7 +34,7 @@ NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf$|^-nan$
 DESCRIPTION = """Weigh a lens's manufacturing cost against the quality of the restored image.
 
 optics:  evaluate, sweep, optimum, reproduce, study, designs, demo, tolerance
-camera:  simulate, psnr-table, fig8
+camera:  simulate, psnr-table, fig8, rank-designs
 lens:    inspect, tradeoff                 (lenssim COMMAND --help for each)"""
 
 

@@ -48,7 +48,7 @@ from lenssim.validate import check_int
 from lenssim_studies.paper import PAPER_RHO0
 
 __all__ = ["WhiteLightStudy", "study_camera", "criterion_value", "white_light_study", "STUDY_GRID",
-           "exact_along_tradeoff", "exact_tradeoff_report", "EXACT_STUDY_LEVELS"]
+           "exact_along_tradeoff", "exact_tradeoff_report", "EXACT_STUDY_LEVELS", "parabola_minimum"]
 
 EXACT_STUDY_LEVELS = tuple(float(v) for v in np.linspace(2e-4, 2e-3, 10))
 """Iso-cost levels C_a of the exact-vs-third-order comparison (the upper 9/10 of the paper's range)."""
@@ -332,6 +332,18 @@ def white_light_study(out_dir, study: WhiteLightStudy = WhiteLightStudy(), *, lo
     return report
 
 
+def parabola_minimum(x, y) -> tuple[float, float]:
+    """The minimum ``(x, y)`` of samples ``y`` at evenly spaced ``x``: the vertex of the parabola through the least
+    sample and its two neighbours, or the least sample itself at an end or where the three are not convex."""
+    k = int(np.argmin(y))
+    if 0 < k < len(y) - 1:
+        den = y[k - 1] - 2 * y[k] + y[k + 1]
+        if den > 0:
+            t = 0.5 * (y[k - 1] - y[k + 1]) / den
+            return x[k] + t * (x[k + 1] - x[k]), y[k] - 0.25 * (y[k - 1] - y[k + 1]) * t
+    return x[k], y[k]
+
+
 def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CAMERA, snr_db: float = REFERENCE_SNR_DB,
                          s_range=(-1.5, 0.25), s_step: float = 0.02, exact_points: int = 7,
                          numerics: Numerics = FAST_NUMERICS, log: Callable[[str], None] = print) -> list[dict]:
@@ -350,15 +362,7 @@ def exact_along_tradeoff(levels=EXACT_STUDY_LEVELS, *, camera: Camera = PAPER_CA
 
     s_all = np.arange(s_range[0], s_range[1] + 1e-12, s_step)
     rows = []
-
-    def parabola(x, y):
-        k = int(np.argmin(y))
-        if 0 < k < len(y) - 1:
-            den = y[k - 1] - 2 * y[k] + y[k + 1]
-            if den > 0:
-                t = 0.5 * (y[k - 1] - y[k + 1]) / den
-                return x[k] + t * (x[k + 1] - x[k]), y[k] - 0.25 * (y[k - 1] - y[k + 1]) * t
-        return x[k], y[k]
+    parabola = parabola_minimum
 
     def on_curve(level, s_vals):
         cs, cq, cb = iso_cost_curve(camera.lens, level, s_vals)
