@@ -208,8 +208,8 @@ PEERS = {p.name: p for p in (
 )}
 """Every peer, by name (``--peers``)."""
 DEFAULT_PEERS = ("skimage_wiener_tv", "skimage_rl", "deepinv_admm_wavelet", "bm3d_wiener")
-"""The peers run unless ``--peers`` says otherwise (not ``bm3d_deblurring``: over 5 minutes per 128 px crop on 2 cores; not deepinv's
-TV: 3-4 dB below its wavelet prior on the tuning crop at 2x its time)."""
+"""The peers run unless ``--peers`` says otherwise (not ``bm3d_deblurring``: over 5 minutes per 128 px crop on 2
+cores; not deepinv's TV: 3-4 dB below its wavelet prior on the tuning crop at 2x its time)."""
 
 
 @dataclass
