@@ -74,10 +74,12 @@ TIKHONOV_ORDER = 1
 """Default order (module docstring): on the portrait's centre crop (E2E and RMS_W designs, ISO 400) order 0 stayed below
 the sensor image at every weight tried (best 30.51 dB against 32.25 / 20.42 against 21.48)."""
 
-TIKHONOV_NSR = {0: 30.0, 1: 1.0}
+TIKHONOV_NSR = {0: 30.0, 1: 10.0}
 """The constant of the noise-derived weight ``strength * TIKHONOV_NSR[order] * sigma_n^2 / power`` per order (module
-docstring): order 0, the best of 3 / 10 / 30 / 100 / 300 on the portrait's centre crop (E2E design, ISO 400: 22.43 /
-26.87 / 30.51 / 28.86 / 24.01 dB)."""
+docstring), measured on the portrait's centre crop at ISO 400. E2E design (sensor image 32.25 dB, adaptive Wiener
+37.17): order 0, the best of 3 / 10 / 30 / 100 / 300 (22.43 / 26.87 / 30.51 / 28.86 / 24.01 dB); order 1, of 0.3 / 1 /
+3 / 10 / 30: 31.23 / 35.05 / 37.42 / 37.41 / 35.42 dB. RMS_W design (sensor 21.48, Wiener 30.72), order 1: 13.29 /
+17.34 / 20.93 / 23.90 / 25.56 dB. 3 fell below the sensor image there; 10 has the best mean of those tried."""
 
 TIKHONOV_FLOOR = 1e-10
 """Least signal variance (squared image units) the noise-derived weight divides by (a flat window)."""

@@ -205,7 +205,7 @@ def test_every_registered_method_declares_options_it_takes(name):
 def test_restoration_specs_and_the_dispatcher_check_what_they_are_given():
     x = torch.rand(1, 1, 64, 64, generator=torch.Generator().manual_seed(2), dtype=torch.float64) + 0.1
     ident = FunctionPSF(delta, PAPER_CAMERA.geometry)
-    with pytest.raises(ValueError, match="restoration method 'nonesuch' is not known; valid: wiener"):
+    with pytest.raises(ValueError, match="restoration method 'nonesuch' is not known; valid: "):
         validate_method("nonesuch")
     with pytest.raises(ValueError, match="takes no option"):
         restore("wiener", x, ident, noise=NoiseModel(1e3), options={"iterations": 3}, scheme=SCHEME)

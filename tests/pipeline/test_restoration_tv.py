@@ -178,7 +178,7 @@ def test_the_norm_bound_holds_and_the_objective_falls_from_the_wiener_start():
     A = BlurOperator(psf, noisy.shape, scheme=SMALL)
     mask = torch.ones_like(noisy)
     v = torch.rand(noisy.shape, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-    for _ in range(30):
+    for _ in range(12):
         v = A.adjoint(A.forward(v))
         v /= v.norm()
     power = float(A.forward(v).norm() / v.norm())
@@ -192,7 +192,7 @@ def test_the_norm_bound_holds_and_the_objective_falls_from_the_wiener_start():
     wts, mu = s2 / var, torch.full((1, 1, 1, 1), 2e-4, dtype=torch.float64)
     E = lambda u: float(tv_objective(u, noisy, A.forward, wts, mu)[0])  # noqa: E731
     run = lambda k: tv_primal_dual(noisy, A.forward, A.adjoint, wts, mu, u0, iterations=k, norm=bound)  # noqa: E731
-    energies = [E(u0)] + [E(run(k)) for k in (10, 30, 120)]
+    energies = [E(u0)] + [E(run(k)) for k in (10, 30, 100)]
     assert energies[0] > energies[1] > energies[2] > energies[3]
     assert energies[2] - energies[3] < 0.5 * (energies[0] - energies[3])  # most of the way in 30 steps
 
