@@ -28,10 +28,19 @@ from lenssim.registry import Registry, import_plugins
 from ..camera_chain import NoiseModel
 
 __all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
-           "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin"]
+           "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin", "mean_noise_variance"]
 
 COMMON_ARGUMENTS = ("noise", "scheme", "optical_center", "region", "progress")
 """What a restoration may ask for besides the image and the PSF provider."""
+
+
+def mean_noise_variance(noise: NoiseModel, signal: torch.Tensor) -> torch.Tensor:
+    """The noise variance of ``signal`` ``(..., H, W)`` averaged over its pixels, ``(..., 1, 1)``: ``noise.variance`` at
+    the mean signal (the methods' one noise -> weight rule starts here). The photon and signal-independent terms are
+    affine in the signal, so this is their mean exactly; the PRNU term's falls short by ``(prnu std)^2``, a fraction
+    ``prnu^2`` of the signal's variance. Taken from noisy data the mean's own noise averages out (no clamping of noisy
+    dark pixels at 0, which would bias a per-pixel mean upwards)."""
+    return noise.variance(signal.mean(dim=(-2, -1), keepdim=True))
 
 
 def windowed_margin(scheme) -> int:
@@ -150,7 +159,7 @@ def parse_restoration(spec: str) -> Restoration:
     >>> parse_restoration("richardson_lucy:iterations=30")
     Restoration(name='richardson_lucy', options={'iterations': 30})
     >>> parse_restoration("tikhonov").to_dict()
-    {'name': 'tikhonov', 'options': {'weight': 0.01}}
+    {'name': 'tikhonov', 'options': {'weight': 'noise', 'strength': 1.0, 'order': 1}}
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"restoration {spec!r} is not allowed: NAME or NAME:key=value,... with NAME one of "

@@ -38,22 +38,33 @@ def edge_and_corner_boxes(size=FRAME_PX, crop=CROP_PX):
     return [(r, r + crop, c, c + crop) for r in at for c in at]
 
 
-@pytest.mark.parametrize("method", ["wiener", "pnp"])
-def test_default_restoration_beats_the_sensor_image_beside_a_bright_band_at_every_edge_and_corner(method):
-    """The RMS_W design 10 deg off axis, ISO 100 (3200 e-): before the taper the adaptive Wiener restored every one of
-    these crops 5-10 dB below the sensor image (the window's wrap from the bright top to the dark bottom rang into
-    the cores); with it each is 0.4-8 dB above. Plug-and-play (its defaults) starts from the Wiener."""
+@pytest.fixture(scope="module")
+def band_frame():
+    """The band scene through the RMS_W design 10 deg off axis at ISO 100 (3200 e-): ideal, noisy, PSF, centre,
+    noise."""
     x = band_scene().float()  # float32, as simulate_crops works
     psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["rms_w_paper"])
     centre = (FRAME_PX / 2 - PAPER_CAMERA.geometry.radius_px(10.0), FRAME_PX / 2)  # the frame 10 deg below the axis
     y = blur_windowed(x, psf, scheme=PAPER_SCHEME, optical_center=centre)
     fwc = 3200.0
-    noisy = add_poisson_noise(y, fwc, seed=1)
-    restored = restore(parse_restoration(method), noisy, psf, noise=NoiseModel(fwc / float(y.amax())),
-                       scheme=PAPER_SCHEME, optical_center=centre)
+    return x, add_poisson_noise(y, fwc, seed=1), psf, centre, NoiseModel(fwc / float(y.amax()))
+
+
+TIKHONOV_BELOW = pytest.mark.xfail(strict=True, reason=(
+    "issue 45, open: Tikhonov (order 1, noise-derived weight, the Wiener's taper) restores the dark bottom-left corner "
+    "crop (256, 384, 0, 128) at 41.35 dB against the sensor image's 43.60"))
+
+
+@pytest.mark.parametrize("method", ["wiener", "tv", "pnp", pytest.param("tikhonov", marks=TIKHONOV_BELOW)])
+def test_default_restoration_beats_the_sensor_image_beside_a_bright_band_at_every_edge_and_corner(method, band_frame):
+    """Each method with its defaults. Before the taper the adaptive Wiener restored every one of these crops 5-10 dB
+    below the sensor image (the window's wrap from the bright top to the dark bottom rang into the cores); with it
+    each is 0.4-8 dB above. Plug-and-play and TV start from the Wiener."""
+    x, noisy, psf, centre, noise = band_frame
+    restored = restore(parse_restoration(method), noisy, psf, noise=noise, scheme=PAPER_SCHEME, optical_center=centre)
     for box in edge_and_corner_boxes():
         sensor, ours = psnr_srgb(x, noisy, box), psnr_srgb(x, restored, box)
-        assert ours >= sensor, f"crop {box}: restored {ours:.2f} dB, sensor image {sensor:.2f} dB"
+        assert ours >= sensor, f"{method}, crop {box}: restored {ours:.2f} dB, sensor image {sensor:.2f} dB"
 
 
 def test_window_taper_spares_the_core_and_reaches_zero_at_the_edges():
