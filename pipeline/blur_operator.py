@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import torch
 
-from lenssim import PSFProvider
+from lenssim import PSFProvider, frame_center
 
 from .blur import (PAPER_SCHEME, WindowScheme, _pad, box_mean, core_slices, run_windows, weight_sum, window_batches,
                    window_plan)
 from .checks import check_image, check_provider
 
-__all__ = ["BlurOperator", "OPERATOR_OTF_BYTES"]
+__all__ = ["BlurOperator", "RegionProblem", "OPERATOR_OTF_BYTES"]
 
 OPERATOR_OTF_BYTES = 1 << 30
 """Most bytes of window OTFs (and their conjugates, for the adjoint) an operator keeps per dtype and device (1 GiB: a
@@ -179,3 +179,72 @@ class _Replay:
 
     def __iter__(self):
         return iter(self.make())
+
+
+class RegionProblem:
+    """An iterative restoration's problem around a region of a frame: the observed pixels the estimate spans (``y``),
+    the blur's operator over them (``A``, whose ``region`` is the data: the region and ``context`` px around it) and
+    where they sit in the frame (``origin``: the frame's row and column of ``y[..., 0, 0]``).
+
+    The estimate reaches beyond the data as far as the data's windows read (half the largest window, half a core and
+    the pixel a window may lie before its anchor; for the ``"origin"`` anchor from a multiple of the stride, so the
+    windows stay in place): the light that falls into the data from outside it is estimated too, the boundary
+    unknown, as [Bertero-Boccacci 2005] do for Richardson-Lucy."""
+
+    def __init__(self, observed: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme = PAPER_SCHEME,
+                 optical_center=None, region=None, context: int = 0):
+        check_image(observed, "observed")
+        if isinstance(context, bool) or not (isinstance(context, int) and context >= 0):
+            raise ValueError(f"context={context!r} is not allowed: an integer >= 0 (px)")
+        self.frame_shape, self.scheme = tuple(observed.shape), scheme
+        H, W = observed.shape[-2:]
+        self.center = optical_center if optical_center is not None else frame_center(observed.shape)
+        self.region = tuple(int(v) for v in region) if region is not None else (0, H, 0, W)
+        r0, r1, c0, c1 = self.region
+        self.data = (max(r0 - context, 0), min(r1 + context, H), max(c0 - context, 0), min(c1 + context, W))
+        plan = window_plan(observed.shape, psf, scheme, self.center, self.data, fit=scheme.fit)
+        reach = int(plan.sizes.max()) // 2 + scheme.core // 2 + 1 if plan.sizes.numel() else 0
+        R0, C0 = self.data[0] - reach, self.data[2] - reach
+        if scheme.anchor == "origin":
+            R0, C0 = -(-R0 // scheme.stride) * scheme.stride, -(-C0 // scheme.stride) * scheme.stride
+        R0, C0 = max(R0, 0), max(C0, 0)
+        R1, C1 = min(self.data[1] + reach, H), min(self.data[3] + reach, W)
+        self.origin = (R0, C0)
+        self.y = observed[..., R0:R1, C0:C1]
+        d = self.data
+        self.A = BlurOperator(psf, self.y.shape, scheme=scheme, optical_center=(self.center[0] - R0, self.center[1] - C0),
+                              region=(d[0] - R0, d[1] - R0, d[2] - C0, d[3] - C0))
+
+    @property
+    def local_data(self) -> tuple[int, int, int, int]:
+        """The data's box in ``y``'s pixels."""
+        return self.A.region
+
+    def mask(self) -> torch.Tensor:
+        """1 over the data, 0 elsewhere, shaped as ``y``."""
+        d = self.local_data
+        m = torch.zeros_like(self.y)
+        m[..., d[0]:d[1], d[2]:d[3]] = 1
+        return m
+
+    def ticks(self, iterations: int, progress):
+        """``tick(k)``: reports to ``progress`` after iteration ``k`` its share of the region's windows (so a progress
+        bar over every method's windows ends where it should); a no-op without ``progress``."""
+        from .blur import window_count
+
+        n = window_count(self.frame_shape, self.scheme, self.center, region=self.region)
+        share = [len(range(i, n, iterations)) for i in range(iterations)]
+
+        def tick(k):
+            if progress is not None and share[k]:
+                progress(share[k])
+
+        return tick
+
+    def place(self, u: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+        """The estimate ``u`` (shaped as ``y``) over the region, in a frame of zeros shaped as ``like``."""
+        r0, r1, c0, c1 = self.region
+        R0, C0 = self.origin
+        out = torch.zeros_like(like)
+        out[..., r0:r1, c0:c1] = u[..., r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        return out

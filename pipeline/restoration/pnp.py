@@ -53,14 +53,15 @@ import math
 import numpy as np
 import torch
 
-from lenssim import PSFProvider, frame_center
+from lenssim import PSFProvider
 
-from ..blur import PAPER_SCHEME, WindowScheme, window_count, window_plan
-from ..blur_operator import BlurOperator
+from ..blur import PAPER_SCHEME, WindowScheme
+from ..blur_operator import BlurOperator, RegionProblem
 from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, register, windowed_margin
-from .wiener import WIENER_PIXEL_STATS_PX, WIENER_STATS_PX, wiener_windowed
+from .wiener import wiener_start
+from .wiener import WIENER_PIXEL_STATS_PX
 
 __all__ = ["pnp_windowed", "conjugate_gradient", "hqs_data_step", "PNP_DENOISERS", "PNP_DENOISER", "PNP_DOMAINS", "PNP_ITERATIONS", "PNP_STRENGTH",
            "PNP_CG_STEPS", "PNP_SIGMA_START", "PNP_LAMBDA", "PNP_WAVELET", "PNP_WAVELET_LEVELS",
@@ -253,28 +254,10 @@ def pnp_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
     _check_options(denoiser, iterations, strength, domain)
     if isinstance(context, bool) or not (isinstance(context, int) and context >= 0):
         raise ValueError(f"context={context!r} is not allowed: an integer >= 0 (px)")
-    B, C, H, W = observed.shape
-    center = optical_center if optical_center is not None else frame_center(observed.shape)
-    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    data = (max(r0 - context, 0), min(r1 + context, H), max(c0 - context, 0), min(c1 + context, W))
-    # the estimate: the data and what its windows read (as richardson_lucy_windowed's)
-    plan = window_plan(observed.shape, psf, scheme, center, data, fit=scheme.fit)
-    reach = int(plan.sizes.max()) // 2 + scheme.core // 2 + 1 if plan.sizes.numel() else 0
-    R0, C0 = data[0] - reach, data[2] - reach
-    if scheme.anchor == "origin":
-        R0, C0 = -(-R0 // scheme.stride) * scheme.stride, -(-C0 // scheme.stride) * scheme.stride
-    R0, C0 = max(R0, 0), max(C0, 0)
-    R1, C1 = min(data[1] + reach, H), min(data[3] + reach, W)
-    y = observed[..., R0:R1, C0:C1]
-    d = (data[0] - R0, data[1] - R0, data[2] - C0, data[3] - C0)
-    A = BlurOperator(psf, y.shape, scheme=scheme, optical_center=(center[0] - R0, center[1] - C0), region=d)
-    inside = torch.zeros_like(y)
-    inside[..., d[0]:d[1], d[2]:d[3]] = 1
-    # the warm start: the adaptive Wiener over the data; beyond them the observed image
-    u = y.clone()
-    start = wiener_windowed(observed, psf, noise=noise, scheme=scheme, optical_center=center, region=data,
-                            stats=min(WIENER_STATS_PX, scheme.window))
-    u[..., d[0]:d[1], d[2]:d[3]] = start[..., data[0]:data[1], data[2]:data[3]]
+    problem = RegionProblem(observed, psf, scheme=scheme, optical_center=optical_center, region=region, context=context)
+    y, A, d = problem.y, problem.A, problem.local_data
+    inside = problem.mask()
+    u = wiener_start(problem, observed, psf, noise=noise, scheme=scheme)  # the observed image beyond the data
     # the noise: variance floored at one photo-electron's signal; none at all -> plain least squares, no prior
     floor = noise.variance(1.0 / noise.electrons_per_unit) if math.isfinite(noise.electrons_per_unit) else 0.0
     floor = max(floor, noise.signal_independent_var)
@@ -291,12 +274,7 @@ def pnp_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
         weight, s, strength = inside, torch.ones_like(u), 0.0
     Aty = A.adjoint(weight * y)
 
-    n = window_count(observed.shape, scheme, center, region=(r0, r1, c0, c1))
-    share = [len(range(i, n, iterations)) for i in range(iterations)]  # the region's windows, spread
-
-    def tick(k):
-        if progress is not None and share[k]:
-            progress(share[k])
+    tick = problem.ticks(iterations, progress)
 
     xi = u / s
     if denoiser == "wavelet":
@@ -316,10 +294,7 @@ def pnp_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
                                                                 sig * strength)
                 xi = z if k == iterations - 1 else xi
             tick(k)
-    u = xi * s
-    out = torch.zeros_like(observed)
-    out[..., r0:r1, c0:c1] = u[..., r0 - R0:r1 - R0, c0 - C0:c1 - C0]
-    return out
+    return problem.place(xi * s, observed)
 
 
 def _ista(A, y, Aty, weight, s, xi, kappa, iterations, tick, trace):

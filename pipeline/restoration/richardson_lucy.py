@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import torch
 
-from lenssim import PSFProvider, frame_center
+from lenssim import PSFProvider
 
-from ..blur import PAPER_SCHEME, WindowScheme, window_count, window_plan
-from ..blur_operator import BlurOperator
+from ..blur import PAPER_SCHEME, WindowScheme
+from ..blur_operator import RegionProblem
 from ..checks import check_image
 from . import RestorationMethod, register, windowed_margin
 
@@ -72,38 +72,20 @@ def richardson_lucy_windowed(observed: torch.Tensor, psf: PSFProvider, *, iterat
         raise ValueError(f"context={context!r} is not allowed: an integer >= 0 (px)")
     if (observed < 0).any():
         raise ValueError("observed image has negative values: Richardson-Lucy needs y >= 0")
-    B, C, H, W = observed.shape
-    center = optical_center if optical_center is not None else frame_center(observed.shape)
-    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    data = (max(r0 - context, 0), min(r1 + context, H), max(c0 - context, 0), min(c1 + context, W))
-    # the estimate: the data and what its windows read (half the largest window, half a core and the pixel a window
-    # may lie before its anchor); for the "origin" anchor from a multiple of the stride (the windows stay in place:
-    # a window that then reads beyond the estimate's edge reads its reflection, far from the data)
-    plan = window_plan(observed.shape, psf, scheme, center, data, fit=scheme.fit)
-    reach = int(plan.sizes.max()) // 2 + scheme.core // 2 + 1 if plan.sizes.numel() else 0
-    R0, C0 = data[0] - reach, data[2] - reach
-    if scheme.anchor == "origin":
-        R0, C0 = -(-R0 // scheme.stride) * scheme.stride, -(-C0 // scheme.stride) * scheme.stride
-    R0, C0 = max(R0, 0), max(C0, 0)
-    R1, C1 = min(data[1] + reach, H), min(data[3] + reach, W)
-    y = observed[..., R0:R1, C0:C1]
-    A = BlurOperator(psf, y.shape, scheme=scheme, optical_center=(center[0] - R0, center[1] - C0),
-                     region=(data[0] - R0, data[1] - R0, data[2] - C0, data[3] - C0))
+    # the estimate: the data and what its windows read (RegionProblem)
+    problem = RegionProblem(observed, psf, scheme=scheme, optical_center=optical_center, region=region, context=context)
+    y, A = problem.y, problem.A
     norm = A.ones_adjoint(y)
     live = norm > RL_SUPPORT_FLOOR
     norm = norm.clamp_min(RL_SUPPORT_FLOOR)
     r = A.region  # the start: each image's and channel's mean over the data, flat (the iteration sharpens from it)
     u = y[..., r[0]:r[1], r[2]:r[3]].mean(dim=(-2, -1), keepdim=True).clamp_min(eps).expand_as(y).clone()
-    n = window_count(observed.shape, scheme, center, region=(r0, r1, c0, c1))
-    share = [len(range(i, n, iterations)) for i in range(iterations)]  # the region's windows, spread
+    tick = problem.ticks(iterations, progress)
     for k in range(iterations):
         ratio = y / A.forward(u).clamp_min(eps)
         u = torch.where(live, u * A.adjoint(ratio).clamp_min(0) / norm, u)
-        if progress is not None and share[k]:
-            progress(share[k])
-    out = torch.zeros_like(observed)
-    out[..., r0:r1, c0:c1] = u[..., r0 - R0:r1 - R0, c0 - C0:c1 - C0]
-    return out
+        tick(k)
+    return problem.place(u, observed)
 
 
 def _check(options, scheme):

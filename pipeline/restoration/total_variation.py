@@ -41,14 +41,14 @@ from __future__ import annotations
 
 import torch
 
-from lenssim import PSFProvider, frame_center
+from lenssim import PSFProvider
 
-from ..blur import PAPER_SCHEME, WindowScheme, window_count, window_plan
-from ..blur_operator import BlurOperator
+from ..blur import PAPER_SCHEME, WindowScheme
+from ..blur_operator import BlurOperator, RegionProblem
 from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, mean_noise_variance, register, windowed_margin
-from .wiener import WIENER_STATS_PX, wiener_windowed
+from .wiener import wiener_start
 
 __all__ = ["total_variation_windowed", "tv_primal_dual", "tv_denoise", "tv_objective", "tv_weight", "image_gradient",
            "image_divergence", "TV_STRENGTH", "TV_ITERATIONS", "MAX_TV_ITERATIONS", "operator_norm_bound",
@@ -214,47 +214,22 @@ def total_variation_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise:
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
     _check_options(iterations, context, strength, coupled, nonneg)
-    B, C, H, W = observed.shape
-    center = optical_center if optical_center is not None else frame_center(observed.shape)
-    r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
-    data = (max(r0 - context, 0), min(r1 + context, H), max(c0 - context, 0), min(c1 + context, W))
-    # the estimate: the data and the light its windows read from around it (as Richardson-Lucy's)
-    plan = window_plan(observed.shape, psf, scheme, center, data, fit=scheme.fit)
-    reach = int(plan.sizes.max()) // 2 + scheme.core // 2 + 1 if plan.sizes.numel() else 0
-    R0, C0 = data[0] - reach, data[2] - reach
-    if scheme.anchor == "origin":
-        R0, C0 = -(-R0 // scheme.stride) * scheme.stride, -(-C0 // scheme.stride) * scheme.stride
-    R0, C0 = max(R0, 0), max(C0, 0)
-    R1, C1 = min(data[1] + reach, H), min(data[3] + reach, W)
-    y = observed[..., R0:R1, C0:C1]
-    d = (data[0] - R0, data[1] - R0, data[2] - C0, data[3] - C0)
-    A = BlurOperator(psf, y.shape, scheme=scheme, optical_center=(center[0] - R0, center[1] - C0), region=d)
-    # the warm start: the adaptive Wiener over the data, the observed image around it
-    u0 = y.clone()
-    start = wiener_windowed(observed, psf, noise=noise, scheme=scheme, optical_center=center, region=data,
-                            stats=min(WIENER_STATS_PX, scheme.window))
-    u0[..., d[0]:d[1], d[2]:d[3]] = start[..., data[0]:data[1], data[2]:data[3]]
+    problem = RegionProblem(observed, psf, scheme=scheme, optical_center=optical_center, region=region, context=context)
+    y, A, d = problem.y, problem.A, problem.local_data
+    u0 = wiener_start(problem, observed, psf, noise=noise, scheme=scheme)  # the observed image beyond the data
     if nonneg:
         u0.clamp_min_(0)
-    mask = torch.zeros_like(y)
-    mask[..., d[0]:d[1], d[2]:d[3]] = 1
+    mask = problem.mask()
     blurred = A.forward(u0)  # the blurred start: a denoised expected signal, where the noise is evaluated
     var = noise.variance(blurred).clamp_min(TV_FLOOR)
     sigma2 = mean_noise_variance(noise, blurred[..., d[0]:d[1], d[2]:d[3]]).clamp_min(TV_FLOOR)
     weights = mask * sigma2 / var
     mu = tv_weight(sigma2, u0, d, strength=strength, coupled=coupled)
     norm = operator_norm_bound(A, mask)
-    n_win = window_count(observed.shape, scheme, center, region=(r0, r1, c0, c1))
-    share = [len(range(i, n_win, iterations)) for i in range(iterations)]
-
-    def step(k):
-        if progress is not None and share[k]:
-            progress(share[k])
+    step = problem.ticks(iterations, progress)
 
     u = tv_primal_dual(y, A.forward, A.adjoint, weights, mu, u0, iterations=iterations, norm=norm, coupled=coupled, nonneg=nonneg, progress=step)
-    out = torch.zeros_like(observed)
-    out[..., r0:r1, c0:c1] = u[..., r0 - R0:r1 - R0, c0 - C0:c1 - C0]
-    return out
+    return problem.place(u, observed)
 
 
 def _check(options, scheme):
