@@ -129,9 +129,19 @@ class Restoration:
         return spec if isinstance(spec, Restoration) else parse_restoration(spec)
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _typed(name: str, key: str, value, default):
     """``value`` (a string from the command line, or a Python value) as the type of the option's default."""
     want = type(default)
+    if want is str and isinstance(value, str) and _is_number(value):
+        return float(value)  # a number where the default is a word (tikhonov's weight: "noise" or a number)
     if isinstance(value, str) and want is not str:
         try:
             if want is bool:

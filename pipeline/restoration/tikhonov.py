@@ -85,15 +85,16 @@ TIKHONOV_FLOOR = 1e-10
 """Least signal variance (squared image units) the noise-derived weight divides by (a flat window)."""
 
 
-def _weight(weight):
+def _weight(weight, prefix=""):
     """``weight`` as ``"noise"`` or a float >= 0 (a number, or its text from the command line)."""
     if isinstance(weight, str) and weight.strip() == "noise":
         return "noise"
     try:
         return check_real("weight", float(weight) if isinstance(weight, str) else weight, 0.0)
     except ValueError:
-        raise ValueError(f"weight={weight!r} is not allowed: 'noise' (from the noise model) or a finite number >= 0"
-                         ) from None
+        shown = weight if isinstance(weight, (int, float)) else repr(weight)
+        raise ValueError(f"{prefix}weight={shown} is not allowed: 'noise' (from the noise model) or a finite number "
+                         ">= 0") from None
 
 
 def _penalty(win: int, order: int, dtype, device) -> torch.Tensor:
@@ -168,7 +169,7 @@ def _tikhonov(observed, psf, *, noise, scheme, optical_center=None, region=None,
 
 
 def _check(options, scheme):
-    _weight(options["weight"])
+    _weight(options["weight"], "tikhonov option ")
     check_real("tikhonov option strength", options["strength"], 0.0, lo_open=True)
     if options["order"] not in TIKHONOV_ORDERS:
         raise ValueError(f"tikhonov option order={options['order']!r} is not allowed: 0 (the image) or 1 (its "

@@ -32,7 +32,7 @@ CASES = [
     ["simulate", "afile", "--design", "end_to_end_paper", "--out", "o"],
     ["psnr-table", "--designs", "nope", "--out", "o"],
     ["psnr-table", "--isos", "123", "--out", "o"],
-    ["psnr-table", "--method", "tv", "--out", "o"],
+    ["psnr-table", "--method", "nonesuch", "--out", "o"],
     ["fig8", "skimage:camera", "--angles", "99", "--out", "o"],
     ["fig8", "skimage:camera", "--crop", "4", "--out", "o"],
 ]

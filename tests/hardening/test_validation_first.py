@@ -48,7 +48,7 @@ def _args(tmp_path, *extra, photo=None):
     (["--iso", "200"], "ISO 200 is not allowed"),
     (["--scheme", "511", "32", "64"], "window=511"),
     (["--denoise", "5"], "--denoise 5 is not allowed"),
-    (["--restore", "tv"], "restoration method 'tv' is not known"),
+    (["--restore", "nonesuch"], "restoration method 'nonesuch' is not known"),
     (["--full-frame", "--rl", "2"], "--full-frame restores with one method; 2 were given"),
     (["--restore", "tikhonov:weight=-1"], "weight=-1"),
     (["--restore", "wiener:stats=600"], "wiener option stats=600 is not allowed"),

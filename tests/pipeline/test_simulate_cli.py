@@ -154,8 +154,8 @@ def test_crops_at_several_iso_share_one_blur_and_equal_separate_runs():
     assert both[1][0].scores["wiener"]["psnr_db"] > both[0][0].scores["wiener"]["psnr_db"]  # ISO 25 beats ISO 400
     with pytest.raises(ValueError, match="full_well=-1.0"):
         simulate_crops(ideal, E2E, [-1.0], boxes, sensor=PAPER_SENSOR)
-    with pytest.raises(ValueError, match="restoration method 'tv' is not known"):
-        simulate_crops(ideal, E2E, 800.0, boxes, methods=("tv",), sensor=PAPER_SENSOR)
+    with pytest.raises(ValueError, match="restoration method 'nonesuch' is not known"):
+        simulate_crops(ideal, E2E, 800.0, boxes, methods=("nonesuch",), sensor=PAPER_SENSOR)
 
 
 def test_sensor_read_noise_and_adc_enter_the_sensor_image():
@@ -281,7 +281,7 @@ def test_any_registered_method_with_options_on_crops_psnr_table_fig8_and_the_ful
                  "--restore", "tikhonov:weight=0.003", "wiener", "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["methods"] == ["tikhonov", "wiener"] and m["restored_method"] == "tikhonov"
-    assert m["restorations"][0] == {"name": "tikhonov", "options": {"weight": 0.003}}
+    assert m["restorations"][0] == {"name": "tikhonov", "options": {"weight": 0.003, "strength": 1.0, "order": 1}}
     c = m["crops"][0]
     assert c["psnr_restored_db"] == c["scores"]["tikhonov"]["psnr_db"] and (out / "crop_0deg_restored_tikhonov.png").exists()
     ff = tmp_path / "ff"
