@@ -21,7 +21,7 @@ __all__ = ["ResourceLimitError", "NumericalError", "ModelValidityWarning", "Resu
            "available_memory_bytes", "check_memory", "warn_model", "SNR_DB_RANGE", "SNR_DB_VALIDATED",
            "FULL_WELL_RANGE_E", "MEMORY_FRACTION", "MAX_SEED", "check_snr_db", "check_pixel_pitch_um",
            "PIXEL_PITCH_RANGE_UM", "check_max_fft_size", "OTF_BYTES_PER_SAMPLE", "check_distinct", "MAX_NAMES_LISTED",
-           "MAX_QUOTED_CHARS", "quoted", "listed"]
+           "MAX_QUOTED_CHARS", "quoted", "listed", "looks_numeric"]
 
 SNR_DB_RANGE = (-20.0, 100.0)
 """SNR (dB per pixel) accepted by the criteria: beyond 100 dB the noise variance (1e-10) is below the
@@ -247,3 +247,12 @@ def check_memory(nbytes: float, what: str, limit_bytes: float | None = None, set
     if nbytes > limit:
         raise ResourceLimitError(f"{what} needs about {nbytes / 2**30:.3g} GiB of memory; the limit is "
                                  f"{limit / 2**30:.3g} GiB ({setting})", setting)
+
+
+def looks_numeric(text: str) -> bool:
+    """Whether ``text`` reads as a number (``float(text)`` succeeds: ``"1e-3"``, ``"nan"``, ``"inf"`` do)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -52,6 +52,7 @@ from pathlib import Path
 
 from ..model.prescription import AIR, STOP_SIZES, Prescription, PrescriptionError, PrescriptionSurface
 from ..model.surface_kinds import SURFACE_KINDS, ZemaxParmError
+from ..validate import looks_numeric
 from .files import InputFileError, atomic_write_text, check_input_file, describe_os_error
 
 __all__ = ["read_zmx", "write_zmx", "prescription_zmx", "MAX_ZMX_BYTES"]
@@ -341,7 +342,7 @@ class _Reader:
         elif kw == "COMM":
             cur.comment = _rest(raw)
         elif kw in _DECENTRE:
-            if any(_number(t, kw) != 0 for t in tokens[1:] if _looks_numeric(t)):
+            if any(_number(t, kw) != 0 for t in tokens[1:] if looks_numeric(t)):
                 raise _Fail("tilted or decentred surfaces are not supported; a centred, rotationally symmetric lens only")
         elif kw in _NON_CIRCULAR:
             raise _Fail("rectangular, elliptical or user-defined apertures and obscurations are not supported "
@@ -487,14 +488,6 @@ class _Reader:
         if not 1 <= self.pwav <= len(lams):
             raise _Fail(f"PWAV: primary wavelength {self.pwav} is not one of the {len(lams)} wavelengths")
         return tuple(lams), lams[self.pwav - 1]
-
-
-def _looks_numeric(tok: str) -> bool:
-    try:
-        float(tok)
-    except ValueError:
-        return False
-    return True
 
 
 def _paraxial_focal_length(surfaces, wavelength_um: float) -> float:

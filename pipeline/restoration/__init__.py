@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import torch
 
 from lenssim.registry import Registry, import_plugins
+from lenssim.validate import looks_numeric
 
 from ..camera_chain import NoiseModel
 
@@ -129,18 +130,10 @@ class Restoration:
         return spec if isinstance(spec, Restoration) else parse_restoration(spec)
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _typed(name: str, key: str, value, default):
     """``value`` (a string from the command line, or a Python value) as the type of the option's default."""
     want = type(default)
-    if want is str and isinstance(value, str) and _is_number(value):
+    if want is str and isinstance(value, str) and looks_numeric(value):
         return float(value)  # a number where the default is a word (tikhonov's weight: "noise" or a number)
     if isinstance(value, str) and want is not str:
         try:
