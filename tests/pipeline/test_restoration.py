@@ -242,9 +242,11 @@ def test_a_method_gets_only_the_arguments_it_declares():
         RestorationMethod("bad", "bad", "an option its function lacks", probe, (("gain", 1.0),))
 
 
-def test_tikhonov_is_the_closed_form_filter_on_a_periodic_image():
+@pytest.mark.parametrize("order", [0, 1])
+def test_tikhonov_is_the_closed_form_filter_on_a_periodic_image(order):
     """On a periodic image whose period is the window, every window's circular filter is the periodic one:
-    the result equals conj(H) Y / (|H|^2 + weight) computed on the whole period by one FFT."""
+    the result equals conj(H) Y / (|H|^2 + weight R) computed on the whole period by one FFT, R = 1 (order 0) or
+    (order 1) the power of the forward differences down and across, here the FFTs of the two stencils [1, -1]."""
     n = 64
     g = torch.Generator().manual_seed(5)
     y0 = torch.rand(n, n, generator=g, dtype=torch.float64) * 0.8 + 0.1
@@ -253,11 +255,17 @@ def test_tikhonov_is_the_closed_form_filter_on_a_periodic_image():
     psf[n // 2, n // 2 + 2] = 3.0
     psf /= psf.sum()
     measured = FunctionPSF(lambda xx, yy, m: psf.expand(len(xx), m, m), PAPER_CAMERA.geometry)
-    ours = tikhonov_windowed(y0.repeat(5, 5)[None, None], measured, weight=0.01, order=0,
+    ours = tikhonov_windowed(y0.repeat(5, 5)[None, None], measured, weight=0.01, order=order,
                              scheme=WindowScheme(n, 32, 64))
     H = torch.fft.fft2(torch.fft.ifftshift(psf))
     Y = torch.fft.fft2(y0)
-    X = H.conj() * Y / (H.abs() ** 2 + 0.01)
+    R = torch.ones(n, n, dtype=torch.float64)
+    if order == 1:
+        down, across = torch.zeros(n, n, dtype=torch.float64), torch.zeros(n, n, dtype=torch.float64)
+        down[0, 0], down[1, 0] = -1.0, 1.0
+        across[0, 0], across[0, 1] = -1.0, 1.0
+        R = torch.fft.fft2(down).abs() ** 2 + torch.fft.fft2(across).abs() ** 2
+    X = H.conj() * Y / (H.abs() ** 2 + 0.01 * R)
     X[0, 0] = Y[0, 0]
     ref = torch.fft.ifft2(X).real
     mid = slice(2 * n, 3 * n)
