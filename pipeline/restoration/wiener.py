@@ -54,7 +54,7 @@ from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, register
 
-__all__ = ["wiener_windowed", "wiener_start", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
+__all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
            "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX", "window_taper"]
 
 WIENER_STATS_PX = 128
@@ -117,6 +117,50 @@ def window_taper(window: int, core: int, width: int, dtype=torch.float64, device
     return (t[:, None] * t[None, :]).to(dtype=dtype, device=device)
 
 
+
+class WindowModel:
+    """The adaptive Wiener's model of one window (the module docstring): the image PSD ``P`` and the taper on each
+    window size, and per window and channel the local mean, the noise variance at it and the signal variance of the
+    unblurred image. Shared by the methods that start from this filter's windows."""
+
+    def __init__(self, noise: NoiseModel, *, rho0: float, stats: int, taper: int, core: int, floor: float,
+                 dtype, device):
+        self.noise, self.rho0, self.stats, self.taper, self.core, self.floor = noise, rho0, stats, taper, core, floor
+        self.dtype, self.device = dtype, device
+        self._grids = {}
+
+    def grid(self, win: int):
+        """The image PSD ``P`` on a ``win`` px window (half-plane, mean 1), the half-plane's column weights
+        (the scheme's window, or a larger one where the PSF outgrows it: see :func:`pipeline.blur.window_sizes`) and
+        the window's taper."""
+        if win not in self._grids:
+            half = win // 2
+            P = image_psd(win, self.rho0, dtype=self.dtype, device=self.device)[:, : half + 1]
+            w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
+            w[0] = w[-1] = 1
+            self._grids[win] = (P / P.mean(), w, window_taper(win, self.core, self.taper, self.dtype, self.device))
+        return self._grids[win]
+
+    def deviation_spectrum(self, patches: torch.Tensor, mu: torch.Tensor) -> torch.Tensor:
+        """``rfft2`` of the window's deviation from its local mean, tapered towards the window's edges."""
+        return torch.fft.rfft2((patches - mu).mul_(self.grid(patches.shape[-1])[2]))
+
+    def terms(self, patches: torch.Tensor, H: torch.Tensor):
+        """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
+        win/2+1)``), and ``P``."""
+        win = patches.shape[-1]
+        half, stats = win // 2, self.stats
+        P, w, _ = self.grid(win)
+        centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
+        mu = centre.mean(dim=(-2, -1), keepdim=True)
+        var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
+        var_n = self.noise.variance(mu)
+        HP = (H.real.square() + H.imag.square()) * P
+        # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
+        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
+        return mu, var_n, HP, (var_y - var_n).clamp_min(self.floor) / gain, P
+
+
 def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
                     rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX,
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
@@ -154,38 +198,9 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
-    grids = {}
-
-    def grid_terms(win):
-        """The image PSD ``P`` on a ``win`` px window (half-plane, mean 1), the half-plane's column weights
-        (the scheme's window, or a larger one where the PSF outgrows it: see :func:`pipeline.blur.window_sizes`) and
-        the window's taper."""
-        if win not in grids:
-            half = win // 2
-            P = image_psd(win, rho0, dtype=observed.dtype, device=observed.device)[:, : half + 1]
-            w = torch.full((half + 1,), 2.0, dtype=P.dtype, device=P.device)
-            w[0] = w[-1] = 1
-            grids[win] = (P / P.mean(), w, window_taper(win, scheme.core, taper, observed.dtype, observed.device))
-        return grids[win]
-
-    def deviation_spectrum(patches, mu):
-        """``rfft2`` of the window's deviation from its local mean, tapered towards the window's edges."""
-        return torch.fft.rfft2((patches - mu).mul_(grid_terms(patches.shape[-1])[2]))
-
-    def window_terms(patches, H):
-        """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
-        win/2+1)``), and ``P``."""
-        win = patches.shape[-1]
-        half = win // 2
-        P, w, _ = grid_terms(win)
-        centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
-        mu = centre.mean(dim=(-2, -1), keepdim=True)
-        var_y = centre.var(dim=(-2, -1), correction=0, keepdim=True)
-        var_n = noise.variance(mu)
-        HP = (H.real.square() + H.imag.square()) * P
-        # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
-        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
-        return mu, var_n, HP, (var_y - var_n).clamp_min(floor) / gain, P
+    model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=scheme.core, floor=floor,
+                        dtype=observed.dtype, device=observed.device)
+    window_terms, deviation_spectrum = model.terms, model.deviation_spectrum
 
     def restore(patches, otf):
         H = otf
@@ -253,27 +268,29 @@ def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,
                            progress=progress, local=local, taper=taper)
 
 
-def _check(options, scheme):
+def check_wiener_options(options, scheme, method: str = "wiener"):
+    """Raise ``ValueError`` for Wiener options (``stats``, ``rho0``, ``taper``, ``local``) ``method`` refuses (``scheme``
+    None: those it refuses in any window)."""
     stats, top = options["stats"], (scheme.window if scheme is not None else None)
     if isinstance(stats, bool) or not (isinstance(stats, int) and 2 <= stats <= (top or stats)):
-        raise ValueError(f"wiener option stats={stats!r} is not allowed: an integer >= 2 (px) and at most the window"
+        raise ValueError(f"{method} option stats={stats!r} is not allowed: an integer >= 2 (px) and at most the window"
                          + (f" ({top} px)" if top else ""))
     if not 0 < options["rho0"] < 1:
-        raise ValueError(f"wiener option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
+        raise ValueError(f"{method} option rho0={options['rho0']!r} is not allowed: a correlation in (0, 1)")
     if options["taper"] < 0:
-        raise ValueError(f"wiener option taper={options['taper']!r} is not allowed: a width in px, >= 0 (0: no taper, "
+        raise ValueError(f"{method} option taper={options['taper']!r} is not allowed: a width in px, >= 0 (0: no taper, "
                          "the paper's filter)")
     if options["local"] not in WIENER_LOCAL:
-        raise ValueError(f"wiener option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
+        raise ValueError(f"{method} option local={options['local']!r} is not allowed: one of {', '.join(WIENER_LOCAL)}")
     if scheme is not None and WIENER_PIXEL_STATS_PX > scheme.window - scheme.core:  # wiener_windowed's own rule
-        raise ValueError(f"the wiener restoration needs a window at least {WIENER_PIXEL_STATS_PX} px larger than "
+        raise ValueError(f"the {method} restoration needs a window at least {WIENER_PIXEL_STATS_PX} px larger than "
                          f"the core; window={scheme.window}, core={scheme.core}")
 
 
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
                            _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window"),
                                      ("taper", WIENER_TAPER_PX)),
-                           check=_check))
+                           check=check_wiener_options))
 
 
 def wiener_start(problem: RegionProblem, observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
