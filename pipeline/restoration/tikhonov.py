@@ -117,9 +117,9 @@ TIKHONOV_SURE_FACTOR = 6.0
 over the window's central square, but on the synthetic band beside a dark region (tests/pipeline/test_restoration_edges.py,
 RMS_W design, 10 deg, ISO 100) the restored dark corners were better at 6x that weight in linear error as well (their
 linear PSNR 15.30 / 19.37 dB at 1x / 6x, the sensor image's 18.87), and weighting SURE's frequencies towards the restored
-image's error (by ``1 / (|H|^2 + 0.01)``) moved them by 0.25 dB or less: why is not established (a likely cause, not
-verified: the filter reads the whole window, where the bright band rings into a dark core at small weights, while SURE
-sees the square). Measured on the 28 crop-ISOs of benchmarks/bench_restoration_methods.py (the three photos
+image's error (by ``1 / (|H|^2 + 0.01)``) moved them by 0.25 dB or less, and so weighted (0.01 or 0.001) over the
+whole window instead of the square by 1.0 dB or less, all still 2.9 dB or more below (the noise there is the model's: variance 4.14e-8 measured, 4.09e-8 modelled): why is not
+established. Measured on the 28 crop-ISOs of benchmarks/bench_restoration_methods.py (the three photos
 of issue 45, 256 px at 0 / 5 / 10 deg, E2E and RMS_W designs, ISO 400 and 100): mean PSNR (dB) E2E 400 / E2E 100 /
 RMS_W 400 / RMS_W 100, all; crops below the sensor image (least margin, dB); and the least margin over the nine crops of
 the synthetic band beside a dark region (tests/pipeline/test_restoration_edges.py):
