@@ -210,8 +210,8 @@ def test_restoration_specs_and_the_dispatcher_check_what_they_are_given():
     with pytest.raises(ValueError, match="takes no option"):
         restore("wiener", x, ident, noise=NoiseModel(1e3), options={"iterations": 3}, scheme=SCHEME)
     assert parse_restoration("richardson_lucy:iterations=5").options == {"iterations": 5}
-    assert parse_restoration(" tikhonov : weight = 1e-3 ").options == {"weight": 1e-3}  # a number or "noise"
-    assert parse_restoration("tikhonov:weight=noise").options == {"weight": "noise"}
+    assert parse_restoration(" tikhonov : weight = 1e-3 ").options == {"weight": 1e-3}  # a number, "sure" or "prior"
+    assert parse_restoration("tikhonov:weight=prior").options == {"weight": "prior"}
     for bad, msg in (("richardson_lucy:iterations=2.5", "int"), ("tikhonov:weight=nan", "finite"),
                      ("tikhonov:weight", "key=value"), ("tikhonov:scale=2", "takes no option"), ("", "NAME")):
         with pytest.raises(ValueError, match=msg):

@@ -50,16 +50,13 @@ def band_frame():
     return x, add_poisson_noise(y, fwc, seed=1), psf, centre, NoiseModel(fwc / float(y.amax()))
 
 
-TIKHONOV_BELOW = pytest.mark.xfail(strict=True, reason=(
-    "issue 45, open: Tikhonov (order 1, noise-derived weight, the Wiener's taper) restores the dark bottom-left corner "
-    "crop (256, 384, 0, 128) at 41.35 dB against the sensor image's 43.60"))
-
-
-@pytest.mark.parametrize("method", ["wiener", "tv", "pnp", pytest.param("tikhonov", marks=TIKHONOV_BELOW)])
+@pytest.mark.parametrize("method", ["wiener", "tv", "pnp", "tikhonov"])
 def test_default_restoration_beats_the_sensor_image_beside_a_bright_band_at_every_edge_and_corner(method, band_frame):
     """Each method with its defaults. Before the taper the adaptive Wiener restored every one of these crops 5-10 dB
     below the sensor image (the window's wrap from the bright top to the dark bottom rang into the cores); with it
-    each is 0.4-8 dB above. Plug-and-play and TV start from the Wiener."""
+    each is 0.4-8 dB above. Plug-and-play and TV start from the Wiener. Tikhonov with its former weight (the white
+    prior's noise-to-signal ratio) restored the dark bottom-left corner at 41.35 dB against the sensor image's 43.60;
+    with SURE's (TIKHONOV_SURE_FACTOR) it is 44.24, its least margin 0.19 dB at the bottom-right corner."""
     x, noisy, psf, centre, noise = band_frame
     restored = restore(parse_restoration(method), noisy, psf, noise=noise, scheme=PAPER_SCHEME, optical_center=centre)
     for box in edge_and_corner_boxes():

@@ -233,8 +233,8 @@ def test_bad_options_are_refused_in_one_line():
     for spec, msg in (("tv:iterations=0", "iterations=0 is not allowed"), ("tv:iterations=5000", "1 to 1000"),
                       ("tv:strength=0", "strength=0.0 is not allowed"), ("tv:strength=-1", "> 0"),
                       ("tv:coupled=maybe", "bool expected"), ("tv:lambda=3", "takes no option"),
-                      ("tikhonov:weight=-1", "'noise' .* or a finite number >= 0"),
-                      ("tikhonov:weight=soft", "'noise'"), ("tikhonov:strength=0", "strength")):
+                      ("tikhonov:weight=-1", "'sure' .* 'prior' .* or a finite number >= 0"),
+                      ("tikhonov:weight=soft", "'sure'"), ("tikhonov:strength=0", "strength")):
         with pytest.raises(ValueError, match=msg) as err:
             parse_restoration(spec)
         assert "\n" not in str(err.value)
@@ -245,8 +245,8 @@ def test_bad_options_are_refused_in_one_line():
 
 # --- Tikhonov's weight from the noise model ------------------------------------------------------------------------
 
-def test_tikhonov_s_noise_weight_is_the_white_prior_s_noise_to_signal_ratio():
-    """On a periodic image (period = window, no taper reaches a core), the default weight is ``strength *
+def test_tikhonov_s_prior_weight_is_the_white_prior_s_noise_to_signal_ratio():
+    """On a periodic image (period = window, no taper reaches a core), ``weight="prior"`` (the former default) is ``strength *
     TIKHONOV_NSR[0] * sigma_n^2 / sigma_x^2`` (order 0): the result equals the filter with that number given, computed here from the
     window's statistics; noise-free, it is the inverse filter (weight 0)."""
     from pipeline.restoration.tikhonov import TIKHONOV_NSR
@@ -266,12 +266,13 @@ def test_tikhonov_s_noise_weight_is_the_white_prior_s_noise_to_signal_ratio():
     var_x = (float(centre.var(correction=0)) - var_n) / gain
     w = 0.5 * TIKHONOV_NSR[0] * var_n / var_x
     scheme = WindowScheme(n, 32, 64)
-    auto = tikhonov_windowed(tiled, psf, noise=noise, strength=0.5, order=0, scheme=scheme)
+    auto = tikhonov_windowed(tiled, psf, weight="prior", noise=noise, strength=0.5, order=0, scheme=scheme)
     given = tikhonov_windowed(tiled, psf, weight=w, order=0, scheme=scheme)
     mid = slice(2 * n, 3 * n)
     torch.testing.assert_close(auto[..., mid, mid], given[..., mid, mid], rtol=0, atol=1e-10)
-    clean = tikhonov_windowed(tiled, psf, noise=NoiseModel(math.inf), scheme=scheme)
-    torch.testing.assert_close(clean, tikhonov_windowed(tiled, psf, weight=0.0, scheme=scheme), rtol=0, atol=1e-12)
+    for rule in ("prior", "sure"):
+        clean = tikhonov_windowed(tiled, psf, weight=rule, noise=NoiseModel(math.inf), scheme=scheme)
+        torch.testing.assert_close(clean, tikhonov_windowed(tiled, psf, weight=0.0, scheme=scheme), rtol=0, atol=1e-12)
 
 
 def _kernel(psf, n):
