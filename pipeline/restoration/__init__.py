@@ -162,7 +162,7 @@ def parse_restoration(spec: str) -> Restoration:
     >>> parse_restoration("richardson_lucy:iterations=30")
     Restoration(name='richardson_lucy', options={'iterations': 30})
     >>> parse_restoration("tikhonov").to_dict()
-    {'name': 'tikhonov', 'options': {'weight': 'noise', 'strength': 1.0, 'order': 1}}
+    {'name': 'tikhonov', 'options': {'weight': 'sure', 'strength': 1.0, 'order': 1}}
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"restoration {spec!r} is not allowed: NAME or NAME:key=value,... with NAME one of "

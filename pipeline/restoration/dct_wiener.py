@@ -1,0 +1,207 @@
+"""The adaptive Wiener refined by a local DCT: a regularised inverse in each window of the blur, denoised in the
+sliding 8 x 8 DCT by an empirical Wiener filter that knows the inverse's coloured noise, the adaptive Wiener as the
+pilot.
+
+In every window (the scheme, local PSFs and blending of :mod:`pipeline.blur`, the statistics of
+:class:`pipeline.restoration.wiener.WindowModel`: local mean ``mu``, noise variance ``n2`` at it, signal variance
+``s2``, image model ``P``) and channel:
+
+1. the **pilot** ``p``: the adaptive Wiener filter, ``G = conj(H) P / (abs(H)^2 P + n2 / s2)`` on the tapered ``y - mu``;
+2. the **regularised inverse** ``r``: the same filter with the noise term scaled by ``alpha`` < 1,
+   ``G_r = conj(H) P / (abs(H)^2 P + alpha n2 / s2)``: sharper than the Wiener, noisier, its noise coloured with the
+   power spectrum ``N(f) = n2 abs(H G_r)^2`` (white sensor noise of variance ``n2`` through the filter);
+3. over the window's core and 7 px around it (so that every core pixel is covered by all 64 patches that contain
+   it), every 8 x 8 patch of ``r`` and of ``p`` in the orthonormal 2-D DCT-II; each of ``r``'s coefficients ``c`` is
+   shrunk by the empirical Wiener factor ``c_p^2 / (c_p^2 + v_j)``, ``c_p`` the pilot's coefficient and ``v_j`` the
+   variance of coefficient ``j`` under the noise ``N`` (:func:`coefficient_noise_variance`: exact for stationary
+   noise in the window, from its autocovariance over the patch's lags); with ``local_noise`` ``v_j`` is scaled per
+   patch by the noise model at the patch's own mean over its value at the window's mean (the photon noise follows the
+   local brightness within a window);
+4. the patches back, each weighted by the inverse of its estimate's noise variance ``1 / sum_j v_j w_j^2`` ([1]_'s
+   aggregation weights), averaged where they overlap; ``passes`` > 1 takes the result as the next pass's pilot.
+
+The result keeps the core and is blended as the Wiener's. The Wiener's shrinkage is one factor per spatial
+frequency over a window of hundreds of pixels; the DCT's is one per coefficient of each 8 x 8 patch, so it keeps an
+edge sharp where the Wiener would smooth it and smooths a flat patch more than the Wiener can: the step from a linear
+filter to a transform-domain shrinkage (the second stage of BM3D, here without block matching). No noise
+(``NoiseModel(math.inf)``) and no blur give the identity.
+
+References
+----------
+.. [1] K. Dabov, A. Foi, V. Katkovnik, K. Egiazarian, "Image restoration by sparse 3D transform-domain collaborative
+   filtering", Proc. SPIE 6812, 681207 (2008) (the regularised inverse and regularised Wiener inverse, with coloured
+   noise in the transform domain; the aggregation weights).
+.. [2] G. Yu, G. Sapiro, "DCT image denoising: a simple and effective image denoising algorithm", Image Processing
+   On Line 1, 292-296 (2011) (sliding 8 x 8 DCT shrinkage).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from lenssim import PSFProvider
+from lenssim.torch_utils import HOST
+
+from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed, core_irfft2
+from ..camera_chain import NoiseModel
+from ..checks import check_image
+from . import RestorationMethod, register
+from .wiener import (WIENER_FIT_LEAST_PX, WIENER_RHO0, WIENER_STATS_PX, WIENER_TAPER_PX, WindowModel,
+                     check_wiener_options)
+
+__all__ = ["dct_wiener_windowed", "dct_basis", "coefficient_noise_variance", "dct_shrink", "DCT_PATCH_PX",
+           "DCT_ALPHA", "DCT_PASSES", "MAX_DCT_PASSES"]
+
+DCT_PATCH_PX = 8
+"""Side (px) of the DCT's patches ([2]_'s 8 x 8)."""
+
+DCT_ALPHA = 0.3
+"""Default noise weight of the regularised inverse relative to the Wiener's (0 < alpha <= 1; 1: the Wiener itself,
+denoised again). Measured below (:data:`DCT_PASSES`)."""
+
+DCT_PASSES = 1
+"""Default number of shrinkage passes (each one's result the next one's pilot)."""
+
+MAX_DCT_PASSES = 8
+"""Most passes a run may ask for."""
+
+
+def dct_basis(n: int = DCT_PATCH_PX, dtype=torch.float64, device=None) -> torch.Tensor:
+    """The orthonormal 2-D DCT-II basis of ``n x n`` patches as convolution kernels ``(n^2, 1, n, n)``: kernel
+    ``j = a n + b`` is ``M[a, i] M[b, k]`` with ``M[a, i] = sqrt(2 / n) cos(pi (i + 1/2) a / n)`` (``a = 0``: ``1 /
+    sqrt(n)``), so ``conv2d(x, basis)`` gives every patch's coefficients (scipy's ``dctn(..., norm="ortho")``)."""
+    i = torch.arange(n, dtype=torch.float64, device=HOST)
+    M = torch.cos(math.pi * (i[None, :] + 0.5) * i[:, None] / n) * math.sqrt(2 / n)
+    M[0] /= math.sqrt(2)
+    return torch.einsum("ai,bk->abik", M, M).reshape(n * n, 1, n, n).to(dtype=dtype, device=device)
+
+
+def _basis_autocorrelation(basis: torch.Tensor) -> torch.Tensor:
+    """``A_j(d) = sum_q b_j(q) b_j(q + d)`` for the lags ``d`` in ``[-(n-1), n-1]^2``: ``(n^2, 2n-1, 2n-1)``."""
+    n = basis.shape[-1]
+    padded = F.pad(basis, (n - 1,) * 4).transpose(0, 1)  # (1, n^2, 3n-2, 3n-2)
+    return F.conv2d(padded, basis, groups=basis.shape[0])[0]
+
+
+def coefficient_noise_variance(noise_psd: torch.Tensor, window: int, n: int = DCT_PATCH_PX,
+                               autocorrelation: torch.Tensor | None = None) -> torch.Tensor:
+    """Variance of each orthonormal DCT coefficient of an ``n x n`` patch of stationary noise whose power spectrum on a
+    periodic ``window`` px grid is ``noise_psd`` ``(..., window, window // 2 + 1)`` (``rfft2`` layout; white noise of
+    variance ``v`` per pixel: ``v`` everywhere). ``(..., n^2)``: ``sum_d R(d) A_j(d)`` over the lags of a patch, ``R`` the
+    noise's autocovariance (``irfft2`` of its spectrum) and ``A_j`` the basis function's autocorrelation
+    (``autocorrelation``: :func:`_basis_autocorrelation` of :func:`dct_basis`, where already made)."""
+    if autocorrelation is None:
+        autocorrelation = _basis_autocorrelation(dct_basis(n, noise_psd.dtype, noise_psd.device))
+    m = n - 1
+    R = torch.fft.irfft2(noise_psd, s=(window, window))
+    R = torch.roll(R, shifts=(m, m), dims=(-2, -1))[..., : 2 * m + 1, : 2 * m + 1]  # lags -m .. m
+    return R.reshape(R.shape[:-2] + (-1,)) @ autocorrelation.reshape(n * n, -1).T.to(R.dtype)
+
+
+def dct_shrink(x: torch.Tensor, pilot: torch.Tensor, variance: torch.Tensor, *, passes: int = 1,
+               basis: torch.Tensor | None = None) -> torch.Tensor:
+    """Empirical Wiener shrinkage of ``x`` ``(N, 1, h, w)`` in the sliding DCT (module docstring, steps 3-4):
+    ``variance`` the noise variance of each coefficient ``(N, n^2, 1, 1)`` or per patch ``(N, n^2, h-n+1, w-n+1)``,
+    ``pilot`` the estimate whose coefficients set the factors (same shape as ``x``). Every pixel is averaged over the
+    patches that contain it (a border pixel over fewer). Returns ``(N, 1, h, w)``."""
+    if basis is None:
+        basis = dct_basis(DCT_PATCH_PX, x.dtype, x.device)
+    n = basis.shape[-1]
+    tiny = torch.finfo(x.dtype).tiny
+    ones = torch.ones((1, 1, n, n), dtype=x.dtype, device=x.device)
+    c = F.conv2d(x, basis)
+    eps = torch.finfo(x.dtype).eps
+    scale = variance.sum(dim=1, keepdim=True).amax(dim=(-2, -1), keepdim=True)
+    out = pilot
+    for _ in range(passes):
+        cp2 = F.conv2d(out, basis).square_()
+        factor = cp2 / (cp2 + variance).clamp_min(tiny)
+        # 1 / the estimate's noise variance, in units of the largest coefficient-summed variance (so finite without
+        # noise: all weights 1, a plain average)
+        residual = (factor.square() * variance).sum(dim=1, keepdim=True)
+        weight = torch.where(scale > 0, scale / (residual + eps * scale), torch.ones_like(residual))
+        out = F.conv_transpose2d(c * factor * weight, basis) / F.conv_transpose2d(weight, ones)
+    return out
+
+
+def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel, alpha: float = DCT_ALPHA,
+                        passes: int = DCT_PASSES, local_noise: bool = True, rho0: float = WIENER_RHO0,
+                        stats: int = WIENER_STATS_PX, taper: int = WIENER_TAPER_PX,
+                        scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None,
+                        chunk: int | None = None, progress=None, floor: float = 1e-10) -> torch.Tensor:
+    """Restore a linear sensor image ``(B, C, H, W)`` (module docstring) with the noise ``noise`` describes; the
+    windows' transforms fitted to the local PSF as the Wiener's (``scheme.fit``). Returns the same shape."""
+    check_image(observed, "observed")
+    if not isinstance(noise, NoiseModel):
+        raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
+    check_wiener_options({"stats": stats, "rho0": rho0, "taper": taper, "local": "window"}, scheme, "dct_wiener")
+    _check_own(alpha, passes)
+    dtype, device = observed.dtype, observed.device
+    model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=scheme.core, floor=floor,
+                        dtype=dtype, device=device)
+    basis = dct_basis(DCT_PATCH_PX, dtype, device)
+    autocorrelation = _basis_autocorrelation(dct_basis(DCT_PATCH_PX, torch.float64, device)).to(dtype)
+    mean_kernel = torch.full((1, 1, DCT_PATCH_PX, DCT_PATCH_PX), DCT_PATCH_PX ** -2, dtype=dtype, device=device)
+    tiny = torch.finfo(dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
+    m = DCT_PATCH_PX - 1
+
+    def restore(patches, H):
+        win = patches.shape[-1]
+        half, core = win // 2, scheme.core
+        mu, var_n, HP, sx, P = model.terms(patches, H)
+        spectrum = model.deviation_spectrum(patches, mu).mul_(H.conj().resolve_conj())
+        G_r = P / (HP + alpha * var_n / sx).clamp_min(tiny)
+        big = core + 2 * m
+        r = core_irfft2(spectrum * G_r, win, big)
+        p = core_irfft2(spectrum * (P / (HP + var_n / sx).clamp_min(tiny)), win, big)
+        shape = r.shape[:-2]
+        psd = (HP / P) * G_r.square() * var_n  # abs(H G_r)^2 n2
+        v = coefficient_noise_variance(psd, win, autocorrelation=autocorrelation)
+        v = v.expand(shape + v.shape[-1:]).reshape(-1, DCT_PATCH_PX ** 2, 1, 1).clamp_min(0)
+        p = p.reshape(-1, 1, big, big)
+        if local_noise:  # the noise model at each patch's mean over its value at the window's mean
+            local = F.conv2d(p, mean_kernel) + mu.expand(shape + (1, 1)).reshape(-1, 1, 1, 1)
+            at_mu = var_n.expand(shape + (1, 1)).reshape(-1, 1, 1, 1)
+            v = v * (noise.variance(local.clamp_min(0)) / at_mu.clamp_min(tiny))
+        out = dct_shrink(r.reshape(-1, 1, big, big), p, v, passes=passes, basis=basis)
+        out = out[..., m:m + core, m:m + core].reshape(shape + (core, core)) + mu
+        full = torch.zeros_like(patches)  # apply_windowed keeps the central core of a real result
+        full[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2] = out
+        return full
+
+    return apply_windowed(observed, psf, restore, scheme=scheme, optical_center=optical_center, region=region,
+                          chunk=chunk, progress=progress, fit=scheme.fit, least_fit=WIENER_FIT_LEAST_PX)
+
+
+def _check_own(alpha, passes):
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha <= 1:
+        raise ValueError(f"dct_wiener option alpha={alpha!r} is not allowed: the inverse's noise weight relative to "
+                         "the Wiener's, a number in (0, 1]")
+    if isinstance(passes, bool) or not isinstance(passes, int) or not 1 <= passes <= MAX_DCT_PASSES:
+        raise ValueError(f"dct_wiener option passes={passes!r} is not allowed: an integer in [1, {MAX_DCT_PASSES}]")
+
+
+def _dct_wiener(observed, psf, *, noise, scheme, optical_center=None, region=None, progress=None, alpha=DCT_ALPHA,
+                passes=DCT_PASSES, local_noise=True, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, taper=WIENER_TAPER_PX):
+    return dct_wiener_windowed(observed, psf, noise=noise, alpha=alpha, passes=passes, local_noise=local_noise,
+                               stats=stats, rho0=rho0, taper=taper, scheme=scheme, optical_center=optical_center,
+                               region=region, progress=progress)
+
+
+def _check(options, scheme):
+    check_wiener_options({**options, "local": "window"}, scheme, "dct_wiener")
+    _check_own(options["alpha"], options["passes"])
+    if not isinstance(options["local_noise"], bool):
+        raise ValueError(f"dct_wiener option local_noise={options['local_noise']!r} is not allowed: true or false")
+
+
+register(RestorationMethod("dct_wiener", "Wiener + local DCT",
+                           "regularised inverse in the blur's windows, empirical Wiener shrinkage in the sliding 8x8 "
+                           "DCT with the adaptive Wiener as pilot",
+                           _dct_wiener, (("alpha", DCT_ALPHA), ("passes", DCT_PASSES), ("local_noise", True),
+                                         ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
+                                         ("taper", WIENER_TAPER_PX)),
+                           check=_check))
