@@ -50,7 +50,7 @@ def band_frame():
     return x, add_poisson_noise(y, fwc, seed=1), psf, centre, NoiseModel(fwc / float(y.amax()))
 
 
-@pytest.mark.parametrize("method", ["wiener", "tv", "pnp", "tikhonov"])
+@pytest.mark.parametrize("method", ["wiener", "tv", "pnp", "tikhonov", "dct_wiener"])
 def test_default_restoration_beats_the_sensor_image_beside_a_bright_band_at_every_edge_and_corner(method, band_frame):
     """Each method with its defaults. Before the taper the adaptive Wiener restored every one of these crops 5-10 dB
     below the sensor image (the window's wrap from the bright top to the dark bottom rang into the cores); with it
