@@ -45,7 +45,7 @@ import torch.nn.functional as F
 from lenssim import PSFProvider
 from lenssim.torch_utils import HOST
 
-from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed, core_irfft2
+from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed, core_irfft2, window_chunk
 from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, register
@@ -53,7 +53,7 @@ from .wiener import (WIENER_FIT_LEAST_PX, WIENER_RHO0, WIENER_STATS_PX, WIENER_T
                      check_wiener_options)
 
 __all__ = ["dct_wiener_windowed", "dct_basis", "coefficient_noise_variance", "dct_shrink", "DCT_PATCH_PX",
-           "DCT_ALPHA", "DCT_PASSES", "MAX_DCT_PASSES"]
+           "DCT_ALPHA", "DCT_PASSES", "MAX_DCT_PASSES", "DCT_LIVE_COPIES"]
 
 DCT_PATCH_PX = 8
 """Side (px) of the DCT's patches ([2]_'s 8 x 8)."""
@@ -67,6 +67,12 @@ DCT_PASSES = 1
 
 MAX_DCT_PASSES = 8
 """Most passes a run may ask for."""
+
+DCT_LIVE_COPIES = 6
+"""Coefficient-sized tensors (``n^2`` values per pixel of the core and its 7 px band) a window holds at once in
+:func:`dct_shrink` (the inverse's coefficients, the pilot's squared, the factors, the weighted product, the variances
+per patch, the transposed convolution's output): with the Wiener's ``3 window^2`` they size the batches of windows
+(:func:`pipeline.blur.window_chunk`'s budget)."""
 
 
 def dct_basis(n: int = DCT_PATCH_PX, dtype=torch.float64, device=None) -> torch.Tensor:
@@ -172,6 +178,10 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
         full[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2] = out
         return full
 
+    if chunk is None:  # the Wiener's batches, shrunk by what the shrinkage holds beyond a window's transform
+        wiener = 3 * scheme.window ** 2
+        chunk = max(1, window_chunk(observed, scheme.window) * wiener
+                    // (wiener + DCT_LIVE_COPIES * DCT_PATCH_PX ** 2 * (scheme.core + 2 * m) ** 2))
     return apply_windowed(observed, psf, restore, scheme=scheme, optical_center=optical_center, region=region,
                           chunk=chunk, progress=progress, fit=scheme.fit, least_fit=WIENER_FIT_LEAST_PX)
 
