@@ -682,14 +682,17 @@ MAP_TILE_PX = 256
 """Side (px) of the tiles of a frame's PSNR map."""
 
 
-def frame_memory_bytes(shape, restorations: int = 1) -> int:
+def frame_memory_bytes(shape, restorations: int = 1, method="wiener", scheme: WindowScheme = PAPER_SCHEME) -> int:
     """Memory (bytes) that :func:`simulate_frame` and :func:`score_frame` plan for an ideal image of ``shape``
-    ``(B, C, H, W)`` in float32, with ``restorations`` restored frames (the providers of ``restoration_psf``)."""
+    ``(B, C, H, W)`` in float32, with ``restorations`` restored frames (the providers of ``restoration_psf``) by
+    ``method`` (as for :func:`simulate_frame`) in the windows of ``scheme``: :data:`FRAME_WORKING_COPIES` (measured
+    with the adaptive Wiener) plus what the method holds beyond the Wiener
+    (:meth:`pipeline.restoration.Restoration.memory_bytes`; once: the restorations run in turn, each freeing its
+    working buffers)."""
     restorations = check_int("restorations", restorations, 1)
-    n = 1
-    for v in shape:
-        n *= int(v)
-    return (FRAME_WORKING_COPIES + FRAME_COPIES_PER_EXTRA_RESTORATION * (restorations - 1)) * n * 4
+    n = math.prod(int(v) for v in shape)
+    copies = FRAME_WORKING_COPIES + FRAME_COPIES_PER_EXTRA_RESTORATION * (restorations - 1)
+    return copies * n * 4 + Restoration.of(method).memory_bytes(shape, scheme)
 
 
 def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry, *, tile: int = MAP_TILE_PX,

@@ -6,7 +6,8 @@ declares in its signature only the keyword arguments it uses, from ``noise`` (th
 :meth:`pipeline.camera_chain.CameraChain.noise_model`, so no method keeps a second noise formula), ``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
 ``progress``, and the dispatcher passes it just those (as colour-science's ``filter_kwargs``). Its
 ``options`` are its own settings with their defaults; ``margin(scheme)`` says how far (px) beyond the
-``region`` it reads the observed image (the windowed methods: half a window and a core).
+``region`` it reads the observed image (the windowed methods: half a window and a core); ``memory`` what it holds
+at its peak beyond the adaptive Wiener (:class:`WorkingMemory`: the whole frame's memory check plans with it).
 
 Adding a method is one file in this package (``pipeline/restoration/NAME.py``) that calls :func:`register`:
 every module here is imported when the package is (the paper's Wiener filter first). A method and its
@@ -26,9 +27,10 @@ import torch
 from lenssim.registry import Registry, import_plugins
 from lenssim.validate import looks_numeric
 
+from ..blur_operator import OPERATOR_OTF_BYTES
 from ..camera_chain import NoiseModel
 
-__all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
+__all__ = ["RestorationMethod", "Restoration", "WorkingMemory", "RESTORATION_METHODS", "register", "validate_method", "restore",
            "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin", "mean_noise_variance"]
 
 COMMON_ARGUMENTS = ("noise", "scheme", "optical_center", "region", "progress")
@@ -50,11 +52,41 @@ def windowed_margin(scheme) -> int:
 
 
 @dataclass(frozen=True)
+class WorkingMemory:
+    """What a restoration holds at its peak beyond what the adaptive Wiener holds (the whole frame's memory plan,
+    :func:`pipeline.simulate.frame_memory_bytes`, was measured with the Wiener, so the Wiener's own working buffers
+    are in it already), in float32 buffers: ``copies`` the size of the image (an iterative method's estimate,
+    residual, conjugate directions, duals; a float64 copy on the host counts two), ``padded`` the size of the image
+    padded by :func:`windowed_margin` each side (the accumulators of the blur operator's passes) and, with
+    ``operator``, the window OTFs and their conjugates that a :class:`pipeline.blur_operator.BlurOperator` keeps (at
+    most :data:`~pipeline.blur_operator.OPERATOR_OTF_BYTES`, by its own rule). Each method's measured peaks are in
+    the docstring of its ``*_MEMORY``."""
+
+    copies: float = 0.0
+    padded: float = 0.0
+    operator: bool = False
+
+    def __post_init__(self):
+        for k in ("copies", "padded"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 <= v < math.inf):
+                raise ValueError(f"{k}={v!r} is not allowed: a finite number >= 0")
+
+    def bytes(self, shape, scheme) -> int:
+        """Bytes for an image of ``shape`` ``(..., H, W)`` restored in the windows of ``scheme``."""
+        m = windowed_margin(scheme)
+        images, H, W = math.prod(int(v) for v in shape[:-2]), int(shape[-2]), int(shape[-1])
+        floats = self.copies * images * H * W + self.padded * images * (H + 2 * m) * (W + 2 * m)
+        return math.ceil(4 * floats) + (OPERATOR_OTF_BYTES if self.operator else 0)
+
+
+@dataclass(frozen=True)
 class RestorationMethod:
     """A restoration method (see the module docstring): ``fn``, a label for figures and tables, its options
     ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options, scheme)``, which raises ``ValueError`` for
     option values the method refuses (``scheme`` None: those it refuses in any window; called when a
-    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work)."""
+    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work); ``memory``: its
+    :class:`WorkingMemory`, or ``memory(options) -> WorkingMemory`` where an option changes it."""
 
     name: str
     label: str
@@ -63,6 +95,7 @@ class RestorationMethod:
     options: tuple[tuple[str, object], ...] = ()
     margin: Callable = windowed_margin
     check: Callable | None = None
+    memory: WorkingMemory | Callable = WorkingMemory()
 
     def __post_init__(self):
         params = inspect.signature(self.fn).parameters
@@ -120,6 +153,13 @@ class Restoration:
 
     def margin(self, scheme) -> int:
         return int(self.method.margin(scheme))
+
+    def memory_bytes(self, shape, scheme) -> int:
+        """Bytes this restoration holds at its peak beyond the adaptive Wiener (:class:`WorkingMemory`) on an image of
+        ``shape`` ``(..., H, W)`` in the windows of ``scheme``."""
+        mem = self.method.memory
+        mem = mem({**dict(self.method.options), **self.options}) if callable(mem) else mem
+        return mem.bytes(shape, scheme)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "options": {**dict(self.method.options), **self.options}}
