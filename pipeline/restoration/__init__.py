@@ -30,8 +30,9 @@ from lenssim.validate import looks_numeric
 from ..blur_operator import OPERATOR_OTF_BYTES
 from ..camera_chain import NoiseModel
 
-__all__ = ["RestorationMethod", "Restoration", "WorkingMemory", "RESTORATION_METHODS", "register", "validate_method", "restore",
-           "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin", "mean_noise_variance"]
+__all__ = ["RestorationMethod", "Restoration", "WorkingMemory", "OPERATOR_PADDED_COPIES", "RESTORATION_METHODS",
+           "register", "validate_method", "restore", "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin",
+           "mean_noise_variance"]
 
 COMMON_ARGUMENTS = ("noise", "scheme", "optical_center", "region", "progress")
 """What a restoration may ask for besides the image and the PSF provider."""
@@ -51,14 +52,24 @@ def windowed_margin(scheme) -> int:
     return scheme.window // 2 + scheme.core
 
 
+OPERATOR_PADDED_COPIES = 9
+"""Float32 buffers the size of the image padded by :func:`windowed_margin` each side that a pass of the blur's operator
+(:class:`pipeline.blur_operator.BlurOperator`) holds at its peak: the adjoint's accumulator and its padding's transpose
+(2) and the pedestal's box mean transposed by autograd (its summed-area tables and their gradients, over at most
+:data:`pipeline.blur.BOX_BAND_ROWS` rows at a time). Measured: Richardson-Lucy on a 2048 x 2048 colour frame (paper
+windows, the E2E design's pedestal; its OTFs made again on every pass, its frame-sized buffers above glibc's mmap
+ceiling, so freed ones leave the resident set) held 841 MiB beyond the Wiener: its tents' sum (18 MiB), 3 image
+copies of its own (:data:`pipeline.restoration.richardson_lucy.RL_MEMORY`) and 8.2 padded images."""
+
+
 @dataclass(frozen=True)
 class WorkingMemory:
     """What a restoration holds at its peak beyond what the adaptive Wiener holds (the whole frame's memory plan,
     :func:`pipeline.simulate.frame_memory_bytes`, was measured with the Wiener, so the Wiener's own working buffers
     are in it already), in float32 buffers: ``copies`` the size of the image (an iterative method's estimate,
     residual, conjugate directions, duals; a float64 copy on the host counts two), ``padded`` the size of the image
-    padded by :func:`windowed_margin` each side (the accumulators of the blur operator's passes) and, with
-    ``operator``, the window OTFs and their conjugates that a :class:`pipeline.blur_operator.BlurOperator` keeps (at
+    padded by :func:`windowed_margin` each side and, with ``operator`` (a method on the blur's operator), the
+    operator's: :data:`OPERATOR_PADDED_COPIES` padded images and the window OTFs and their conjugates it keeps (at
     most :data:`~pipeline.blur_operator.OPERATOR_OTF_BYTES`, by its own rule). Each method's measured peaks are in
     the docstring of its ``*_MEMORY``."""
 
@@ -76,7 +87,8 @@ class WorkingMemory:
         """Bytes for an image of ``shape`` ``(..., H, W)`` restored in the windows of ``scheme``."""
         m = windowed_margin(scheme)
         images, H, W = math.prod(int(v) for v in shape[:-2]), int(shape[-2]), int(shape[-1])
-        floats = self.copies * images * H * W + self.padded * images * (H + 2 * m) * (W + 2 * m)
+        padded = self.padded + (OPERATOR_PADDED_COPIES if self.operator else 0)
+        floats = self.copies * images * H * W + padded * images * (H + 2 * m) * (W + 2 * m)
         return math.ceil(4 * floats) + (OPERATOR_OTF_BYTES if self.operator else 0)
 
 

@@ -78,13 +78,13 @@ TV_NORM_MARGIN = 1.02
 TV_CONTEXT_PX = 0
 """Observed pixels (px) around the region fitted as data besides the region's own (as Richardson-Lucy's)."""
 
-TV_MEMORY = WorkingMemory(copies=12, padded=2, operator=True)
+TV_MEMORY = WorkingMemory(copies=12, operator=True)
 """What the solver holds beyond the adaptive Wiener (:class:`pipeline.restoration.WorkingMemory`), on a whole frame the
 image itself: the Wiener start, the data mask, the blurred start, the noise variance and the weights, the estimate and
 its extrapolation, the data dual, the TV dual (two images: rows and columns) and the gradient, projection and step
-temporaries (image-sized), the adjoint's padded accumulator and its padding's transpose (padded), and the operator's
-kept OTFs. Measured as :data:`pipeline.restoration.richardson_lucy.RL_MEMORY` (beyond the Wiener's peak, less the
-kept OTFs): 10.0 MiB at 256 px, 37.0 MiB at 512 px, i.e. 10.0 image plus 1.5 padded copies; declared 12 and 2."""
+temporaries (image-sized), and the operator's. Measured as :data:`pipeline.restoration.richardson_lucy.RL_MEMORY`
+(beyond the Wiener's peak, less the kept OTFs): 10.0 MiB at 256 px, 37.0 MiB at 512 px, i.e. 10.0 image and 1.5 padded
+copies; declared 12 image copies."""
 
 TV_FLOOR = 1e-12
 """Least mean gradient and noise variance (image units) a weight divides by: a flat or noise-free image."""
