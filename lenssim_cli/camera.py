@@ -235,8 +235,9 @@ def _window_bar(desc: str):
     return progress_bar(total=None, unit="window", desc=desc, delay=PROGRESS_DELAY_S, leave=False)
 
 
-def _check_photo_shape(args, shape, source, psf) -> None:
-    """What a photo's size and channels must meet for this run (from its header, before its pixels are read)."""
+def _check_photo_shape(args, shape, source, psf, method, scheme) -> None:
+    """What a photo's size and channels must meet for this run (from its header, before its pixels are read); the
+    whole frame's memory planned for the restoration ``method`` in the windows of ``scheme``."""
     if psf.channels not in (1, shape[1]):
         raise ValueError(f"--spectrum {args.spectrum!r} has {psf.channels} colour channels but {source!r} has "
                          f"{shape[1]}: use an RGB image, or --spectrum paper")
@@ -249,7 +250,9 @@ def _check_photo_shape(args, shape, source, psf) -> None:
         from pipeline.simulate import frame_memory_bytes
 
         restored = 1 if args.as_built is None else 2  # --as-built: nominal and calibrated restored frames
-        check_memory(frame_memory_bytes(shape, restored), f"--full-frame on the {W} x {H} photo {source!r}", _memory_limit(args))
+        how = f" restored with {method.name}" if method.memory_bytes(shape, scheme) else ""  # what needs more
+        check_memory(frame_memory_bytes(shape, restored, method, scheme), f"--full-frame on the {W} x {H} photo "
+                     f"{source!r}{how}", _memory_limit(args))
     elif args.denoise:
         from lenssim.validate import check_memory
         from pipeline.denoise import DENOISE_WORKING_COPIES
@@ -339,7 +342,7 @@ def cmd_simulate(args) -> int:
     inputs = _inputs([args.photo])
     out = check_output_dir(args.out, inputs)
     if header is not None:
-        _check_photo_shape(args, header.shape, header.path, psf)
+        _check_photo_shape(args, header.shape, header.path, psf, specs[0], scheme)
         _check_chain_photo(chain, header.shape, header.path)
         _check_at(args, header.shape, header.path)
     t0 = time.perf_counter()
@@ -349,7 +352,7 @@ def cmd_simulate(args) -> int:
     meta = ideal.metadata or {}  # a RAW photo's pattern, levels and white balance, for metrics.json
     if psf is None:
         psf = lens_psf_from_args(args, ideal.shape)
-    _check_photo_shape(args, ideal.shape, source, psf)
+    _check_photo_shape(args, ideal.shape, source, psf, specs[0], scheme)
     _check_chain_photo(chain, ideal.shape, source)
     _check_at(args, ideal.shape, source)
     args.chain = chain

@@ -682,14 +682,28 @@ MAP_TILE_PX = 256
 """Side (px) of the tiles of a frame's PSNR map."""
 
 
-def frame_memory_bytes(shape, restorations: int = 1) -> int:
+def frame_memory_bytes(shape, restorations: int = 1, method="wiener", scheme: WindowScheme = PAPER_SCHEME) -> int:
     """Memory (bytes) that :func:`simulate_frame` and :func:`score_frame` plan for an ideal image of ``shape``
-    ``(B, C, H, W)`` in float32, with ``restorations`` restored frames (the providers of ``restoration_psf``)."""
+    ``(B, C, H, W)`` in float32, with ``restorations`` restored frames (the providers of ``restoration_psf``) by
+    ``method`` (as for :func:`simulate_frame`) in the windows of ``scheme``: :data:`FRAME_WORKING_COPIES` (measured
+    with the adaptive Wiener) plus what the method holds beyond the Wiener
+    (:meth:`pipeline.restoration.Restoration.memory_bytes`; once: the restorations run in turn, each freeing its
+    working buffers). A method restores the whole frame at once (its region is the frame: no tiles), so an iterative
+    method on the blur's operator holds image-sized buffers and the operator's kept OTFs (up to 1 GiB).
+
+    Measured on ``lenssim simulate --full-frame --restore NAME`` (E2E design, colour, paper windows 512/32/64; a fresh
+    process per method; the peak resident set during the restoration over that at its start, beyond the Wiener's, MiB)
+    against the method's plan: at 512 x 512 px Richardson-Lucy 212.6 (planned 1173), tv 229.6 (1197), pnp 314.1
+    (1215), pnp wavelet 258.6 (1191), Tikhonov -4.2 (15); at 1024 x 1024 Richardson-Lucy 926.6 (1357; its kept OTFs
+    554), tv 997.8 (1453); at 2048 x 2048 (its OTFs made again on every pass) Richardson-Lucy 841.3 (1960; 2
+    iterations), PNP2048. Below glibc's 32 MiB mmap ceiling (frames under ~2.8 MP in colour) freed frame-sized buffers
+    stay resident, which the operator's 1 GiB allowance covered at these sizes; the methods' own buffers were measured
+    with the threshold fixed (their
+    docstrings), as large frames' buffers behave."""
     restorations = check_int("restorations", restorations, 1)
-    n = 1
-    for v in shape:
-        n *= int(v)
-    return (FRAME_WORKING_COPIES + FRAME_COPIES_PER_EXTRA_RESTORATION * (restorations - 1)) * n * 4
+    n = math.prod(int(v) for v in shape)
+    copies = FRAME_WORKING_COPIES + FRAME_COPIES_PER_EXTRA_RESTORATION * (restorations - 1)
+    return copies * n * 4 + Restoration.of(method).memory_bytes(shape, scheme)
 
 
 def score_frame(ideal: torch.Tensor, frame: FrameResult, geometry: FieldGeometry, *, tile: int = MAP_TILE_PX,

@@ -6,7 +6,8 @@ declares in its signature only the keyword arguments it uses, from ``noise`` (th
 :meth:`pipeline.camera_chain.CameraChain.noise_model`, so no method keeps a second noise formula), ``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
 ``progress``, and the dispatcher passes it just those (as colour-science's ``filter_kwargs``). Its
 ``options`` are its own settings with their defaults; ``margin(scheme)`` says how far (px) beyond the
-``region`` it reads the observed image (the windowed methods: half a window and a core).
+``region`` it reads the observed image (the windowed methods: half a window and a core); ``memory`` what it holds
+at its peak beyond the adaptive Wiener (:class:`WorkingMemory`: the whole frame's memory check plans with it).
 
 Adding a method is one file in this package (``pipeline/restoration/NAME.py``) that calls :func:`register`:
 every module here is imported when the package is (the paper's Wiener filter first). A method and its
@@ -26,10 +27,12 @@ import torch
 from lenssim.registry import Registry, import_plugins
 from lenssim.validate import looks_numeric
 
+from ..blur_operator import OPERATOR_OTF_BYTES
 from ..camera_chain import NoiseModel
 
-__all__ = ["RestorationMethod", "Restoration", "RESTORATION_METHODS", "register", "validate_method", "restore",
-           "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin", "mean_noise_variance"]
+__all__ = ["RestorationMethod", "Restoration", "WorkingMemory", "OPERATOR_PADDED_COPIES", "RESTORATION_METHODS",
+           "register", "validate_method", "restore", "parse_restoration", "COMMON_ARGUMENTS", "windowed_margin",
+           "mean_noise_variance"]
 
 COMMON_ARGUMENTS = ("noise", "scheme", "optical_center", "region", "progress")
 """What a restoration may ask for besides the image and the PSF provider."""
@@ -49,12 +52,53 @@ def windowed_margin(scheme) -> int:
     return scheme.window // 2 + scheme.core
 
 
+OPERATOR_PADDED_COPIES = 9
+"""Float32 buffers the size of the image padded by :func:`windowed_margin` each side that a pass of the blur's operator
+(:class:`pipeline.blur_operator.BlurOperator`) holds at its peak: the adjoint's accumulator and its padding's transpose
+(2) and the pedestal's box mean transposed by autograd (its summed-area tables and their gradients, over at most
+:data:`pipeline.blur.BOX_BAND_ROWS` rows at a time). Measured: Richardson-Lucy on a 2048 x 2048 colour frame (paper
+windows, the E2E design's pedestal; its OTFs made again on every pass, its frame-sized buffers above glibc's mmap
+ceiling, so freed ones leave the resident set) held 841 MiB beyond the Wiener: its tents' sum (18 MiB), 3 image
+copies of its own (:data:`pipeline.restoration.richardson_lucy.RL_MEMORY`) and 8.2 padded images."""
+
+
+@dataclass(frozen=True)
+class WorkingMemory:
+    """What a restoration holds at its peak beyond what the adaptive Wiener holds (the whole frame's memory plan,
+    :func:`pipeline.simulate.frame_memory_bytes`, was measured with the Wiener, so the Wiener's own working buffers
+    are in it already), in float32 buffers: ``copies`` the size of the image (an iterative method's estimate,
+    residual, conjugate directions, duals; a float64 copy on the host counts two), ``padded`` the size of the image
+    padded by :func:`windowed_margin` each side and, with ``operator`` (a method on the blur's operator), the
+    operator's: :data:`OPERATOR_PADDED_COPIES` padded images and the window OTFs and their conjugates it keeps (at
+    most :data:`~pipeline.blur_operator.OPERATOR_OTF_BYTES`, by its own rule). Each method's measured peaks are in
+    the docstring of its ``*_MEMORY``."""
+
+    copies: float = 0.0
+    padded: float = 0.0
+    operator: bool = False
+
+    def __post_init__(self):
+        for k in ("copies", "padded"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0 <= v < math.inf):
+                raise ValueError(f"{k}={v!r} is not allowed: a finite number >= 0")
+
+    def bytes(self, shape, scheme) -> int:
+        """Bytes for an image of ``shape`` ``(..., H, W)`` restored in the windows of ``scheme``."""
+        m = windowed_margin(scheme)
+        images, H, W = math.prod(int(v) for v in shape[:-2]), int(shape[-2]), int(shape[-1])
+        padded = self.padded + (OPERATOR_PADDED_COPIES if self.operator else 0)
+        floats = self.copies * images * H * W + padded * images * (H + 2 * m) * (W + 2 * m)
+        return math.ceil(4 * floats) + (OPERATOR_OTF_BYTES if self.operator else 0)
+
+
 @dataclass(frozen=True)
 class RestorationMethod:
     """A restoration method (see the module docstring): ``fn``, a label for figures and tables, its options
     ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options, scheme)``, which raises ``ValueError`` for
     option values the method refuses (``scheme`` None: those it refuses in any window; called when a
-    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work)."""
+    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work); ``memory``: its
+    :class:`WorkingMemory`, or ``memory(options) -> WorkingMemory`` where an option changes it."""
 
     name: str
     label: str
@@ -63,6 +107,7 @@ class RestorationMethod:
     options: tuple[tuple[str, object], ...] = ()
     margin: Callable = windowed_margin
     check: Callable | None = None
+    memory: WorkingMemory | Callable = WorkingMemory()
 
     def __post_init__(self):
         params = inspect.signature(self.fn).parameters
@@ -120,6 +165,13 @@ class Restoration:
 
     def margin(self, scheme) -> int:
         return int(self.method.margin(scheme))
+
+    def memory_bytes(self, shape, scheme) -> int:
+        """Bytes this restoration holds at its peak beyond the adaptive Wiener (:class:`WorkingMemory`) on an image of
+        ``shape`` ``(..., H, W)`` in the windows of ``scheme``."""
+        mem = self.method.memory
+        mem = mem({**dict(self.method.options), **self.options}) if callable(mem) else mem
+        return mem.bytes(shape, scheme)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "options": {**dict(self.method.options), **self.options}}

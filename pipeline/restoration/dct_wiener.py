@@ -48,7 +48,7 @@ from lenssim.torch_utils import HOST
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed, core_irfft2, window_chunk
 from ..camera_chain import NoiseModel
 from ..checks import check_image
-from . import RestorationMethod, register
+from . import RestorationMethod, WorkingMemory, register
 from .wiener import (WIENER_FIT_LEAST_PX, WIENER_RHO0, WIENER_STATS_PX, WIENER_TAPER_PX, WindowModel,
                      check_wiener_options)
 
@@ -214,4 +214,4 @@ register(RestorationMethod("dct_wiener", "Wiener + local DCT",
                            _dct_wiener, (("alpha", DCT_ALPHA), ("passes", DCT_PASSES), ("local_noise", True),
                                          ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
                                          ("taper", WIENER_TAPER_PX)),
-                           check=_check))
+                           check=_check, memory=WorkingMemory()))  # per window batch, sized by DCT_LIVE_COPIES

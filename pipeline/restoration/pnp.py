@@ -59,14 +59,14 @@ from ..blur import PAPER_SCHEME, WindowScheme
 from ..blur_operator import BlurOperator, RegionProblem
 from ..camera_chain import NoiseModel
 from ..checks import check_image
-from . import RestorationMethod, register, windowed_margin
+from . import RestorationMethod, WorkingMemory, register, windowed_margin
 from .wiener import wiener_start
 from .wiener import WIENER_PIXEL_STATS_PX
 
 __all__ = ["pnp_windowed", "conjugate_gradient", "hqs_data_step", "PNP_DENOISERS", "PNP_DENOISER", "PNP_DOMAINS", "PNP_ITERATIONS", "PNP_STRENGTH",
            "PNP_CG_STEPS", "PNP_SIGMA_START", "PNP_LAMBDA", "PNP_WAVELET", "PNP_WAVELET_LEVELS",
            "PNP_WAVELET_THRESHOLD", "PNP_NLM_H", "PNP_TV_WEIGHT", "MAX_PNP_ITERATIONS", "PNP_CONTEXT_PX",
-           "PNP_DENOISE_MARGIN_PX"]
+           "PNP_DENOISE_MARGIN_PX", "PNP_MEMORY"]
 
 PNP_DENOISERS = ("wavelet", "nlm", "tv", "bm3d")
 """The priors (module docstring); ``bm3d`` needs the ``bm3d`` package, which is not a dependency."""
@@ -134,6 +134,22 @@ non-local means' patches and search window (2 + 5 px) and lets TV's smoothing ru
 
 PNP_CONTEXT_PX = 0
 """Observed pixels (px) around the region fitted as data besides the region's own (as Richardson-Lucy's)."""
+
+PNP_MEMORY = {"wavelet": WorkingMemory(copies=10, operator=True),
+              "tv": WorkingMemory(copies=18, operator=True),
+              "nlm": WorkingMemory(copies=20, operator=True),
+              "bm3d": WorkingMemory(copies=64, operator=True)}
+"""What the restoration holds beyond the adaptive Wiener (:class:`pipeline.restoration.WorkingMemory`) by denoiser, on a
+whole frame the image itself (no tiles: the region is the frame): the Wiener start, the data mask, the noise weights
+and scale ``s``, ``A^T W y``, the estimate ``xi`` and ``z``; for HQS the conjugate gradients' right-hand side,
+residual, direction and products, for ISTA the gradient and the padded estimate (image-sized, float32); the denoisers'
+float64 copies on the host (the estimate moved there, its channels-last copy, the denoiser's own arrays, the stacked
+result: two float32 copies each) and the wavelet coefficients; and the operator's. Measured beyond the Wiener's peak,
+less the kept OTFs, as :data:`pipeline.restoration.richardson_lucy.RL_MEMORY` (2 iterations; MiB at 256 px / 512 px,
+and the image and padded copies they give): wavelet 9.7 / 34.4 (8.2 and 2.1), tv 14.9 / 55.5 (15.4 and 2.0), nlm
+14.5 / 55.6 (16.6 and 1.2); bm3d (the ``bm3d`` package's own arrays; not a dependency) 27.8 / 162.5, and 387.5 at
+768 px (1 iteration): 37 / 54 / 57 images, growing faster than the area at first. Declared above each image count
+(the padded ones are the operator's): wavelet 10, tv 18, nlm 20, bm3d 64."""
 
 
 def conjugate_gradient(apply, b: torch.Tensor, x: torch.Tensor, steps: int, dims=(-2, -1), Ax=None):
@@ -347,4 +363,5 @@ register(RestorationMethod(
     "a classical denoiser (non-local means, TV, BM3D; half-quadratic splitting), its level from the noise model",
     _pnp, (("denoiser", PNP_DENOISER), ("iterations", PNP_ITERATIONS), ("strength", PNP_STRENGTH),
            ("domain", "stabilised")),
-    margin=lambda scheme: windowed_margin(scheme) + PNP_CONTEXT_PX, check=_check))
+    margin=lambda scheme: windowed_margin(scheme) + PNP_CONTEXT_PX, check=_check,
+    memory=lambda options: PNP_MEMORY[options["denoiser"]]))

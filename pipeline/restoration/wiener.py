@@ -52,7 +52,7 @@ from ..blur import PAPER_SCHEME, StrideZones, WindowScheme, apply_windowed
 from ..blur_operator import RegionProblem
 from ..camera_chain import NoiseModel
 from ..checks import check_image
-from . import RestorationMethod, register
+from . import RestorationMethod, WorkingMemory, register
 
 __all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
            "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX", "window_taper"]
@@ -290,7 +290,7 @@ def check_wiener_options(options, scheme, method: str = "wiener"):
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
                            _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window"),
                                      ("taper", WIENER_TAPER_PX)),
-                           check=check_wiener_options))
+                           check=check_wiener_options, memory=WorkingMemory()))  # none beyond itself: the frame plan's measure
 
 
 def wiener_start(problem: RegionProblem, observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
