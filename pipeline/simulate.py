@@ -695,10 +695,10 @@ def frame_memory_bytes(shape, restorations: int = 1, method="wiener", scheme: Wi
     process per method; the peak resident set during the restoration over that at its start, beyond the Wiener's, MiB)
     against the method's plan: at 512 x 512 px Richardson-Lucy 212.6 (planned 1173), tv 229.6 (1197), pnp 314.1
     (1215), pnp wavelet 258.6 (1191), Tikhonov -4.2 (15); at 1024 x 1024 Richardson-Lucy 926.6 (1357; its kept OTFs
-    554), tv 997.8 (1453); at 2048 x 2048 (its OTFs made again on every pass) Richardson-Lucy 841.3 (1960; 2
-    iterations), PNP2048. Below glibc's 32 MiB mmap ceiling (frames under ~2.8 MP in colour) freed frame-sized buffers
-    stay resident, which the operator's 1 GiB allowance covered at these sizes; the methods' own buffers were measured
-    with the threshold fixed (their
+    554), tv 997.8 (1453); at 2048 x 2048 (the OTFs made again on every pass, kept none) Richardson-Lucy 841.3 (1960;
+    2 iterations), pnp 1326.4 (2632; 1 iteration; 1608 without the OTFs' allowance). Below glibc's 32 MiB mmap
+    ceiling (frames under ~2.8 MP in colour) freed frame-sized buffers stay resident, which the operator's 1 GiB
+    allowance covered at these sizes; the methods' own buffers were measured with the threshold fixed (their
     docstrings), as large frames' buffers behave."""
     restorations = check_int("restorations", restorations, 1)
     n = math.prod(int(v) for v in shape)
