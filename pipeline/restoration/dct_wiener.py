@@ -152,12 +152,16 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
                         scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None,
                         chunk: int | None = None, progress=None, floor: float = 1e-10) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` (module docstring) with the noise ``noise`` describes; the
-    windows' transforms fitted to the local PSF as the Wiener's (``scheme.fit``). Returns the same shape."""
+    windows' transforms fitted to the local PSF as the Wiener's (``scheme.fit``, off where ``stats`` is over
+    :data:`~pipeline.restoration.wiener.WIENER_FIT_LEAST_PX`). Returns the same shape."""
     check_image(observed, "observed")
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
     check_wiener_options({"stats": stats, "rho0": rho0, "taper": taper, "local": "window"}, scheme, "dct_wiener")
     _check_own(alpha, passes)
+    if not isinstance(local_noise, bool):
+        raise ValueError(f"dct_wiener option local_noise={local_noise!r} is not allowed: true or false")
+    fit = scheme.fit and stats <= WIENER_FIT_LEAST_PX  # as the Wiener's: the statistics need windows of ``stats`` px
     dtype, device = observed.dtype, observed.device
     model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=scheme.core, floor=floor,
                         dtype=dtype, device=device)
@@ -196,7 +200,7 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
         chunk = max(1, window_chunk(observed, scheme.window) * wiener
                     // (wiener + DCT_LIVE_COPIES * DCT_PATCH_PX ** 2 * (scheme.core + 2 * m) ** 2))
     return apply_windowed(observed, psf, restore, scheme=scheme, optical_center=optical_center, region=region,
-                          chunk=chunk, progress=progress, fit=scheme.fit, least_fit=WIENER_FIT_LEAST_PX)
+                          chunk=chunk, progress=progress, fit=fit, least_fit=WIENER_FIT_LEAST_PX)
 
 
 def _check_own(alpha, passes):

@@ -100,3 +100,10 @@ def test_it_restores_a_blurred_noisy_scene_better_than_the_wiener(electrons):
 def test_bad_options_are_refused_in_one_line(spec, words):
     with pytest.raises(ValueError, match=words):
         parse_restoration(spec)
+
+
+def test_the_function_refuses_a_local_noise_that_is_not_a_flag():
+    from pipeline.restoration.dct_wiener import dct_wiener_windowed
+
+    with pytest.raises(ValueError, match="local_noise=3 is not allowed"):
+        dct_wiener_windowed(scene(64), delta_psf(), noise=NoiseModel(100.0), stats=64, scheme=SCHEME, local_noise=3)
