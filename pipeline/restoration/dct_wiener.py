@@ -16,7 +16,10 @@ In every window (the scheme, local PSFs and blending of :mod:`pipeline.blur`, th
    variance of coefficient ``j`` under the noise ``N`` (:func:`coefficient_noise_variance`: exact for stationary
    noise in the window, from its autocovariance over the patch's lags); with ``local_noise`` ``v_j`` is scaled per
    patch by the noise model at the patch's own mean over its value at the window's mean (the photon noise follows the
-   local brightness within a window);
+   local brightness within a window); a three-channel image is shrunk in the opponent colour space ([3]_, option
+   ``colour``): ``r`` and ``p`` go through the orthonormal transform ``T`` (luminance and two colour differences),
+   the channels' independent noise gives each transformed coefficient the variance ``sum_c T_kc^2 v_cj``, and the
+   result comes back through ``T``'s transpose;
 4. the patches back, each weighted by the inverse of its estimate's noise variance ``1 / sum_j v_j w_j^2`` ([1]_'s
    aggregation weights), averaged where they overlap; ``passes`` > 1 takes the result as the next pass's pilot.
 
@@ -33,6 +36,9 @@ References
    noise in the transform domain; the aggregation weights).
 .. [2] G. Yu, G. Sapiro, "DCT image denoising: a simple and effective image denoising algorithm", Image Processing
    On Line 1, 292-296 (2011) (sliding 8 x 8 DCT shrinkage).
+.. [3] K. Dabov, A. Foi, V. Katkovnik, K. Egiazarian, "Color image denoising via sparse 3D collaborative filtering
+   with grouping constraint in luminance-chrominance space", Proc. IEEE ICIP 2007, I-313-I-316 (the opponent colour
+   transform).
 """
 
 from __future__ import annotations
@@ -52,31 +58,44 @@ from . import RestorationMethod, WorkingMemory, register
 from .wiener import (WIENER_FIT_LEAST_PX, WIENER_RHO0, WIENER_STATS_PX, WIENER_TAPER_PX, WindowModel,
                      check_wiener_options)
 
-__all__ = ["dct_wiener_windowed", "dct_basis", "coefficient_noise_variance", "dct_shrink", "DCT_PATCH_PX",
-           "DCT_ALPHA", "DCT_PASSES", "DCT_LOCAL_NOISE", "MAX_DCT_PASSES", "DCT_LIVE_COPIES"]
+__all__ = ["dct_wiener_windowed", "dct_basis", "opponent_matrix", "opponent_variance", "coefficient_noise_variance", "dct_shrink",
+           "DCT_PATCH_PX", "DCT_ALPHA", "DCT_PASSES", "DCT_LOCAL_NOISE", "DCT_COLOURS", "DCT_COLOUR", "MAX_DCT_PASSES",
+           "DCT_LIVE_COPIES"]
 
 DCT_PATCH_PX = 8
 """Side (px) of the DCT's patches ([2]_'s 8 x 8)."""
 
-DCT_ALPHA = 0.2
+DCT_ALPHA = 0.1
 """Default noise weight of the regularised inverse relative to the Wiener's (0 < alpha <= 1; 1: the Wiener itself,
 denoised again). sRGB PSNR (dB) of 256 px crops through the paper's sensor (benchmarks/bench_restoration_methods.py,
-the Wiener beside it on the same noise draws, 2 CPU cores). Pier sunset and misty forest at 0 and 10 deg, both designs,
-ISO 400 and 100 (16 crop-ISOs; loaded machine), with ``local_noise`` off: ``alpha`` 1: +0.05 dB over the Wiener, 0.3:
-+0.43. Pier sunset at 0 and 10 deg, both designs and ISOs (8 crop-ISOs), ``local_noise`` on: 0.3 +0.25, 0.1 +0.35 (on
-the axis crops +0.8 to +2.4, at 10 deg -0.6 to +0.05: a lower weight gains where the PSF is small and loses where it
-is large). On the 28 crop-ISOs of docs/restoration.md (three photos at 0/5/10 deg), mean over the Wiener's 37.36 dB:
-0.5 37.69, 0.3 37.78, 0.2 37.83 (E2E +0.61 / +0.68 at ISO 400 / 100, RMS_W +0.27 / +0.30), 0.3 with 2 passes 37.84
-at 1.2x the time of one pass; none below the sensor image."""
+the Wiener beside it on the same noise draws, 2 CPU cores), on the 28 crop-ISOs of docs/restoration.md (three photos at
+0/5/10 deg, both designs, ISO 400 and 100; the Wiener 37.36 dB). Channel by channel (``colour=rgb``): 0.5 37.69, 0.3
+37.78, 0.2 37.83, 0.3 with 2 passes 37.84 at 1.2x the time of one pass (a lower weight gained on the sharp axis crops,
++0.8 to +2.4 dB at 0.1 on the pier's, and lost on the pier's 10 deg crops, where the channels' noise came back as
+coloured blotches). In the opponent space (:data:`DCT_COLOUR`): 0.2 38.06, 0.15 38.12, 0.1 38.18 (E2E +1.04 / +1.15 at
+ISO 400 / 100, RMS_W +0.54 / +0.55; above the Wiener on 26 of 28, -0.36 to +3.63 dB); none below the sensor image."""
 
 DCT_PASSES = 1
 """Default number of shrinkage passes (each one's result the next one's pilot; :data:`DCT_ALPHA` for what 2 did)."""
 
 DCT_LOCAL_NOISE = False
 """Default of ``local_noise`` (each patch's coefficient variances scaled by the noise model at the patch's mean over its
-value at the window's mean). Measured on the 28 crop-ISOs of :data:`DCT_ALPHA`: off 37.78 dB, on 37.67 (the Wiener
-37.36); on gained 0.1 dB on the pier's 10 deg E2E crop at ISO 400 and lost up to 0.45 dB elsewhere (the portrait's RMS_W
-crop; a likely reason, not tested: the patch's mean is the pilot's, blurred by the filter, not the brightness the noise came from)."""
+value at the window's mean). Measured on the 28 crop-ISOs of :data:`DCT_ALPHA`, channel by channel at ``alpha`` 0.3:
+off 37.78 dB, on 37.67 (the Wiener 37.36); on gained 0.1 dB on the pier's 10 deg E2E crop at ISO 400 and lost up to
+0.45 dB elsewhere (the portrait's RMS_W crop; a likely reason, not tested: the patch's mean is the pilot's, blurred by
+the filter, not the brightness the noise came from)."""
+
+DCT_COLOURS = ("opponent", "rgb")
+"""The colour spaces the shrinkage may run in: ``opponent`` (:func:`opponent_matrix`: the shrinkage of a
+three-channel image in luminance and two colour differences, each with its coefficients' noise variances mixed from the
+channels') or ``rgb`` (each channel on its own). Images of another number of channels are shrunk channel by channel."""
+
+DCT_COLOUR = "opponent"
+"""Default colour space of the shrinkage (:data:`DCT_COLOURS`). A photo's channels are strongly correlated: in the
+opponent space most of the signal is in the luminance and the colour differences hold mostly noise, which the
+shrinkage then removes, where channel by channel it left coloured blotches (the pier's 10 deg crop, RMS_W design). On
+the 28 crop-ISOs of :data:`DCT_ALPHA` at ``alpha`` 0.2: channel by channel 37.83 dB, opponent 38.06 (+0.23; +0.20 to
++0.30 on each design and ISO's mean)."""
 
 MAX_DCT_PASSES = 8
 """Most passes a run may ask for."""
@@ -96,6 +115,21 @@ def dct_basis(n: int = DCT_PATCH_PX, dtype=torch.float64, device=None) -> torch.
     M = torch.cos(math.pi * (i[None, :] + 0.5) * i[:, None] / n) * math.sqrt(2 / n)
     M[0] /= math.sqrt(2)
     return torch.einsum("ai,bk->abik", M, M).reshape(n * n, 1, n, n).to(dtype=dtype, device=device)
+
+
+def opponent_matrix(dtype=torch.float64, device=None) -> torch.Tensor:
+    """The orthonormal opponent colour transform ``(3, 3)`` (rows: luminance ``(R + G + B) / sqrt(3)``, red-blue
+    ``(R - B) / sqrt(2)``, green-magenta ``(R - 2 G + B) / sqrt(6)``; BM3D's colour transform [3]_): ``T @ rgb``;
+    its transpose is its inverse."""
+    T = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.0, -1.0], [1.0, -2.0, 1.0]], dtype=torch.float64, device=HOST)
+    return (T / T.norm(dim=1, keepdim=True)).to(dtype=dtype, device=device)
+
+
+def opponent_variance(variance: torch.Tensor, dim: int) -> torch.Tensor:
+    """The variances of the opponent channels' transform coefficients from those of three independent channels along
+    ``dim`` (same shape): ``sum_c T_kc^2 v_c``, ``T`` :func:`opponent_matrix`."""
+    T2 = opponent_matrix(variance.dtype, variance.device).square()
+    return torch.movedim(torch.tensordot(T2, variance, dims=([1], [dim])), 0, dim)
 
 
 def _basis_autocorrelation(basis: torch.Tensor) -> torch.Tensor:
@@ -147,7 +181,8 @@ def dct_shrink(x: torch.Tensor, pilot: torch.Tensor, variance: torch.Tensor, *, 
 
 
 def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel, alpha: float = DCT_ALPHA,
-                        passes: int = DCT_PASSES, local_noise: bool = DCT_LOCAL_NOISE, rho0: float = WIENER_RHO0,
+                        passes: int = DCT_PASSES, local_noise: bool = DCT_LOCAL_NOISE, colour: str = DCT_COLOUR,
+                        rho0: float = WIENER_RHO0,
                         stats: int = WIENER_STATS_PX, taper: int = WIENER_TAPER_PX,
                         scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None,
                         chunk: int | None = None, progress=None, floor: float = 1e-10) -> torch.Tensor:
@@ -158,7 +193,7 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
     check_wiener_options({"stats": stats, "rho0": rho0, "taper": taper, "local": "window"}, scheme, "dct_wiener")
-    _check_own(alpha, passes)
+    _check_own(alpha, passes, colour)
     if not isinstance(local_noise, bool):
         raise ValueError(f"dct_wiener option local_noise={local_noise!r} is not allowed: true or false")
     fit = scheme.fit and stats <= WIENER_FIT_LEAST_PX  # as the Wiener's: the statistics need windows of ``stats`` px
@@ -183,14 +218,22 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
         shape = r.shape[:-2]
         psd = (HP / P) * G_r.square() * var_n  # abs(H G_r)^2 n2
         v = coefficient_noise_variance(psd, win, autocorrelation=autocorrelation)
-        v = v.expand(shape + v.shape[-1:]).reshape(-1, DCT_PATCH_PX ** 2, 1, 1).clamp_min(0)
-        p = p.reshape(-1, 1, big, big)
+        v = v.expand(shape + v.shape[-1:])[..., None, None]  # (k, B, C, n^2, 1, 1)
         if local_noise:  # the noise model at each patch's mean over its value at the window's mean
-            local = F.conv2d(p, mean_kernel) + mu.expand(shape + (1, 1)).reshape(-1, 1, 1, 1)
-            at_mu = var_n.expand(shape + (1, 1)).reshape(-1, 1, 1, 1)
-            v = v * (noise.variance(local.clamp_min(0)) / at_mu.clamp_min(tiny))
-        out = dct_shrink(r.reshape(-1, 1, big, big), p, v, passes=passes, basis=basis)
-        out = out[..., m:m + core, m:m + core].reshape(shape + (core, core)) + mu
+            local = F.conv2d(p.reshape(-1, 1, big, big), mean_kernel)
+            local = local.reshape(shape + (1,) + local.shape[-2:]) + mu[..., None]
+            v = v * (noise.variance(local.clamp_min(0)) / var_n[..., None].clamp_min(tiny))
+        opponent = colour == "opponent" and shape[-1] == 3
+        if opponent:  # the channels' noise is independent: a coefficient's variance mixes as T^2
+            T = opponent_matrix(dtype, device)
+            r, p = (torch.einsum("kc,...chw->...khw", T, t) for t in (r, p))
+            v = opponent_variance(v, dim=-4)
+        v = v.reshape((-1,) + v.shape[-3:]).clamp_min(0)
+        out = dct_shrink(r.reshape(-1, 1, big, big), p.reshape(-1, 1, big, big), v, passes=passes, basis=basis)
+        out = out[..., m:m + core, m:m + core].reshape(shape + (core, core))
+        if opponent:
+            out = torch.einsum("kc,...khw->...chw", T, out)
+        out = out + mu
         full = torch.zeros_like(patches)  # apply_windowed keeps the central core of a real result
         full[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2] = out
         return full
@@ -203,7 +246,9 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
                           chunk=chunk, progress=progress, fit=fit, least_fit=WIENER_FIT_LEAST_PX)
 
 
-def _check_own(alpha, passes):
+def _check_own(alpha, passes, colour=DCT_COLOUR):
+    if colour not in DCT_COLOURS:
+        raise ValueError(f"dct_wiener option colour={colour!r} is not allowed: one of {', '.join(DCT_COLOURS)}")
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha <= 1:
         raise ValueError(f"dct_wiener option alpha={alpha!r} is not allowed: the inverse's noise weight relative to "
                          "the Wiener's, a number in (0, 1]")
@@ -212,15 +257,17 @@ def _check_own(alpha, passes):
 
 
 def _dct_wiener(observed, psf, *, noise, scheme, optical_center=None, region=None, progress=None, alpha=DCT_ALPHA,
-                passes=DCT_PASSES, local_noise=DCT_LOCAL_NOISE, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, taper=WIENER_TAPER_PX):
+                passes=DCT_PASSES, local_noise=DCT_LOCAL_NOISE, colour=DCT_COLOUR, stats=WIENER_STATS_PX, rho0=WIENER_RHO0,
+                taper=WIENER_TAPER_PX):
     return dct_wiener_windowed(observed, psf, noise=noise, alpha=alpha, passes=passes, local_noise=local_noise,
+                               colour=colour,
                                stats=stats, rho0=rho0, taper=taper, scheme=scheme, optical_center=optical_center,
                                region=region, progress=progress)
 
 
 def _check(options, scheme):
     check_wiener_options({**options, "local": "window"}, scheme, "dct_wiener")
-    _check_own(options["alpha"], options["passes"])
+    _check_own(options["alpha"], options["passes"], options["colour"])
     if not isinstance(options["local_noise"], bool):
         raise ValueError(f"dct_wiener option local_noise={options['local_noise']!r} is not allowed: true or false")
 
@@ -229,6 +276,7 @@ register(RestorationMethod("dct_wiener", "Wiener + local DCT",
                            "regularised inverse in the blur's windows, empirical Wiener shrinkage in the sliding 8x8 "
                            "DCT with the adaptive Wiener as pilot",
                            _dct_wiener, (("alpha", DCT_ALPHA), ("passes", DCT_PASSES), ("local_noise", DCT_LOCAL_NOISE),
+                                         ("colour", DCT_COLOUR),
                                          ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
                                          ("taper", WIENER_TAPER_PX)),
                            check=_check, memory=WorkingMemory()))  # per window batch, sized by DCT_LIVE_COPIES

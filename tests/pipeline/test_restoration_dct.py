@@ -12,7 +12,8 @@ from pipeline import NoiseModel, add_poisson_noise
 from pipeline.blur import blur_windowed
 from pipeline.quality import psnr_srgb
 from pipeline.restoration import parse_restoration, restore
-from pipeline.restoration.dct_wiener import coefficient_noise_variance, dct_basis, dct_shrink
+from pipeline.restoration.dct_wiener import (coefficient_noise_variance, dct_basis, dct_shrink, opponent_matrix,
+                                             opponent_variance)
 
 from .test_restoration_pnp import SCHEME, delta_psf, kernel_psf, scene
 
@@ -96,7 +97,8 @@ def test_it_restores_a_blurred_noisy_scene_better_than_the_wiener(electrons):
                                          ("dct_wiener:alpha=1.5", "alpha=1.5 is not allowed"),
                                          ("dct_wiener:passes=0", "passes=0 is not allowed"),
                                          ("dct_wiener:rho0=1", "dct_wiener option rho0=1.0"),
-                                         ("dct_wiener:local_noise=3", "local_noise='3'.*not allowed")])
+                                         ("dct_wiener:local_noise=3", "local_noise='3'.*not allowed"),
+                                         ("dct_wiener:colour=lab", "colour='lab' is not allowed: one of opponent, rgb")])
 def test_bad_options_are_refused_in_one_line(spec, words):
     with pytest.raises(ValueError, match=words):
         parse_restoration(spec)
@@ -107,3 +109,55 @@ def test_the_function_refuses_a_local_noise_that_is_not_a_flag():
 
     with pytest.raises(ValueError, match="local_noise=3 is not allowed"):
         dct_wiener_windowed(scene(64), delta_psf(), noise=NoiseModel(100.0), stats=64, scheme=SCHEME, local_noise=3)
+
+
+def test_the_opponent_transform_is_orthonormal_along_bm3ds_colour_directions():
+    T = opponent_matrix()
+    torch.testing.assert_close(T @ T.T, torch.eye(3, dtype=torch.float64), rtol=0, atol=1e-15)
+    bm3d = torch.tensor([[1 / 3, 1 / 3, 1 / 3], [1 / 2, 0, -1 / 2], [1 / 4, -1 / 2, 1 / 4]], dtype=torch.float64)
+    torch.testing.assert_close(T, bm3d / bm3d.norm(dim=1, keepdim=True), rtol=0, atol=1e-15)
+
+
+def test_opponent_coefficient_variances_against_monte_carlo():
+    """Three independent channels of white noise (variances 0.1, 0.4, 0.9), each coloured by its own filter, through
+    the opponent transform: each opponent channel's DCT coefficient variances against the formula."""
+    n = 32
+    fy = torch.fft.fftfreq(n, dtype=torch.float64)[:, None]
+    fx = torch.fft.rfftfreq(n, dtype=torch.float64)[None, :]
+    G = torch.stack([torch.exp(-(fy ** 2 + fx ** 2) / (2 * w ** 2)) for w in (0.08, 0.15, 0.3)])  # (3, n, n/2+1)
+    var = torch.tensor([0.1, 0.4, 0.9], dtype=torch.float64)
+    g = torch.Generator().manual_seed(8)
+    white = torch.randn(800, 3, n, n, generator=g, dtype=torch.float64) * var.sqrt()[:, None, None]
+    coloured = torch.fft.irfft2(torch.fft.rfft2(white) * G, s=(n, n))
+    opp = torch.einsum("kc,bchw->bkhw", opponent_matrix(), coloured).reshape(-1, 1, n, n)
+    c = torch.nn.functional.conv2d(opp, dct_basis(8)).reshape(800, 3, 64, -1)
+    measured = c.square().mean(dim=(0, 3))  # (3, 64)
+    per_channel = coefficient_noise_variance(var[:, None, None] * G.square(), n)  # (3, 64)
+    predicted = opponent_variance(per_channel, dim=0)
+    torch.testing.assert_close(measured, predicted, rtol=0.03, atol=1e-6)
+    assert not torch.allclose(predicted, per_channel, rtol=0.2)  # the mixing matters here
+
+
+def test_a_colour_scene_restores_better_in_the_opponent_space():
+    """A scene whose channels share their detail (a tinted grey scene with a faint colour of its own), blurred and
+    with photon noise: the shrinkage in the opponent space against channel by channel, on the same draw."""
+    grey = scene(64, channels=1)
+    x = torch.cat([0.9 * grey, grey, 0.7 * grey], dim=1) + 0.03 * scene(64, channels=3, seed=9)
+    psf = kernel_psf()
+    y = add_poisson_noise(blur_windowed(x, psf, scheme=SCHEME), 300.0, generator=torch.Generator().manual_seed(10))
+    noise = NoiseModel(300.0)
+    rgb = psnr_srgb(restore("dct_wiener:stats=64,colour=rgb", y, psf, noise=noise, scheme=SCHEME).clamp(0, 1), x)
+    opponent = psnr_srgb(restore("dct_wiener:stats=64", y, psf, noise=noise, scheme=SCHEME).clamp(0, 1), x)
+    assert opponent > rgb + 0.3, (rgb, opponent)
+
+
+@pytest.mark.parametrize("colour", ["opponent", "rgb"])
+def test_local_noise_in_either_colour_space_stays_finite_and_near_the_global_noise(colour):
+    x = scene(48, channels=3)
+    psf = kernel_psf()
+    y = add_poisson_noise(blur_windowed(x, psf, scheme=SCHEME), 1000.0, generator=torch.Generator().manual_seed(11))
+    spec = f"dct_wiener:stats=64,colour={colour}"
+    plain = restore(spec, y, psf, noise=NoiseModel(1000.0), scheme=SCHEME)
+    local = restore(spec + ",local_noise=true", y, psf, noise=NoiseModel(1000.0), scheme=SCHEME)
+    assert torch.isfinite(local).all()
+    assert 0 < float((local - plain).abs().max()) < 0.1
