@@ -274,7 +274,7 @@ def _check(options, scheme):
 
 register(RestorationMethod("dct_wiener", "Wiener + local DCT",
                            "regularised inverse in the blur's windows, empirical Wiener shrinkage in the sliding 8x8 "
-                           "DCT with the adaptive Wiener as pilot",
+                           "DCT with the adaptive Wiener as pilot, a colour image in the opponent space",
                            _dct_wiener, (("alpha", DCT_ALPHA), ("passes", DCT_PASSES), ("local_noise", DCT_LOCAL_NOISE),
                                          ("colour", DCT_COLOUR),
                                          ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
