@@ -67,6 +67,12 @@ def _pad_transpose(g: torch.Tensor, p: int, shape) -> torch.Tensor:
     return _fold(_fold(g, p, W, -1, reflect), p, H, -2, reflect)
 
 
+def _conjugate(otf: torch.Tensor) -> torch.Tensor:
+    """The conjugate of the OTFs ``otf`` ``(..., w, w/2 + 1)``, column-major (as :meth:`BlurOperator.adjoint`'s
+    spectra are laid out)."""
+    return otf.conj().resolve_conj().transpose(-1, -2).contiguous().transpose(-1, -2)
+
+
 def _reflects(p: int, shape) -> bool:
     """Whether :func:`pipeline.blur._pad` pads ``p`` px by reflection (else by repeating the edge) on ``shape``."""
     return p < min(shape)
@@ -126,8 +132,7 @@ class BlurOperator:
         batches = lambda: window_batches(self.plan, self.psf, x, None, pedestal=True)  # noqa: E731
         if 2 * need <= self.otf_bytes:  # the OTFs and their conjugates (a conjugate view multiplies ~2x slower)
             kept = list(batches())
-            found = (kept, weight_sum(self.plan, kept, x.dtype, x.device),
-                     [otf.conj().resolve_conj() for _, _, _, otf in kept])
+            found = (kept, weight_sum(self.plan, kept, x.dtype, x.device), [_conjugate(otf) for _, _, _, otf in kept])
         else:  # too many to keep: the OTFs again on every pass (the same ones, in the same order)
             found = (_Replay(batches), weight_sum(self.plan, batches(), x.dtype, x.device), None)
         self._kept[key] = found
@@ -168,11 +173,14 @@ class BlurOperator:
             cores = torch.stack([z[:, :, s0, s1] for s0, s1 in (core_slices(plan, c, a, b) for a, b in anchors)])
             cores.mul_(tents[c])  # (k, B, C, c, c)
             # rfft2 of the core placed at [lo, lo + c) in a w x w window of zeros: the row transforms of its c rows,
-            # then the column transforms of the w rows (K_w^T, the transpose of core_irfft2's pruned inverse)
+            # then the column transforms of the w rows (K_w^T, the transpose of core_irfft2's pruned inverse), the
+            # columns laid out as rows (the spectrum column-major: its transforms and product run on contiguous
+            # memory, ~20% faster than along the rows' stride; the same numbers)
             rows = torch.fft.rfft(torch.nn.functional.pad(cores, (lo, w - lo - c)), dim=-1)
-            spec = torch.fft.fft(torch.nn.functional.pad(rows, (0, 0, lo, w - lo - c)), dim=-2)
-            otf_conj = conjugates[i] if conjugates is not None else otf.conj().resolve_conj()
-            patches = torch.fft.irfft2(spec.mul_(otf_conj), s=(w, w))  # h~ (*): the conjugate OTF
+            spec = torch.fft.fft(torch.nn.functional.pad(rows.transpose(-1, -2), (lo, w - lo - c)), dim=-1)
+            otf_conj = conjugates[i] if conjugates is not None else _conjugate(otf)
+            spec = spec.transpose(-1, -2).mul_(otf_conj)  # h~ (*): the conjugate OTF (laid out alike)
+            patches = torch.fft.irfft2(spec, s=(w, w))
             for j, (a, b) in enumerate(anchors):
                 grad[:, :, a + pad - hw: a + pad + hw, b + pad - hw: b + pad + hw] += patches[j]
             if progress is not None:
