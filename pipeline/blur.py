@@ -48,7 +48,7 @@ __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "
            "window_sizes", "largest_window", "fold_psf", "StrideZones", "choose_stride_zones",
            "interpolation_error_db", "BLUR_ZONE_TOL_DB",
            "apply_windowed", "blur_windowed", "WindowPlan", "window_plan", "window_batches",
-           "run_windows", "weight_sum", "core_slices", "box_mean", "box_means", "blur_exact"]
+           "run_windows", "weight_sum", "core_slices", "box_mean", "blur_exact"]
 
 
 WINDOW_ANCHORS = ("axis", "origin")
@@ -742,26 +742,13 @@ def box_mean(image: torch.Tensor, n: int, region=None) -> torch.Tensor:
     r0, r1, c0, c1 = region if region is not None else (0, H, 0, W)
     padded = _pad(image, n // 2)  # image row r is padded row r + n/2
     out = torch.zeros_like(image)
-    box_means(padded[:, :, r0 + 1: r1 + n, c0 + 1: c1 + n], n, out[:, :, r0:r1, c0:c1])  # rows r+1 .. r+n of the padding
-    return out
-
-
-def box_means(source: torch.Tensor, n: int, out: torch.Tensor, add: bool = False) -> torch.Tensor:
-    """The mean of ``source`` ``(..., R, K)`` over every ``n x n`` px box inside it, written into ``out``
-    ``(..., R - n + 1, K - n + 1)`` (``out[i, j]`` the box whose first row and column are ``i``, ``j``; with ``add``,
-    added to it): summed-area differences in bands of :data:`BOX_BAND_ROWS` output rows (:func:`box_mean`'s work, and
-    its transpose's)."""
-    R, K = source.shape[-2:]
-    for a in range(0, R - n + 1, BOX_BAND_ROWS):
-        b = min(R - n + 1, a + BOX_BAND_ROWS)
-        cs = torch.nn.functional.pad(source[..., a: b + n - 1, :].cumsum(dim=-2), (0, 0, 1, 0))
-        rows = cs[..., n:, :] - cs[..., : b - a, :]  # (..., b - a, K): each output row's n rows
+    for a in range(r0, r1, BOX_BAND_ROWS):
+        b = min(r1, a + BOX_BAND_ROWS)
+        slab = padded[:, :, a + 1: b + n, c0 + 1: c1 + n]  # rows a+1 .. b-1+n of the padding
+        cs = torch.nn.functional.pad(slab.cumsum(dim=-2), (0, 0, 1, 0))
+        rows = cs[:, :, n:] - cs[:, :, : b - a]  # (B, C, b - a, c1 - c0 + n - 1): each output row's n rows
         cs = torch.nn.functional.pad(rows.cumsum(dim=-1), (1, 0))
-        means = (cs[..., n:] - cs[..., : K - n + 1]).div_(n * n)
-        if add:
-            out[..., a:b, :] += means
-        else:
-            out[..., a:b, :] = means
+        out[:, :, a:b, c0:c1] = (cs[..., n:] - cs[..., : c1 - c0]).div_(n * n)
     return out
 
 

@@ -32,8 +32,8 @@ import torch
 
 from lenssim import PSFProvider, frame_center
 
-from .blur import (PAPER_SCHEME, WindowScheme, box_mean, box_means, core_slices, run_windows, weight_sum,
-                   window_batches, window_plan)
+from .blur import (PAPER_SCHEME, WindowScheme, box_mean, core_slices, run_windows, weight_sum, window_batches,
+                   window_plan)
 from .checks import check_image, check_provider
 
 __all__ = ["BlurOperator", "RegionProblem", "OPERATOR_OTF_BYTES"]
@@ -71,6 +71,21 @@ def _conjugate(otf: torch.Tensor) -> torch.Tensor:
     """The conjugate of the OTFs ``otf`` ``(..., w, w/2 + 1)``, column-major (as :meth:`BlurOperator.adjoint`'s
     spectra are laid out)."""
     return otf.conj().resolve_conj().transpose(-1, -2).contiguous().transpose(-1, -2)
+
+
+def _box_sums_transpose(t: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """The transpose of the sums over ``n`` consecutive entries along ``dim`` (:func:`pipeline.blur.box_mean`'s, one
+    axis): ``t`` (``h`` long there) zero-extended, summed over the ``n`` entries ending at each of ``h + n - 1``
+    positions (``out[k] = t[k - n + 1] + ... + t[k]``), as differences of one running sum over ``t``."""
+    h = t.shape[dim]
+    cs = t.cumsum(dim)
+    shape = list(t.shape)
+    shape[dim] = h + n - 1
+    out = t.new_empty(shape)
+    out.narrow(dim, 0, h).copy_(cs)  # k < h: the sum up to k ...
+    out.narrow(dim, h, n - 1).copy_(cs.narrow(dim, h - 1, 1).expand_as(out.narrow(dim, h, n - 1)))  # ... or all of t
+    out.narrow(dim, n, h - 1).sub_(cs.narrow(dim, 0, h - 1))  # less the sum up to k - n
+    return out
 
 
 def _reflects(p: int, shape) -> bool:
@@ -188,17 +203,18 @@ class BlurOperator:
         if not any(self.fractions):
             return _pad_transpose(grad, pad, (H, W))
         # the box mean's transpose: the mean over the reversed box (zeros beyond the region) in the n/2 px padding's
-        # frame, folded back as that padding is; the same fold as the windows' where both paddings reflect (or both
-        # repeat the edge): the n/2 px padding is then the middle of the windows' pad px one
+        # frame, folded back as that padding is; the same fold as the windows' where both pad alike (the n/2 px
+        # padding is then the middle of the windows' pad px one)
         n = self.scheme.window
-        g = torch.nn.functional.pad(y[..., r0:r1, c0:c1] * self._fractions(y), (n - 1,) * 4)
+        g = y[..., r0:r1, c0:c1] * self._fractions(y)
+        box = _box_sums_transpose(_box_sums_transpose(g, n, -2), n, -1).div_(n * n)  # the padding's r0+1 .. r1+n-1
         if _reflects(pad, (H, W)) == _reflects(n // 2, (H, W)):
             o = pad - n // 2  # the n/2 px padding's row 0 in grad
-            box_means(g, n, grad[..., o + r0 + 1: o + r1 + n, o + c0 + 1: o + c1 + n], add=True)
+            grad[..., o + r0 + 1: o + r1 + n, o + c0 + 1: o + c1 + n] += box
             return _pad_transpose(grad, pad, (H, W))
-        box = torch.zeros(B, C, H + n, W + n, dtype=y.dtype, device=y.device)
-        box_means(g, n, box[..., r0 + 1: r1 + n, c0 + 1: c1 + n])
-        return _pad_transpose(grad, pad, (H, W)).add_(_pad_transpose(box, n // 2, (H, W)))
+        padded = torch.zeros(B, C, H + n, W + n, dtype=y.dtype, device=y.device)
+        padded[..., r0 + 1: r1 + n, c0 + 1: c1 + n] = box
+        return _pad_transpose(grad, pad, (H, W)).add_(_pad_transpose(padded, n // 2, (H, W)))
 
     def ones_adjoint(self, like: torch.Tensor) -> torch.Tensor:
         """``A^T 1`` over the region, in ``like``'s dtype and on its device (``(B, C, H, W)`` of ``like``): how much
