@@ -19,8 +19,8 @@ and its adjoint, the exact transpose (``<A x, y> = <x, A^T y>``)::
 ``h~`` the mirrored PSF (the conjugate OTF), ``K_w^T`` the core placed in a window of zeros, ``P_w^T`` the patch added
 back where it was read, ``pad^T`` the reflect padding folded back onto the pixels it copied and ``box_n^T`` the mean
 over the reversed box (zeros beyond the region), in the box's own padding, folded back the same way (in one fold with
-the windows' where both pad alike: by reflection, or by repeating the edge). All written out (no autograd graph: memory stays that of one pass; tested
-against autograd's vector-Jacobian products).
+the windows' where both pad alike: by reflection, or by repeating the edge). All written out (no autograd graph:
+memory stays that of one pass; tested against autograd's vector-Jacobian products).
 
 Tensors are ``(B, C, H, W)`` (checked by :func:`pipeline.checks.check_image`), batched over ``B``, on any device and in
 any floating dtype: each pass follows its input's (kornia style).
@@ -190,7 +190,7 @@ class BlurOperator:
             # rfft2 of the core placed at [lo, lo + c) in a w x w window of zeros: the row transforms of its c rows,
             # then the column transforms of the w rows (K_w^T, the transpose of core_irfft2's pruned inverse), the
             # columns laid out as rows (the spectrum column-major: its transforms and product run on contiguous
-            # memory, ~20% faster than along the rows' stride; the same numbers)
+            # memory, ~20% faster than along the rows' stride; on the CPU the same numbers, bit for bit)
             rows = torch.fft.rfft(torch.nn.functional.pad(cores, (lo, w - lo - c)), dim=-1)
             spec = torch.fft.fft(torch.nn.functional.pad(rows.transpose(-1, -2), (lo, w - lo - c)), dim=-1)
             otf_conj = conjugates[i] if conjugates is not None else _conjugate(otf)
