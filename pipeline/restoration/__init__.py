@@ -55,11 +55,13 @@ def windowed_margin(scheme) -> int:
 OPERATOR_PADDED_COPIES = 9
 """Float32 buffers the size of the image padded by :func:`windowed_margin` each side that a pass of the blur's operator
 (:class:`pipeline.blur_operator.BlurOperator`) holds at its peak: the adjoint's accumulator and its padding's transpose
-(2) and the pedestal's box mean transposed by autograd (its summed-area tables and their gradients, over at most
-:data:`pipeline.blur.BOX_BAND_ROWS` rows at a time). Measured: Richardson-Lucy on a 2048 x 2048 colour frame (paper
-windows, the E2E design's pedestal; its OTFs made again on every pass, its frame-sized buffers above glibc's mmap
-ceiling, so freed ones leave the resident set) held 841 MiB beyond the Wiener: its tents' sum (18 MiB), 3 image
-copies of its own (:data:`pipeline.restoration.richardson_lucy.RL_MEMORY`) and 8.2 padded images."""
+(2) and the pedestal's box mean transposed (its running sums along each axis, up to 3 buffers the size of the region
+and a box more). Measured when autograd transposed the box mean and the padding (its summed-area tables and their
+gradients): Richardson-Lucy on a 2048 x 2048 colour frame (paper windows, the E2E design's pedestal; its OTFs made
+again on every pass, its frame-sized buffers above glibc's mmap ceiling, so freed ones leave the resident set) held
+841 MiB beyond the Wiener: its tents' sum (18 MiB), 3 image copies of its own
+(:data:`pipeline.restoration.richardson_lucy.RL_MEMORY`) and 8.2 padded images; the transposes written out since
+hold fewer (not measured again: the declaration stands as a bound)."""
 
 
 @dataclass(frozen=True)

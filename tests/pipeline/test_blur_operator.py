@@ -6,8 +6,8 @@ import torch
 
 from lenssim import FunctionPSF, LensPSF
 from lenssim_studies.paper import PAPER_CAMERA, PAPER_DESIGNS
-from pipeline.blur import WindowScheme, blur_windowed
-from pipeline.blur_operator import BlurOperator
+from pipeline.blur import WindowScheme, _pad, blur_windowed
+from pipeline.blur_operator import BlurOperator, _pad_transpose
 
 GEOM = PAPER_CAMERA.geometry
 
@@ -66,18 +66,40 @@ def test_forward_is_the_blur_and_adjoint_its_transpose(device_dtype, scheme, reg
                                atol=1e-12 if dtype == torch.float64 else 1e-5)
 
 
-def test_the_lens_operator_adjoint_is_autograds_transpose_of_the_blur():
+# the windows' reflect padding and the box mean's (half the scheme's window) by: both repeating the edge (the image
+# not larger than either), reflection and repetition (folded apart), both reflection (folded together)
+LENS_CASES = {"repeat": ((60, 72), WindowScheme(128, 16, 32), (700.0, 900.5), 152, (False, False)),
+              "mixed": ((50, 60), WindowScheme(64, 16, 32), (30.0, 40.5), 64, (False, True)),
+              "reflect": ((70, 80), WindowScheme(64, 16, 32), (30.0, 40.5), 64, (True, True))}
+
+
+@pytest.mark.parametrize("case", list(LENS_CASES))
+def test_the_lens_operator_adjoint_is_autograds_transpose_of_the_blur(case):
     """The paper's lens (mirror groups sharing PSFs, a uniform pedestal convolved as a box mean) off the frame's
     centre: the adjoint against the vector-Jacobian product of blur_windowed itself, and the dot test."""
+    size, scheme, oc, pad, reflects = LENS_CASES[case]
     psf = LensPSF(PAPER_CAMERA, PAPER_DESIGNS["end_to_end_paper"])
-    assert psf.pedestal_fractions(128)[0] > 0 and psf.mirror_symmetric
-    x, y = _pair((1, 3, 60, 72), torch.float64, "cpu", seed=1)
-    oc, region, scheme = (700.0, 900.5), (4, 56, 8, 60), WindowScheme(128, 16, 32)
+    assert psf.pedestal_fractions(scheme.window)[0] > 0 and psf.mirror_symmetric
+    x, y = _pair((1, 3) + size, torch.float64, "cpu", seed=1)
+    region = (4, size[0] - 4, 8, size[1] - 12)
     A = BlurOperator(psf, x.shape, scheme=scheme, optical_center=oc, region=region)
+    assert A.plan.pad == pad and (pad < min(size), scheme.window // 2 < min(size)) == reflects
     assert _dot_error(A, x, y) < 1e-12
     xr = x.clone().requires_grad_(True)
     ref = torch.autograd.grad(blur_windowed(xr, psf, scheme=scheme, optical_center=oc, region=region), xr, y)[0]
     torch.testing.assert_close(A.adjoint(y), ref, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize("shape,p", [((2, 3, 20, 30), 5), ((1, 2, 20, 30), 19), ((1, 1, 20, 30), 20),
+                                     ((1, 1, 7, 40), 0), ((1, 1, 5, 9), 12)])
+def test_the_padding_transpose_is_autograds(shape, p):
+    """The reflect padding's transpose (and the edge repetition's, where the image is not larger than the pad) folded
+    back by hand, against autograd's vector-Jacobian product of the padding."""
+    g = torch.rand(shape[:2] + (shape[2] + 2 * p, shape[3] + 2 * p), generator=torch.Generator().manual_seed(2),
+                   dtype=torch.float64)
+    x = torch.zeros(shape, dtype=torch.float64, requires_grad=True)
+    ref = torch.autograd.grad(_pad(x, p), x, g)[0]
+    torch.testing.assert_close(_pad_transpose(g, p, shape[-2:]), ref, rtol=1e-13, atol=1e-13)
 
 
 def test_the_operator_refuses_images_it_does_not_map():
