@@ -138,9 +138,15 @@ def tent_weights(core: int, dtype=torch.float64, shift: float = 0.0) -> torch.Te
     return (1 - d.abs() / (core / 2)).clamp_min(0).to(dtype)
 
 
+def pads_by_reflection(p: int, shape) -> bool:
+    """Whether :func:`_pad` pads an image of ``shape`` ``(H, W)`` by ``p`` px by reflection (else by repeating the
+    edge: the image is smaller than the pad)."""
+    return p < min(shape)
+
+
 def _pad(image: torch.Tensor, p: int) -> torch.Tensor:
     """Reflect padding (edge replication where the image is smaller than the pad)."""
-    mode = "reflect" if p < min(image.shape[-2:]) else "replicate"
+    mode = "reflect" if pads_by_reflection(p, image.shape[-2:]) else "replicate"
     return torch.nn.functional.pad(image, (p, p, p, p), mode=mode)
 
 

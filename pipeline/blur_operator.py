@@ -32,8 +32,8 @@ import torch
 
 from lenssim import PSFProvider, frame_center
 
-from .blur import (PAPER_SCHEME, WindowScheme, box_mean, core_slices, run_windows, weight_sum, window_batches,
-                   window_plan)
+from .blur import (PAPER_SCHEME, WindowScheme, box_mean, core_slices, pads_by_reflection, run_windows, weight_sum,
+                   window_batches, window_plan)
 from .checks import check_image, check_provider
 
 __all__ = ["BlurOperator", "RegionProblem", "OPERATOR_OTF_BYTES"]
@@ -63,7 +63,7 @@ def _pad_transpose(g: torch.Tensor, p: int, shape) -> torch.Tensor:
     """The transpose of :func:`pipeline.blur._pad` ``(., p)`` on images of ``shape`` ``(H, W)``: ``g``
     ``(..., H + 2 p, W + 2 p)`` folded back onto the pixels the padding copied (columns, then rows)."""
     H, W = shape
-    reflect = _reflects(p, shape)
+    reflect = pads_by_reflection(p, shape)
     return _fold(_fold(g, p, W, -1, reflect), p, H, -2, reflect)
 
 
@@ -86,11 +86,6 @@ def _box_sums_transpose(t: torch.Tensor, n: int, dim: int) -> torch.Tensor:
     out.narrow(dim, h, n - 1).copy_(cs.narrow(dim, h - 1, 1).expand_as(out.narrow(dim, h, n - 1)))  # ... or all of t
     out.narrow(dim, n, h - 1).sub_(cs.narrow(dim, 0, h - 1))  # less the sum up to k - n
     return out
-
-
-def _reflects(p: int, shape) -> bool:
-    """Whether :func:`pipeline.blur._pad` pads ``p`` px by reflection (else by repeating the edge) on ``shape``."""
-    return p < min(shape)
 
 
 class BlurOperator:
@@ -208,7 +203,7 @@ class BlurOperator:
         n = self.scheme.window
         g = y[..., r0:r1, c0:c1] * self._fractions(y)
         box = _box_sums_transpose(_box_sums_transpose(g, n, -2), n, -1).div_(n * n)  # the padding's r0+1 .. r1+n-1
-        if _reflects(pad, (H, W)) == _reflects(n // 2, (H, W)):
+        if pads_by_reflection(pad, (H, W)) == pads_by_reflection(n // 2, (H, W)):
             o = pad - n // 2  # the n/2 px padding's row 0 in grad
             grad[..., o + r0 + 1: o + r1 + n, o + c0 + 1: o + c1 + n] += box
             return _pad_transpose(grad, pad, (H, W))
