@@ -58,9 +58,9 @@ from . import RestorationMethod, WorkingMemory, register
 from .wiener import (WIENER_FIT_LEAST_PX, WIENER_RHO0, WIENER_STATS_PX, WIENER_TAPER_PX, WindowModel,
                      check_wiener_options)
 
-__all__ = ["dct_wiener_windowed", "dct_basis", "opponent_matrix", "opponent_variance", "coefficient_noise_variance", "dct_shrink",
-           "DCT_PATCH_PX", "DCT_ALPHA", "DCT_PASSES", "DCT_LOCAL_NOISE", "DCT_COLOURS", "DCT_COLOUR", "MAX_DCT_PASSES",
-           "DCT_LIVE_COPIES"]
+__all__ = ["dct_wiener_windowed", "dct_basis", "opponent_matrix", "opponent_variance", "coefficient_noise_variance",
+           "dct_shrink", "DCT_PATCH_PX", "DCT_ALPHA", "DCT_PASSES", "DCT_LOCAL_NOISE", "DCT_COLOURS", "DCT_COLOUR",
+           "MAX_DCT_PASSES", "DCT_LIVE_COPIES"]
 
 DCT_PATCH_PX = 8
 """Side (px) of the DCT's patches ([2]_'s 8 x 8)."""
@@ -182,8 +182,7 @@ def dct_shrink(x: torch.Tensor, pilot: torch.Tensor, variance: torch.Tensor, *, 
 
 def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel, alpha: float = DCT_ALPHA,
                         passes: int = DCT_PASSES, local_noise: bool = DCT_LOCAL_NOISE, colour: str = DCT_COLOUR,
-                        rho0: float = WIENER_RHO0,
-                        stats: int = WIENER_STATS_PX, taper: int = WIENER_TAPER_PX,
+                        rho0: float = WIENER_RHO0, stats: int = WIENER_STATS_PX, taper: int = WIENER_TAPER_PX,
                         scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None,
                         chunk: int | None = None, progress=None, floor: float = 1e-10) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` (module docstring) with the noise ``noise`` describes; the
@@ -193,9 +192,7 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise is a {type(noise).__name__}: expected a pipeline.camera_chain.NoiseModel")
     check_wiener_options({"stats": stats, "rho0": rho0, "taper": taper, "local": "window"}, scheme, "dct_wiener")
-    _check_own(alpha, passes, colour)
-    if not isinstance(local_noise, bool):
-        raise ValueError(f"dct_wiener option local_noise={local_noise!r} is not allowed: true or false")
+    _check_own(alpha, passes, colour, local_noise)
     fit = scheme.fit and stats <= WIENER_FIT_LEAST_PX  # as the Wiener's: the statistics need windows of ``stats`` px
     dtype, device = observed.dtype, observed.device
     model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=scheme.core, floor=floor,
@@ -205,6 +202,7 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
     mean_kernel = torch.full((1, 1, DCT_PATCH_PX, DCT_PATCH_PX), DCT_PATCH_PX ** -2, dtype=dtype, device=device)
     tiny = torch.finfo(dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
     m = DCT_PATCH_PX - 1
+    T = opponent_matrix(dtype, device)
 
     def restore(patches, H):
         win = patches.shape[-1]
@@ -225,7 +223,6 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
             v = v * (noise.variance(local.clamp_min(0)) / var_n[..., None].clamp_min(tiny))
         opponent = colour == "opponent" and shape[-1] == 3
         if opponent:  # the channels' noise is independent: a coefficient's variance mixes as T^2
-            T = opponent_matrix(dtype, device)
             r, p = (torch.einsum("kc,...chw->...khw", T, t) for t in (r, p))
             v = opponent_variance(v, dim=-4)
         v = v.reshape((-1,) + v.shape[-3:]).clamp_min(0)
@@ -246,7 +243,9 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
                           chunk=chunk, progress=progress, fit=fit, least_fit=WIENER_FIT_LEAST_PX)
 
 
-def _check_own(alpha, passes, colour=DCT_COLOUR):
+def _check_own(alpha, passes, colour, local_noise):
+    if not isinstance(local_noise, bool):
+        raise ValueError(f"dct_wiener option local_noise={local_noise!r} is not allowed: true or false")
     if colour not in DCT_COLOURS:
         raise ValueError(f"dct_wiener option colour={colour!r} is not allowed: one of {', '.join(DCT_COLOURS)}")
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0 < alpha <= 1:
@@ -257,26 +256,22 @@ def _check_own(alpha, passes, colour=DCT_COLOUR):
 
 
 def _dct_wiener(observed, psf, *, noise, scheme, optical_center=None, region=None, progress=None, alpha=DCT_ALPHA,
-                passes=DCT_PASSES, local_noise=DCT_LOCAL_NOISE, colour=DCT_COLOUR, stats=WIENER_STATS_PX, rho0=WIENER_RHO0,
-                taper=WIENER_TAPER_PX):
+                passes=DCT_PASSES, local_noise=DCT_LOCAL_NOISE, colour=DCT_COLOUR, stats=WIENER_STATS_PX,
+                rho0=WIENER_RHO0, taper=WIENER_TAPER_PX):
     return dct_wiener_windowed(observed, psf, noise=noise, alpha=alpha, passes=passes, local_noise=local_noise,
-                               colour=colour,
-                               stats=stats, rho0=rho0, taper=taper, scheme=scheme, optical_center=optical_center,
-                               region=region, progress=progress)
+                               colour=colour, stats=stats, rho0=rho0, taper=taper, scheme=scheme,
+                               optical_center=optical_center, region=region, progress=progress)
 
 
 def _check(options, scheme):
     check_wiener_options({**options, "local": "window"}, scheme, "dct_wiener")
-    _check_own(options["alpha"], options["passes"], options["colour"])
-    if not isinstance(options["local_noise"], bool):
-        raise ValueError(f"dct_wiener option local_noise={options['local_noise']!r} is not allowed: true or false")
+    _check_own(options["alpha"], options["passes"], options["colour"], options["local_noise"])
 
 
 register(RestorationMethod("dct_wiener", "Wiener + local DCT",
                            "regularised inverse in the blur's windows, empirical Wiener shrinkage in the sliding 8x8 "
                            "DCT with the adaptive Wiener as pilot, a colour image in the opponent space",
                            _dct_wiener, (("alpha", DCT_ALPHA), ("passes", DCT_PASSES), ("local_noise", DCT_LOCAL_NOISE),
-                                         ("colour", DCT_COLOUR),
-                                         ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
+                                         ("colour", DCT_COLOUR), ("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0),
                                          ("taper", WIENER_TAPER_PX)),
                            check=_check, memory=WorkingMemory()))  # per window batch, sized by DCT_LIVE_COPIES

@@ -118,8 +118,8 @@ over the window's central square, but on the synthetic band beside a dark region
 RMS_W design, 10 deg, ISO 100) the restored dark corners were better at 6x that weight in linear error as well (their
 linear PSNR 15.30 / 19.37 dB at 1x / 6x, the sensor image's 18.87), and weighting SURE's frequencies towards the restored
 image's error (by ``1 / (|H|^2 + 0.01)``) moved them by 0.25 dB or less, and so weighted (0.01 or 0.001) over the
-whole window instead of the square by 1.0 dB or less, all still 2.9 dB or more below (the noise there is the model's: variance 4.14e-8 measured, 4.09e-8 modelled): why is not
-established. Measured on the 28 crop-ISOs of benchmarks/bench_restoration_methods.py (the three photos
+whole window instead of the square by 1.0 dB or less, all still 2.9 dB or more below (the noise there is the
+model's: variance 4.14e-8 measured, 4.09e-8 modelled): why is not established. Measured on the 28 crop-ISOs of benchmarks/bench_restoration_methods.py (the three photos
 of issue 45, 256 px at 0 / 5 / 10 deg, E2E and RMS_W designs, ISO 400 and 100): mean PSNR (dB) E2E 400 / E2E 100 /
 RMS_W 400 / RMS_W 100, all; crops below the sensor image (least margin, dB); and the least margin over the nine crops of
 the synthetic band beside a dark region (tests/pipeline/test_restoration_edges.py):
@@ -147,8 +147,8 @@ TIKHONOV_BIN_NATS = 0.02
 """Width of the bins of ``ln(|H|^2 / R)`` SURE groups the frequencies in: one ``q = w R / (|H|^2 + w R)`` per bin (at
 its centre) is within ``0.01 q (1 - q)`` of each frequency's, and the search's sums run over 3000 bins instead of the
 square's 33 000 frequencies (256 px). Summed over a whole 512 px window's frequencies at each of 24 bisection steps,
-SURE took ~3x the former weight's time per crop; binned, the default took 1.24x ``weight="prior"``'s (the portrait's centre crop, one
-process, a loaded 2-core machine)."""
+SURE took ~3x the former weight's time per crop; binned, the default took 1.24x ``weight="prior"``'s (the portrait's
+centre crop, one process, a loaded 2-core machine)."""
 
 TIKHONOV_BIN_MARGIN_NATS = 10.0
 """Beyond the searched range of ``ln w`` the bins extend this far; frequencies further out land in the end bins,
@@ -265,7 +265,8 @@ def _sure_weight(patches: torch.Tensor, H2: torch.Tensor, R: torch.Tensor, noise
 
 
 def tikhonov_windowed(observed: torch.Tensor, psf: PSFProvider, *, weight=TIKHONOV_WEIGHT,
-                      noise: NoiseModel | None = None, strength: float = 1.0, order: int = TIKHONOV_ORDER, scheme: WindowScheme = PAPER_SCHEME,
+                      noise: NoiseModel | None = None, strength: float = 1.0, order: int = TIKHONOV_ORDER,
+                      scheme: WindowScheme = PAPER_SCHEME,
                       optical_center=None, region=None, chunk: int | None = None, taper: int = WIENER_TAPER_PX,
                       progress=None) -> torch.Tensor:
     """Restore a linear image ``(B, C, H, W)`` blurred by the provider's PSFs with the Tikhonov-regularised
@@ -336,6 +337,7 @@ def _check(options, scheme):
 
 
 register(RestorationMethod("tikhonov", "Tikhonov", "Tikhonov-regularised inverse filter in the blur's windows "
-                           "(linear in each window; weight chosen by SURE from the data and the noise model, or given)", _tikhonov,
+                           "(linear in each window; weight chosen by SURE from the data and the noise model, or given)",
+                           _tikhonov,
                            (("weight", TIKHONOV_WEIGHT), ("strength", 1.0), ("order", TIKHONOV_ORDER)), check=_check,
                            memory=TIKHONOV_MEMORY))

@@ -54,8 +54,9 @@ from ..camera_chain import NoiseModel
 from ..checks import check_image
 from . import RestorationMethod, WorkingMemory, register
 
-__all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX", "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS",
-           "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX", "window_taper"]
+__all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX",
+           "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX",
+           "window_taper"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
