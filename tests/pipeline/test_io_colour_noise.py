@@ -170,3 +170,33 @@ def test_writes_in_bands_give_the_same_file(tmp_path, name, bits, monkeypatch):
     want = img if bits == "float" else img.clamp(0, 1)
     torch.testing.assert_close(back.reshape(want.shape), want, atol=1e-6 if bits == "float" else 0.6 / (2 ** bits - 1),
                                rtol=0)
+
+
+def test_eight_bit_images_decode_through_the_table_to_the_same_bits(tmp_path):
+    """An 8-bit image (at most one value per code) is decoded through a table of its values: the same bits as
+    colour-science on the whole image; an image with more values, or NaN, goes through colour-science itself."""
+    import pipeline.colour_space as cs
+
+    g = torch.Generator().manual_seed(1)
+    codes = torch.randint(0, 256, (1, 3, 160, 150), generator=g)  # 72,000 values: over the table's least
+    assert codes.numel() >= cs._TABLE_LEAST_VALUES
+    calls = []
+    real = cs._decoded_by_table
+    cs._decoded_by_table = lambda t: calls.append(real(t)) or calls[-1]
+    try:
+        for x in (codes.float() / 255, codes.float() * (1 / 255)):  # two float32 conversions of the codes
+            assert torch.equal(srgb_to_linear(x), cs._apply(x, cs._decode))
+            assert calls[-1] is not None  # the table was used
+        path = tmp_path / "codes.png"
+        write_image(path, codes.float() / 255, bits=8)
+        img, _ = read_image(path)  # the reader's own conversion
+        assert torch.equal(srgb_to_linear(img), cs._apply(img, cs._decode)) and calls[-1] is not None
+        more = codes.float() / 255
+        more[0, 0, 0, 0] += 1e-4  # a second value for one code: colour-science decodes it all
+        assert torch.equal(srgb_to_linear(more), cs._apply(more, cs._decode)) and calls[-1] is None
+        nan = codes.float() / 255
+        nan[0, 1, 5, 5] = float("nan")
+        out = srgb_to_linear(nan)
+        assert calls[-1] is None and torch.isnan(out[0, 1, 5, 5]) and torch.equal(out[0, 0], cs._apply(nan, cs._decode)[0, 0])
+    finally:
+        cs._decoded_by_table = real
