@@ -8,8 +8,9 @@ device out.
 An 8-bit photo holds at most 256 values, one per code (about ``k / 255``: the reader's own float32 conversion):
 :func:`srgb_to_linear` decodes those through a table of them decoded by colour-science (the same function on the same
 float32 values: the same bits, tested), and an image holding more values through colour-science itself. The
-process's first decoding of the 24 MP forest JPEG took 3.9 s through colour-science (its float32 arithmetic on 72 million values in frame-sized temporaries, each mapped
-afresh) against 1.6 s through the table (warm, 0.4-0.5 s either way).
+process's first decoding of the 24 MP forest JPEG took 3.9 s through colour-science (its float32 arithmetic on 72
+million values in frame-sized temporaries, each mapped afresh) against 1.6 s through the table (warm, 0.4-0.5 s either
+way).
 """
 
 from __future__ import annotations
