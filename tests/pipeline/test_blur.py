@@ -293,3 +293,22 @@ def test_lens_psf_support_grows_with_the_field_and_bounds_the_largest():
     assert int(ext.max()) == E2E.extent_px(rows, cols, (2000.0, 3000.0))
     assert [E2E.extent_px(rows[i:i + 1], cols[i:i + 1], (2000.0, 3000.0)) for i in range(4)] == ext.tolist()
     assert E2E.extent_px(torch.zeros(0), torch.zeros(0), (0.0, 0.0)) == E2E.numerics.margin_px  # no position
+
+
+def test_psf_batches_are_bounded_in_bytes_and_do_not_change_the_blur(monkeypatch):
+    """Windows whose PSFs are computed together: PSF_BATCH where PSF_BATCH_BYTES allows, fewer for colour PSFs and
+    grown windows, never fewer than the transforms' batch; the batch size does not change a single bit of the blur."""
+    import pipeline.blur as blur
+
+    img = torch.zeros(1, 3, 8, 8, dtype=torch.float32)
+    assert blur.psf_batch(img, 512, 1, 3) == blur.PSF_BATCH == 64  # 64 x 512 x 257 x 8 B = 67 MB
+    colour = blur.psf_batch(img, 512, 3, 3)
+    assert colour == blur.PSF_BATCH_BYTES // (3 * 512 * 257 * 8) < blur.PSF_BATCH
+    assert blur.psf_batch(img, 4096, 1, 1) == blur.PSF_BATCH_BYTES // (4096 * 2049 * 8) == 1  # 67 MB a window
+    assert blur.psf_batch(img, 4096, 3, 1) == 1 and blur.psf_batch(img, 512, 3, 50) == 50
+    x = texture(300, 340).float()
+    scheme = WindowScheme(256, 32, 64)
+    center = (149.5, 169.5)
+    big = blur_windowed(x, E2E, scheme=scheme, optical_center=center)
+    monkeypatch.setattr(blur, "PSF_BATCH", 1)  # one mirror group at a time
+    assert torch.equal(blur_windowed(x, E2E, scheme=scheme, optical_center=center), big)
