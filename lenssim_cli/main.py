@@ -186,11 +186,12 @@ adapts up to 32 MiB). The whole-frame passes allocate and free buffers of 9-40 M
 24 MP frame, window batches sized to the CPU's cache): each such buffer mapped afresh is a page fault per 4 KiB,
 zeroed by the kernel, on every pass."""
 
-GLIBC_TRIM_THRESHOLD_BYTES = 512 * 2**20
+GLIBC_TRIM_THRESHOLD_BYTES = 128 * 2**20
 """Free memory at the top of glibc's heap kept for the next allocation instead of handed back to the kernel
-(``M_TRIM_THRESHOLD``; its own default adapts to twice the mmap threshold). Measured on the 24 MP colour frame
-(``simulate --full-frame``, forest photo, 2 cores): the frame's scoring 9.2 -> 4.7-4.9 s, minor page faults 6.1 -> 2.2
-million, peak resident memory 2.56 -> 2.79 GB (docs/performance.md)."""
+(``M_TRIM_THRESHOLD``; its own default adapts to twice the mmap threshold): at most this much is held beyond what
+is in use. Scoring a 24 MP pair (``scores_encoded``, 2 cores) took 2.2-3.2 s with glibc's defaults, 1.7-1.9 s with
+either threshold of 64, 128, 256 or 512 MiB (the mmap threshold is what counts); with 512 MiB the whole frame's
+peak resident memory reached 3.13 GB in one run of two (docs/performance.md)."""
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 """glibc's ``mallopt`` parameter numbers (malloc.h)."""
