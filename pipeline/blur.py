@@ -168,22 +168,27 @@ CPU_CACHE_BYTES = 32 * 2**20
 window, 8 at 3.9 ms, 16 at 7.1 ms)."""
 
 PSF_BATCH = 64
-"""Windows whose PSFs are computed together where :data:`PSF_BATCH_BYTES` allows (whole mirror groups: up to 8
-windows share a PSF, so about 8 PSFs per batch; measured here: 2.4-2.6 ms per blur window with 16 against 2.9 ms
-with one group at a time; 64 against 16: the restoration of a 1536 px square around the axis of the forest photo
-6.35 -> 6.08 s, the same bits; 128 as 64)."""
+"""Windows whose PSFs are computed together on an axis-symmetric grid (whole mirror groups: up to 8 windows share a
+PSF, so about 8 PSFs per batch), where :data:`PSF_BATCH_BYTES` allows. Measured here: 2.4-2.6 ms per blur window with
+16 against 2.9 ms with one group at a time; 64 against 16: the restoration of a 1536 px square around the axis of the
+forest photo 6.35 -> 6.08 s, the same bits; 128 as 64."""
+
+PSF_BATCH_OWN = 16
+"""Windows whose PSFs are computed together where every window has its own PSF (no mirror symmetry: an as-built lens,
+the origin grid): 16 PSFs at a time, as before the mirror groups' batch grew."""
 
 PSF_BATCH_BYTES = 128 * 2**20
-"""Most bytes of the OTFs of one batch of :data:`PSF_BATCH` windows (``C w (w/2 + 1)`` complex values per window): 64
-windows of 512 px in one channel (67 MB), fewer in colour or where windows grow (a 4096 px window's OTF alone is 67
-MB), never fewer than the transforms' own batch."""
+"""Most bytes of the OTFs of one batch (``C w (w/2 + 1)`` complex values per window): 64 windows of 512 px in one
+channel (67 MB), fewer in colour or where windows grow (a 4096 px window's OTF alone is 67 MB), never fewer than the
+transforms' own batch."""
 
 
-def psf_batch(image: torch.Tensor, window: int, channels: int, k_chunk: int) -> int:
+def psf_batch(image: torch.Tensor, window: int, channels: int, k_chunk: int, symmetric: bool = True) -> int:
     """Windows whose PSFs are computed together for ``window`` px windows of ``image`` with ``channels`` PSFs per
-    window: :data:`PSF_BATCH` within :data:`PSF_BATCH_BYTES`, at least ``k_chunk`` (the transforms' batch) and 1."""
+    window: :data:`PSF_BATCH` on a mirror-symmetric grid (``symmetric``), else :data:`PSF_BATCH_OWN`, within
+    :data:`PSF_BATCH_BYTES`, and at least ``k_chunk`` (the transforms' batch) and 1."""
     per_window = channels * window * (window // 2 + 1) * 2 * image.element_size()
-    return max(k_chunk, 1, min(PSF_BATCH, PSF_BATCH_BYTES // per_window))
+    return max(k_chunk, 1, min(PSF_BATCH if symmetric else PSF_BATCH_OWN, PSF_BATCH_BYTES // per_window))
 
 
 def window_chunk(image: torch.Tensor, window: int) -> int:
@@ -652,7 +657,7 @@ def window_batches(plan: WindowPlan, psf: PSFProvider, image: torch.Tensor, chun
                            pedestal=win if pedestal else None)
         for c in torch.unique(plan.cores[plan.sizes == w]).tolist():
             sel = (plan.sizes == w) & (plan.cores == c)
-            for gy, gx in otfs.chunks(plan.Y[sel], plan.X[sel], psf_batch(image, w, psf.channels, k_chunk)):
+            for gy, gx in otfs.chunks(plan.Y[sel], plan.X[sel], psf_batch(image, w, psf.channels, k_chunk, plan.symmetric)):
                 group_otf = otfs(gy, gx)  # (k, 1, 1 or C, w, w/2+1): the PSFs of a few mirror groups at once
                 for k in range(0, gy.numel(), k_chunk):  # the transforms in cache-sized batches
                     ys, xs = gy[k:k + k_chunk], gx[k:k + k_chunk]

@@ -296,8 +296,9 @@ def test_lens_psf_support_grows_with_the_field_and_bounds_the_largest():
 
 
 def test_psf_batches_are_bounded_in_bytes_and_do_not_change_the_blur(monkeypatch):
-    """Windows whose PSFs are computed together: PSF_BATCH where PSF_BATCH_BYTES allows, fewer for colour PSFs and
-    grown windows, never fewer than the transforms' batch; the batch size does not change a single bit of the blur."""
+    """Windows whose PSFs are computed together: PSF_BATCH (mirror groups) or PSF_BATCH_OWN (a PSF per window) where
+    PSF_BATCH_BYTES allows, fewer for colour PSFs and grown windows, never fewer than the transforms' batch; the batch
+    size does not change a single bit of the blur."""
     import pipeline.blur as blur
 
     img = torch.zeros(1, 3, 8, 8, dtype=torch.float32)
@@ -306,6 +307,7 @@ def test_psf_batches_are_bounded_in_bytes_and_do_not_change_the_blur(monkeypatch
     assert colour == blur.PSF_BATCH_BYTES // (3 * 512 * 257 * 8) < blur.PSF_BATCH
     assert blur.psf_batch(img, 4096, 1, 1) == blur.PSF_BATCH_BYTES // (4096 * 2049 * 8) == 1  # 67 MB a window
     assert blur.psf_batch(img, 4096, 3, 1) == 1 and blur.psf_batch(img, 512, 3, 50) == 50
+    assert blur.psf_batch(img, 512, 1, 3, symmetric=False) == blur.PSF_BATCH_OWN == 16  # a PSF per window
     x = texture(300, 340).float()
     scheme = WindowScheme(256, 32, 64)
     center = (149.5, 169.5)
