@@ -3,6 +3,7 @@ band of a 24 MP frame comes from the heap instead of pages mapped afresh for it 
 test process keeps its own settings)."""
 
 import ctypes.util
+import os
 import subprocess
 import sys
 
@@ -45,7 +46,9 @@ def _glibc_with_mallinfo2() -> bool:
 @pytest.mark.skipif(not _glibc_with_mallinfo2(), reason="glibc >= 2.33 (mallinfo2) only")
 @pytest.mark.parametrize("mode", ["default", "tuned"])
 def test_tuned_heap_serves_batch_sized_buffers(mode):
-    out = subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True).stdout
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}  # glibc's own defaults
+    out = subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True,
+                         env=env).stdout
     before, after = map(int, out.split())
     n = 40 * 2**20
     assert before >= n  # glibc's default maps a 40 MB buffer by itself (the page faults the tuning avoids)
