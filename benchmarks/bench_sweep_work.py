@@ -5,8 +5,9 @@
 For every chunk of the sweep ``CONFIG`` (default ``paper_grid``; a chunk is one value of the first dimension: one s,
 all 113 values of Q and 15 field angles): the FFT size each PSF needs (:func:`lenssim.optics.psf_bank.fft_size`, the
 sweep's own choice; no transform is run here) and the chunk's FFT work, ``sum n^2 log2 n`` over its PSFs. Printed:
-the smallest, mean and largest size of a few chunks, each one's share of the grid's work, and the share of the first
-and last tenth of the chunks.
+the smallest, mean and largest size of a few chunks and how many distinct sizes each holds (the OTF bank runs a batch
+per size at least: on a GPU, the fewest kernel launches), each one's share of the grid's work, and the share of the
+first and last tenth of the chunks.
 
 With ``--time``: those chunks computed as :func:`lenssim_studies.sweep.run_sweep` computes them (on ``--device``),
 each one's time, PSFs per second and work rate (``G n^2 log2 n`` per second), and the sizes it used checked against
@@ -80,7 +81,11 @@ def main() -> int:
     for i in shown:
         s = sizes[i]
         print(f"  chunk {i:4d} {cfg.dims[0]} = {first[i]:+.3f}: n {int(s.min())}-{int(s.max())} px, mean "
-              f"{float(s.double().mean()):.0f}; {works[i] / total * 100:.2f}% of the work")
+              f"{float(s.double().mean()):.0f}, {torch.unique(s).numel()} distinct sizes (a batch each at least); "
+              f"{works[i] / total * 100:.2f}% of the work")
+    distinct = [torch.unique(sz).numel() for sz in sizes]
+    print(f"  distinct FFT sizes per chunk: {min(distinct)}-{max(distinct)}, {sum(distinct)} over the grid (the fewest "
+          "batches a chunk-by-chunk sweep runs, whatever the device's memory)")
     tenth = max(1, len(first) // 10)
     print(f"  the first tenth of the chunks: {works[:tenth].sum() / total * 100:.1f}% of the work; the last tenth: "
           f"{works[-tenth:].sum() / total * 100:.1f}%; the largest chunk {works.max() / works.min():.1f}x the "
