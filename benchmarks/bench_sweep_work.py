@@ -26,25 +26,13 @@ import torch
 from lenssim import Design
 from lenssim.io.resources import config_path
 from lenssim.optics.psf_bank import fft_size, spectral_coefficients
-from lenssim_studies.chunks import _compute_chunk  # one chunk, exactly as run_sweep computes it
+from lenssim_studies.chunks import _compute_chunk, chunk_values  # one chunk, exactly as run_sweep computes it
 from lenssim_studies.sweep import load_config
-
-
-def chunk_designs(cfg, i: int) -> Design:
-    """The designs of chunk ``i`` (the first dimension's ``i``-th value, the others' full grid), as the sweep builds
-    them."""
-    rest = cfg.dims[1:]
-    axes = np.meshgrid(*(cfg.values(d) for d in rest), indexing="ij") if rest else []
-    shape = axes[0].shape if rest else ()
-    vals = {d: torch.from_numpy(np.ascontiguousarray(a)) for d, a in zip(rest, axes)}
-    vals[cfg.dims[0]] = torch.full(shape, float(cfg.values(cfg.dims[0])[i]), dtype=torch.float64)
-    vals.update({k: torch.full(shape, float(v), dtype=torch.float64) for k, v in cfg.fixed.items()})
-    return Design(vals)
 
 
 def predicted_sizes(cfg, i: int) -> torch.Tensor:
     """The FFT size (px) of every PSF of chunk ``i``: ``(*grid, A)``."""
-    design = chunk_designs(cfg, i)
+    design = Design(chunk_values(cfg, i))
     alpha = torch.tensor(cfg.camera.lens.field_angles_deg, dtype=torch.float64)
     coeffs = spectral_coefficients(cfg.camera, design.map(lambda t: t[..., None]), alpha)  # (*grid, A, K, T)
     return fft_size(cfg.camera, coeffs, cfg.numerics)

@@ -19,7 +19,7 @@ from lenssim.model.design import Design
 from lenssim.metrics import evaluate
 from lenssim.torch_utils import HOST
 
-__all__ = ["_chunk_keys", "_compute_chunk", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
+__all__ = ["_chunk_keys", "_compute_chunk", "chunk_values", "_checksum", "partial_folder", "resume_chunks", "write_stamped_chunk",
            "read_stamped_chunk", "finished_result", "dataset_checksum", "stamp_result", "verify_result",
            "result_mismatch", "is_netcdf", "damaged_netcdf", "run_resumable"]
 
@@ -109,7 +109,9 @@ def _chunk_keys(cfg=None) -> tuple[str, ...]:
     return tuple(keys) + ("rms_w_alpha", "rms_w_piston_removed", "fft_size") + extra
 
 
-def _compute_chunk(cfg, i: int, device, progress) -> dict:
+def chunk_values(cfg, i: int) -> dict:
+    """The design values of a sweep's chunk ``i``: the first dimension's ``i``-th value and the other dimensions' full
+    grid (``indexing="ij"``), the fixed parameters beside them; ``{name: float64 tensor of the grid's shape}``."""
     rest = cfg.dims[1:]
     axes = np.meshgrid(*(cfg.values(d) for d in rest), indexing="ij") if rest else []
     first = cfg.values(cfg.dims[0])[i]
@@ -117,6 +119,11 @@ def _compute_chunk(cfg, i: int, device, progress) -> dict:
     shape = axes[0].shape if rest else ()
     vals[cfg.dims[0]] = torch.full(shape, float(first), dtype=torch.float64, device=HOST)  # as from_numpy's
     vals.update({k: torch.full(shape, v, dtype=torch.float64, device=HOST) for k, v in cfg.fixed.items()})
+    return vals
+
+
+def _compute_chunk(cfg, i: int, device, progress) -> dict:
+    vals = chunk_values(cfg, i)
     if cfg.focus is not None:
         from lenssim.focus import best_focus_batch
 

@@ -73,15 +73,13 @@ def _decoded_by_table(x: torch.Tensor) -> torch.Tensor | None:
     for i in range(0, flat.numel(), _TABLE_BAND_VALUES):
         band = flat[i:i + _TABLE_BAND_VALUES]
         values[codes(band)] = band  # one of each code's values (all of them equal, checked below)
-    table = None
+    table = _apply(values, _decode)
     out = torch.empty_like(flat)
     for i in range(0, flat.numel(), _TABLE_BAND_VALUES):
         band = flat[i:i + _TABLE_BAND_VALUES]
         k = codes(band)
         if not torch.equal(values[k], band):
             return None
-        if table is None:
-            table = _apply(values, _decode)
         torch.index_select(table, 0, k, out=out[i:i + _TABLE_BAND_VALUES])
     return out.view_as(x)
 
