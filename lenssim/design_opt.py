@@ -52,7 +52,7 @@ from .optics.psf_bank import fft_size, otf_quarter_spectrum, spectral_coefficien
 from .optics.seidel_wavefront import SEIDEL_TERMS, check_third_order_parameters, third_order_coefficients
 from .optics.sequential import SequentialLens
 from .metrics import third_order_camera
-from .torch_utils import HOST, tensor_of
+from .torch_utils import HOST, abs_square, tensor_of
 
 __all__ = ["DifferentiableCriterion", "IsoCostResult", "optimise_on_iso_cost", "LensThirdOrderCriterion",
            "LensExactCriterion", "GRADIENT_CRITERIA", "FD_STEP", "F_NUMBER_TOLERANCE"]
@@ -111,7 +111,7 @@ class DifferentiableCriterion:
                                      terms=self.terms)
             psd = image_psd_quarter(m, self.rho0, model=self.psd_model, dtype=self.dtype, device=H.device)
             w = quarter_weights(m, psd.dtype, psd.device)
-            ctx = OTFContext(H, H.real.square() + H.imag.square(), psd, w, psd * w, self.sigma2.to(H.device), n, self.camera,
+            ctx = OTFContext(H, abs_square(H), psd, w, psd * w, self.sigma2.to(H.device), n, self.camera,
                              self.numerics)
             v = self.criterion.from_otf(ctx)
             total = total + (v[0, 0] if self.criterion.per_snr else v[0])

@@ -66,7 +66,7 @@ from .optics.seidel_wavefront import SEIDEL_TERMS, equivalent_thin_lens, third_o
 from .optics.sequential import SequentialLens
 from .optics.psf_provider import SequentialPSF
 from .optics.wavefront_models import WAVEFRONT_MODELS, register_evaluator
-from .torch_utils import HOST, as_tensor, chunk_budget_bytes, tensor_of
+from .torch_utils import HOST, abs_square, as_tensor, chunk_budget_bytes, tensor_of
 from .validate import NumericalError, ResourceLimitError, check_memory
 
 __all__ = ["otf_criteria_bank", "evaluate", "exact_criteria", "evaluate_third_order", "third_order_camera",
@@ -99,7 +99,7 @@ def _otf_criteria(names, H: torch.Tensor, image, sigma2: torch.Tensor, n: int, c
                   reference: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """Each criterion of ``names`` ``{name: (B, S) or (B,)}`` of the quarter-plane OTFs ``H`` ``(B, q, q)`` of an
     ``n``-pixel grid, through one :class:`lenssim.criteria.OTFContext` (``image``: :func:`_image_model`)."""
-    ctx = OTFContext(H, H.real.square() + H.imag.square(), *image, sigma2, n, camera, numerics, reference=reference,
+    ctx = OTFContext(H, abs_square(H), *image, sigma2, n, camera, numerics, reference=reference,
                      _cache=cache)
     return {name: CRITERIA[name].from_otf(ctx) for name in names}
 

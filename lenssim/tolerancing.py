@@ -58,7 +58,7 @@ from .optics.psf_bank import TABLE_INITIAL_NODES, TABLE_MAX_NODES
 from .optics.psf_provider import SequentialPSF
 from .optics.aberrations import pupil_monomials
 from .metrics import evaluate_sequential, evaluation_angles
-from .torch_utils import HOST, chunk_budget_bytes, tensor_of
+from .torch_utils import HOST, abs_square, chunk_budget_bytes, tensor_of
 from .validate import NumericalError, check_memory
 
 __all__ = ["AZIMUTHS_DEG", "as_built_criteria", "AS_BUILT_CRITERIA", "manufactured_lens", "copy_provider",
@@ -164,7 +164,7 @@ def as_built_criteria(camera: Camera, design: Design, pert: Perturbations, snr_d
             ref = torch.stack([nominal[f] for f in pts.tolist()])
             B = sel.numel()
             Hf, Rf = H.reshape(2 * B, *H.shape[-2:]), ref.reshape(2 * B, *H.shape[-2:])
-            ctx = OTFContext(Hf, Hf.real.square() + Hf.imag.square(), psd_q, weights, pw, sigma2.to(psd_q.device), n,
+            ctx = OTFContext(Hf, abs_square(Hf), psd_q, weights, pw, sigma2.to(psd_q.device), n,
                              camera, numerics, reference=Rf)
             for k in names:
                 v = CRITERIA[k].from_otf(ctx).cpu()

@@ -230,8 +230,11 @@ WRITE_BAND_ROWS = 256
 """Rows per band that :func:`write_image` converts and hands to OpenImageIO (its host copy stays a band's size)."""
 
 
-def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str = 8, inputs=()) -> Path:
-    """Write a ``(1, C, H, W)`` or ``(C, H, W)`` tensor. ``bits`` is 8, 16 or ``"float"`` (use .exr)."""
+def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str = 8, inputs=(),
+                exr_compression: str | None = None) -> Path:
+    """Write a ``(1, C, H, W)`` or ``(C, H, W)`` tensor. ``bits`` is 8, 16 or ``"float"`` (use .exr).
+    ``exr_compression``: an EXR's compression by OpenImageIO's name (``"none"``, ``"zip"``, ...; default OpenImageIO's,
+    zip); other formats ignore it."""
     import OpenImageIO as oiio
 
     p = Path(path)
@@ -256,6 +259,8 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
             raise ImageFileError(f"cannot write {str(p)!r}: {oiio.geterror() or 'unknown file extension'}")
         spec = oiio.ImageSpec(W, H, C, fmts[bits])
         spec.attribute("png:compressionLevel", PNG_COMPRESSION_LEVEL)  # other formats ignore it
+        if exr_compression is not None:
+            spec.attribute("compression", exr_compression)
         ok = out.open(tmp, spec)
         # in bands of rows: a band's (rows, W, C) float32 host copy at a time, not the frame's
         for r0 in range(0, H, WRITE_BAND_ROWS):

@@ -23,7 +23,7 @@ import math
 import torch
 
 from .sequential import SequentialLens
-from ..torch_utils import HOST
+from ..torch_utils import HOST, abs_square
 
 __all__ = ["lens_report", "field_quality", "REPORT_GRID", "PSF_PADDING", "DEFAULT_MTF_FREQUENCIES_CPMM",
            "MAX_PHASE_STEP_WAVES", "MAX_REPORT_GRID"]
@@ -95,7 +95,7 @@ def field_quality(seq: SequentialLens, field: float, frequencies_cpmm=DEFAULT_MT
     pupil = torch.zeros(m, m, dtype=torch.complex128, device=amp.device)
     pupil[:grid, :grid] = amp * torch.exp(2j * math.pi * phase)
     field_ = torch.fft.fft2(pupil)
-    psf = field_.real**2 + field_.imag**2
+    psf = abs_square(field_)
     strehl = float(psf.max() / amp.sum() ** 2)  # the aberration-free pupil's peak is (sum A)^2
     otf = torch.fft.ifft2(psf)
     mtf = (otf.abs() / otf.abs()[0, 0])

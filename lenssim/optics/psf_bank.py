@@ -76,7 +76,7 @@ from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .sequential import SequentialLens
-from ..torch_utils import HOST, as_tensor
+from ..torch_utils import HOST, abs_square, as_tensor
 from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
@@ -335,7 +335,7 @@ def _intensity(field: torch.Tensor, n: int, *, area=None, keep: torch.Tensor | N
     else:
         a = torch.fft.fft(field, n=n, dim=-1).index_select(-1, keep)
         a = torch.fft.fft(a, n=n, dim=-2).index_select(-2, keep)
-    p = a.real.square() + a.imag.square()
+    p = abs_square(a)
     return p if area is None else p.div_((n * n) * area)
 
 
@@ -581,7 +581,7 @@ def _psf_half(coeffs: torch.Tensor, n: int, pupil_radius_px: float, supersample:
     row_dft = torch.fft.irfft(re_im, n=n, dim=-1)[..., : h + 1]  # even x-DFT / n, real and imag parts
     field_x = torch.complex(row_dft[:, 0], row_dft[:, 1])
     amp_img = torch.fft.fft(field_x, n=n, dim=-2)  # (B, n, h+1)
-    return amp_img.real.square() + amp_img.imag.square(), area  # PSF for u >= 0 (up to n^2 scaling)
+    return abs_square(amp_img), area  # PSF for u >= 0 (up to n^2 scaling)
 
 
 def _otf_from_psf_half(p_half: torch.Tensor, n: int, oversample: int, area: float) -> torch.Tensor:

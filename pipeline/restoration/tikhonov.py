@@ -79,6 +79,7 @@ from __future__ import annotations
 import torch
 
 from lenssim import PSFProvider
+from lenssim.torch_utils import abs_square, centred_variance
 from lenssim.validate import check_real
 
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
@@ -254,7 +255,7 @@ def _sure_weight(patches: torch.Tensor, H2: torch.Tensor, R: torch.Tensor, noise
     spec = torch.fft.rfft2((square - mean).mul_(taper))
     counts = _half_plane_counts(side, patches.dtype, patches.device).expand(side, -1).clone()
     counts[0, 0] = 0  # the mean passes as it is: no residual, no degree of freedom
-    power = (spec.real.square() + spec.imag.square()).mul_(counts / (side * side))
+    power = abs_square(spec).mul_(counts / (side * side))
     noise_power = noise.variance(mean) * t2.mean()
     R_sub = R[::step, ::step].clone()
     R_sub[0, 0] = 1  # left out (counts 0); keeps the logarithm finite
@@ -296,7 +297,7 @@ def tikhonov_windowed(observed: torch.Tensor, psf: PSFProvider, *, weight=TIKHON
         mu = patches.mean(dim=(-2, -1), keepdim=True)
         spec = torch.fft.rfft2((patches - mu).mul_(tapers[win]))
         dc = spec[..., 0, 0] + mu[..., 0, 0] * (win * win)
-        H2 = H.real.square() + H.imag.square()
+        H2 = abs_square(H)
         R = _penalty(win, order, patches.dtype, patches.device)
         if weight == "sure":
             w = strength * _sure_weight(patches, H2, R, noise)
@@ -304,7 +305,7 @@ def tikhonov_windowed(observed: torch.Tensor, psf: PSFProvider, *, weight=TIKHON
             centre = patches[..., half - s: half + s, half - s: half + s]
             var_n = mean_noise_variance(noise, centre)
             if order == 0:  # the signal's variance; the noise adds var_n
-                power = centre.var(dim=(-2, -1), correction=0, keepdim=True) - var_n
+                power = centred_variance(centre, centre.mean(dim=(-2, -1), keepdim=True), (-2, -1)) - var_n
             else:  # its gradient's power (both directions); a difference of two pixels adds 2 var_n in each
                 power = (centre.diff(dim=-2).square().mean(dim=(-2, -1), keepdim=True)
                          + centre.diff(dim=-1).square().mean(dim=(-2, -1), keepdim=True) - 4 * var_n)

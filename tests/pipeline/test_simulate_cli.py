@@ -176,6 +176,13 @@ def test_full_frame_resumes_from_its_checkpoint(tmp_path):
     scheme = WindowScheme(256, 32, 64)
     first = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert not first.resumed and (tmp_path / "sensor_linear.exr").exists()
+    import OpenImageIO as oiio
+
+    from pipeline.simulate import CHECKPOINT_EXR_COMPRESSION
+
+    inp = oiio.ImageInput.open(str(tmp_path / "sensor_linear.exr"))  # written as named (a noisy float hardly compresses)
+    assert inp.spec().get_string_attribute("compression") == CHECKPOINT_EXR_COMPRESSION == "none"
+    inp.close()
     again = simulate_frame(ideal, E2E, 3200.0, seed=1, scheme=scheme, checkpoint=tmp_path, sensor=PAPER_SENSOR)
     assert again.resumed and "blur" not in again.seconds
     assert torch.equal(again.sensor, first.sensor) and torch.equal(again.restored, first.restored)
