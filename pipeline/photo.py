@@ -73,8 +73,7 @@ class Photo:
         """Linear pixels of rows ``r0:r1`` and columns ``c0:c1`` (px), ``(1, C, r1 - r0, c1 - c0)``."""
         if self.tensor is not None:
             return self.tensor[..., r0:r1, c0:c1]
-        img, _ = read_image(self.path, (r0, r1, c0, c1), what="photo")
-        return (img if self.linear else srgb_to_linear(img)).to(self.device)
+        return _read_linear(self.path, (r0, r1, c0, c1))[0].to(self.device)
 
     def load(self) -> torch.Tensor:
         """The whole linear frame (read now if it is not in memory)."""
@@ -98,6 +97,18 @@ def _sample(spec: str) -> torch.Tensor:
     t = torch.from_numpy(arr.astype(np.float32) / 255)
     t = t[None, None] if t.ndim == 2 else t.permute(2, 0, 1)[None, :3]
     return srgb_to_linear(t)
+
+
+def _srgb_decoded(values: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values (float32, numpy) decoded to linear light by :func:`pipeline.colour_space.srgb_to_linear`."""
+    return srgb_to_linear(torch.from_numpy(values)).numpy()
+
+
+def _read_linear(path: str, region=None) -> tuple[torch.Tensor, ImageInfo]:
+    """A photo file's pixels (``region`` as :func:`pipeline.io.read_image`'s) as linear light: a linear file's as read,
+    an 8-bit one's codes decoded through their 256 decoded values as they are read, any other's decoded after."""
+    img, info = read_image(path, region, what="photo", table=_srgb_decoded)
+    return (img if info.linear or info.file_format == "uint8" else srgb_to_linear(img)), info
 
 
 def photo_info(spec: str, what: str = "photo") -> ImageInfo:
@@ -146,7 +157,7 @@ def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BY
 
         info = image_info(spec, "photo")
     if info is not None and int(np.prod(info.shape)) * 4 <= keep_bytes:
-        img, info = read_image(spec, what="photo")
+        img, info = _read_linear(spec)
         lo, hi = float(img.min()), float(img.max())
     else:
         img = None
@@ -158,7 +169,7 @@ def open_photo(spec: str | None, camera=None, *, keep_bytes: int = PHOTO_KEEP_BY
     if not hi > 0:
         raise ImageFileError(f"photo {spec!r} is black (all pixels 0): there is no light to simulate")
     if img is not None:
-        return Photo.of(img if info.linear else srgb_to_linear(img), spec)
+        return Photo.of(img, spec)
     peak = hi if info.linear else float(srgb_to_linear(torch.tensor([[[[hi]]]], dtype=torch.float32, device=HOST)))
     return Photo(spec, info.shape, peak, None, spec, info.linear)
 

@@ -200,3 +200,48 @@ def test_eight_bit_images_decode_through_the_table_to_the_same_bits(tmp_path):
         assert calls[-1] is None and torch.isnan(out[0, 1, 5, 5]) and torch.equal(out[0, 0], cs._apply(nan, cs._decode)[0, 0])
     finally:
         cs._decoded_by_table = real
+
+
+@pytest.mark.parametrize("name", ["codes.png", "codes.jpg", "codes.tif"])
+def test_eight_bit_files_are_read_through_the_table_of_their_codes(tmp_path, name):
+    """An 8-bit file read with ``table`` is its codes looked up in the table of their values: the same bits as the
+    function of the float image, whole or by region, for scanline and tiled files; other formats come back as read."""
+    import OpenImageIO as oiio
+
+    import pipeline.colour_space as cs
+    from pipeline.io import code_values
+    from pipeline.photo import open_photo
+
+    g = torch.Generator().manual_seed(2)
+    codes = torch.randint(0, 256, (1, 3, 300, 260), generator=g)
+    codes[0, :, 0, :256] = torch.arange(256)  # every code present
+    path = tmp_path / name
+    if name.endswith(".tif"):  # tiled: the lookup follows the tiles' rows
+        out = oiio.ImageOutput.create(str(path))
+        spec = oiio.ImageSpec(260, 300, 3, "uint8")
+        spec.tile_width = spec.tile_height = 64
+        assert out.open(str(path), spec)
+        assert out.write_image(np.ascontiguousarray(codes[0].permute(1, 2, 0).numpy().astype(np.uint8))), out.geterror()
+        out.close()
+    else:
+        write_image(path, codes.float() / 255, bits=8)
+    decode = lambda v: cs._apply(torch.from_numpy(v), cs._decode).numpy()  # noqa: E731  colour-science itself
+    plain, info = read_image(path)
+    assert info.file_format == "uint8" and (info.tile_height > 0) == name.endswith(".tif")
+    # OpenImageIO's own float of each code: the values a float read of the file gives (the PNG and TIFF are exact)
+    if not name.endswith(".jpg"):
+        assert torch.equal(plain[0, 0, 0, :256], torch.from_numpy(code_values()))
+    via, _ = read_image(path, table=decode)
+    assert torch.equal(via, cs._apply(plain, cs._decode))
+    box = (37, 251, 19, 203)
+    part, _ = read_image(path, box, table=decode)
+    assert torch.equal(part, via[..., 37:251, 19:203])
+    photo = open_photo(str(path))
+    assert torch.equal(photo.tensor, srgb_to_linear(plain)) and photo.peak == float(srgb_to_linear(plain).amax())
+    lazy = open_photo(str(path), keep_bytes=0)  # read by region on demand
+    assert torch.equal(lazy.region(*box), via[..., 37:251, 19:203]) and lazy.peak == photo.peak
+    with pytest.raises(ValueError, match="one per code"):
+        read_image(path, table=lambda v: v[:10])
+    exr = tmp_path / "lin.exr"  # a float file: returned as read
+    write_image(exr, via, bits="float")
+    assert torch.equal(read_image(exr, table=decode)[0], read_image(exr)[0])
