@@ -111,14 +111,36 @@ def _info(path, spec, what: str) -> ImageInfo:
                      fmt in ("half", "float", "double"), c, int(spec.tile_height) if spec.tile_width else 0)
 
 
+_INFO_CACHE: dict = {}
+"""Headers read in this process, by path, inode, size and modification time (:func:`image_info`)."""
+INFO_CACHE_FILES = 64
+"""Most headers :func:`image_info` keeps (a command reads its inputs' headers a few times each)."""
+
+
 def image_info(path: str | os.PathLike, what: str = "image") -> ImageInfo:
     """The :class:`ImageInfo` of ``path`` from its header alone (no pixel is decoded): size, channels, format.
-    ``what`` names the file in errors (e.g. ``"photo"``). A camera RAW file: :func:`pipeline.photo.photo_info`."""
+    ``what`` names the file in errors (e.g. ``"photo"``). A camera RAW file: :func:`pipeline.photo.photo_info`.
+
+    Kept for the process while the file's inode, size and modification time stay the same: OpenImageIO's JPEG reader
+    takes 0.2-0.4 s to open a 24 MP file, and a command asks for its photo's header three times (measured on 2 cores).
+    """
+    try:
+        st = os.stat(path)
+        key = (str(path), st.st_ino, st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = None  # _open names what is wrong
+    if key in _INFO_CACHE:
+        return _INFO_CACHE[key]
     inp, spec = _open(path, what)
     try:
-        return _info(path, spec, what)
+        info = _info(path, spec, what)
     finally:
         inp.close()
+    if key is not None:
+        if len(_INFO_CACHE) >= INFO_CACHE_FILES:
+            _INFO_CACHE.pop(next(iter(_INFO_CACHE)))
+        _INFO_CACHE[key] = info
+    return info
 
 
 def _read_rows(inp, spec, info: ImageInfo, r0: int, r1: int, c0: int, c1: int, what: str,

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from ..torch_utils import HOST
+from ..torch_utils import HOST, broadcast_shape
 from ..validate import listed, quoted
 
 __all__ = ["Parameter", "PARAMETERS", "parameter_name", "Design", "load_designs"]
@@ -98,7 +98,7 @@ class Design:
                 raise ValueError(f"design parameter {canon} is given twice (as {key!r} and another name)")
             merged[canon] = _to_tensor(canon, v, device)
         try:
-            torch.broadcast_shapes(*(t.shape for t in merged.values()))
+            broadcast_shape(*(t.shape for t in merged.values()))
         except RuntimeError:
             shapes = {k: tuple(t.shape) for k, t in merged.items()}
             raise ValueError(f"design parameters do not broadcast together: {shapes}") from None
@@ -125,7 +125,7 @@ class Design:
 
     @property
     def shape(self) -> torch.Size:
-        return torch.broadcast_shapes(*(t.shape for t in self.values.values())) if self.values else torch.Size()
+        return broadcast_shape(*(t.shape for t in self.values.values())) if self.values else torch.Size()
 
     # ---- transformations (each returns a new Design) ---------------------------------------
     def map(self, fn: Callable[[torch.Tensor], torch.Tensor]) -> "Design":

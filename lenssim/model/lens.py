@@ -23,7 +23,7 @@ import torch
 from .design import Design
 from .glass import ConstantGlass, as_glass
 from .surface import Surface
-from ..torch_utils import HOST, as_tensor
+from ..torch_utils import HOST, as_tensor, broadcast_shape
 from ..validate import listed, quoted, warn_model
 
 THIRD_ORDER_LIMIT = 0.25
@@ -260,7 +260,7 @@ class Lens:
         for i, surf in enumerate(self.surfaces(design)):
             c = torch.as_tensor(surf.curvature, dtype=torch.float64, device=device)
             kappa = torch.as_tensor(surf.conic, dtype=torch.float64, device=device)
-            arg = torch.broadcast_to(1 - (1 + kappa) * c**2 * y2, torch.broadcast_shapes(shape, c.shape, kappa.shape))
+            arg = torch.broadcast_to(1 - (1 + kappa) * c**2 * y2, broadcast_shape(shape, c.shape, kappa.shape))
             if (arg <= 0).any():
                 j = int(torch.nonzero((arg <= 0).flatten())[0])
                 at = {k: torch.broadcast_to(v, arg.shape).flatten()[j].item() for k, v in design.values.items()}

@@ -76,7 +76,7 @@ from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
 from .sequential import SequentialLens
-from ..torch_utils import HOST, abs_square, as_tensor
+from ..torch_utils import HOST, abs_square, as_tensor, broadcast_shape
 from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
 __all__ = [
@@ -450,7 +450,7 @@ def psf_at(camera: Camera, design: Design, x_mm, y_mm, n: int | None = None, *, 
         common = torch.promote_types(common, v.dtype)
     x, y = (as_tensor(v, dtype=common, device=given[0].device if given else None) for v in (x_mm, y_mm))
     design = design.to(common)
-    shape = torch.broadcast_shapes(x.shape, y.shape, design.shape)
+    shape = broadcast_shape(x.shape, y.shape, design.shape)
     x, y = x.expand(shape), y.expand(shape)
     design = design.map(lambda t: t.expand(shape))
     camera.lens.check_design(design)

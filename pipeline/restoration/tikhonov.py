@@ -79,7 +79,7 @@ from __future__ import annotations
 import torch
 
 from lenssim import PSFProvider
-from lenssim.torch_utils import abs_square, centred_variance
+from lenssim.torch_utils import abs_square, broadcast_shape, centred_variance
 from lenssim.validate import check_real
 
 from ..blur import PAPER_SCHEME, WindowScheme, apply_windowed
@@ -215,7 +215,7 @@ def sure_log_weight(log_ratio: torch.Tensor, power: torch.Tensor, counts: torch.
     start = lo - TIKHONOV_BIN_MARGIN_NATS
     nb = round((hi - lo + 2 * TIKHONOV_BIN_MARGIN_NATS) / TIKHONOV_BIN_NATS)
     idx = ((log_ratio - start) / TIKHONOV_BIN_NATS).floor_().clamp_(0, nb - 1).long()
-    shape = torch.broadcast_shapes(log_ratio.shape, power.shape)
+    shape = broadcast_shape(log_ratio.shape, power.shape)
     sets = shape[:-2]
 
     def binned(values):  # (*sets, nb): the sum of ``values`` in each bin, per window and channel

@@ -46,3 +46,33 @@ def test_centred_variance_matches_float64(device_dtype, offset):
     assert torch.allclose(got.double(), exact, rtol=tol, atol=0)
     # and torch's own population variance to the same rounding
     assert torch.allclose(got, x.var(dim=(-2, -1), correction=0, keepdim=True), rtol=tol, atol=0)
+
+
+@pytest.mark.parametrize("shapes", [((2, 1), (1, 3)), ((), (4,)), (torch.Size([5, 1, 3]), (7, 1)), ((0, 1), (1, 2)),
+                                    ((3,),)])
+def test_broadcast_shape_is_torchs(shapes):
+    from lenssim.torch_utils import broadcast_shape
+
+    got = broadcast_shape(*shapes)
+    assert isinstance(got, torch.Size) and got == torch.broadcast_shapes(*shapes)
+
+
+def test_broadcast_shape_refuses_as_torch_does():
+    from lenssim.torch_utils import broadcast_shape
+
+    with pytest.raises(RuntimeError):
+        torch.broadcast_shapes((2, 3), (4,))
+    with pytest.raises(RuntimeError, match="do not broadcast"):
+        broadcast_shape((2, 3), (4,))
+
+
+def test_a_command_starts_without_sympy():
+    """torch.broadcast_shapes imports torch.fx's symbolic shapes and sympy (0.3 s) on its first call: the command line
+    and a design are built without it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from lenssim_cli.main import build_parser; from lenssim import Design; build_parser(); "
+            "Design(s=[0.0, 1.0], Q_back=-1.0).shape; print('sympy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

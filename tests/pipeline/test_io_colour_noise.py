@@ -245,3 +245,23 @@ def test_eight_bit_files_are_read_through_the_table_of_their_codes(tmp_path, nam
     exr = tmp_path / "lin.exr"  # a float file: returned as read
     write_image(exr, via, bits="float")
     assert torch.equal(read_image(exr, table=decode)[0], read_image(exr)[0])
+
+
+def test_a_header_is_read_once_while_its_file_stays_the_same(tmp_path, monkeypatch):
+    import os
+
+    import pipeline.io as pio
+
+    opened = []
+    real = pio._open
+    monkeypatch.setattr(pio, "_open", lambda p, w: opened.append(p) or real(p, w))
+    path = write_image(tmp_path / "h.png", ramp(h=40, w=50))
+    a = pio.image_info(path, "photo")
+    b = pio.image_info(path, "photo")
+    assert a == b and (a.width, a.height) == (50, 40) and len(opened) == 1
+    write_image(path, ramp(h=30, w=50))  # replaced (a new inode, another size): read again
+    st = os.stat(path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1))
+    assert pio.image_info(path, "photo").height == 30 and len(opened) == 2
+    with pytest.raises(ImageFileError, match="gone.png"):  # a missing file is never a cached one
+        pio.image_info(tmp_path / "gone.png")
