@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import torch
 
+from ..torch_utils import abs_square
 from . import Criterion, OTFContext, register
 
 
@@ -49,7 +50,7 @@ def mse_r_nominal(ctx: OTFContext) -> torch.Tensor:
         return mse_r(ctx)
     H, H0, P = ctx.H, ctx.reference, ctx.psd
     cross = (H0.real * H.real + H0.imag * H.imag) * P  # Re(conj(H0) H) P_x
-    H02P = (H0.real.square() + H0.imag.square()) * P
+    H02P = abs_square(H0).mul_(P)
     out = []
     for s2 in ctx.sigma2.to(P.dtype):
         D = H02P + s2
