@@ -112,7 +112,7 @@ def _info(path, spec, what: str) -> ImageInfo:
 
 
 _INFO_CACHE: dict = {}
-"""Headers read in this process, by path, inode, size and modification time (:func:`image_info`)."""
+"""Headers read in this process, by path, device and inode, size and modification time (:func:`image_info`)."""
 INFO_CACHE_FILES = 64
 """Most headers :func:`image_info` keeps (a command reads its inputs' headers a few times each)."""
 
@@ -121,12 +121,12 @@ def image_info(path: str | os.PathLike, what: str = "image") -> ImageInfo:
     """The :class:`ImageInfo` of ``path`` from its header alone (no pixel is decoded): size, channels, format.
     ``what`` names the file in errors (e.g. ``"photo"``). A camera RAW file: :func:`pipeline.photo.photo_info`.
 
-    Kept for the process while the file's inode, size and modification time stay the same: OpenImageIO's JPEG reader
+    Kept for the process while the file's device and inode, size and modification time stay the same: OpenImageIO's JPEG reader
     takes 0.2-0.4 s to open a 24 MP file, and a command asks for its photo's header three times (measured on 2 cores).
     """
     try:
         st = os.stat(path)
-        key = (str(path), st.st_ino, st.st_size, st.st_mtime_ns)
+        key = (str(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
     except OSError:
         key = None  # _open names what is wrong
     if key in _INFO_CACHE:
@@ -145,9 +145,9 @@ def image_info(path: str | os.PathLike, what: str = "image") -> ImageInfo:
 
 def _read_rows(inp, spec, info: ImageInfo, r0: int, r1: int, c0: int, c1: int, what: str,
                fmt: str = "float") -> np.ndarray:
-    """Rows ``r0:r1``, columns ``c0:c1`` (data-window coordinates) as float32 ``(h, w, C)`` (alpha dropped; ``fmt``
-    ``"uint8"``: the 8-bit codes of an 8-bit file): scanline files decode whole rows, tiled files the tiles that
-    cover the region."""
+    """Rows ``r0:r1``, columns ``c0:c1`` (data-window coordinates) as ``(h, w, C)`` (alpha dropped): float32 values, or
+    with ``fmt="uint8"`` an 8-bit file's codes; scanline files decode whole rows, tiled files the tiles that cover the
+    region."""
     ch = info.channels
     if info.tile_height:
         tw, th = int(spec.tile_width), int(spec.tile_height)
@@ -312,7 +312,7 @@ def write_image(path: str | os.PathLike, image: torch.Tensor, *, bits: int | str
             raise ImageFileError(f"cannot write {str(p)!r}: {oiio.geterror() or 'unknown file extension'}")
         spec = oiio.ImageSpec(W, H, C, fmts[bits])
         spec.attribute("png:compressionLevel", PNG_COMPRESSION_LEVEL)  # other formats ignore it
-        if exr_compression is not None:
+        if exr_compression is not None and p.suffix.lower() == ".exr":  # TIFF reads the same attribute
             spec.attribute("compression", exr_compression)
         ok = out.open(tmp, spec)
         # in bands of rows: a band's (rows, W, C) float32 host copy at a time, not the frame's

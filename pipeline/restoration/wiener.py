@@ -213,7 +213,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
         out = deviation_spectrum(patches, mu)  # filter y - mu, then add mu back (its DC term)
         dc = mu[..., 0, 0] * (win * win)
         out.mul_(H.conj().resolve_conj())  # a conj view broadcast over the channels is ~2x slower (measured)
-        out.mul_(G)  # complex by real: 4x faster than scaling a real view by G[..., None] (measured), the same bits
+        out.mul_(G)  # complex by real: 4x faster than scaling a real view by G[..., None] (measured), the same values
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
 
