@@ -197,7 +197,7 @@ def blur_side_by_side(ideal: torch.Tensor, size) -> None:
     def before():
         blur_module.core_irfft2 = core_irfft2_before
         try:
-            out = apply_windowed(frame, PSF, lambda p, otf: torch.fft.rfft2(p) * otf, pedestal=True)
+            out = apply_windowed(frame, PSF, lambda p, otf, core: torch.fft.rfft2(p) * otf, pedestal=True)
             return out + box_mean(frame, full.window) * PSF.pedestal_fractions(full.window)[0]
         finally:
             blur_module.core_irfft2 = current

@@ -44,7 +44,7 @@ from lenssim.torch_utils import HOST, chunk_budget_bytes, tensor_of
 from .checks import check_image, check_provider
 
 __all__ = ["WindowScheme", "WINDOW_ANCHORS", "PAPER_SCHEME", "window_centres", "axis_positions", "scheme_positions",
-           "window_count", "window_chunk", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "grown_window",
+           "window_count", "window_chunk", "WINDOW_COPIES", "tent_weights", "core_irfft2", "FIT_SIZES", "fitted_windows", "grown_window",
            "window_sizes", "largest_window", "fold_psf", "StrideZones", "choose_stride_zones",
            "interpolation_error_db", "BLUR_ZONE_TOL_DB",
            "apply_windowed", "blur_windowed", "WindowPlan", "window_plan", "window_batches",
@@ -191,17 +191,22 @@ def psf_batch(image: torch.Tensor, window: int, channels: int, k_chunk: int, sym
     return max(k_chunk, 1, min(PSF_BATCH if symmetric else PSF_BATCH_OWN, PSF_BATCH_BYTES // per_window))
 
 
-def window_chunk(image: torch.Tensor, window: int) -> int:
+WINDOW_COPIES = 3
+"""Values a window holds per pixel and channel of its patch in a windowed pass (its patch and the patch's spectrum):
+what :func:`window_chunk` budgets by default."""
+
+
+def window_chunk(image: torch.Tensor, window: int, copies: float = WINDOW_COPIES) -> int:
     """Windows per batch: enough to fill a GPU, few enough for a CPU's caches.
 
-    A window holds about ``3 B C window^2`` values of ``image``'s dtype (its patch and the patch's
-    spectrum); a batch gets :func:`lenssim.torch_utils.chunk_budget_bytes` (:data:`CPU_CACHE_BYTES` on a CPU:
+    A window holds about ``copies B C window^2`` values of ``image``'s dtype (:data:`WINDOW_COPIES`: its patch and the
+    patch's spectrum); a batch gets :func:`lenssim.torch_utils.chunk_budget_bytes` (:data:`CPU_CACHE_BYTES` on a CPU:
     3 windows of 512 px in three float32 channels; a share of the free memory on a GPU, at most 256
     windows). The PSFs are computed for :func:`psf_batch` windows at a time (whole mirror groups).
     """
-    per_window = 3 * image.shape[0] * image.shape[1] * window * window * image.element_size()
+    per_window = copies * image.shape[0] * image.shape[1] * window * window * image.element_size()
     most = 256 if image.device.type == "cuda" else 64
-    return int(min(most, max(1, chunk_budget_bytes(image.device, CPU_CACHE_BYTES) // per_window)))
+    return int(min(most, max(1, chunk_budget_bytes(image.device, CPU_CACHE_BYTES) // int(per_window))))
 
 
 FIT_SIZES = (256, 288, 320, 336, 384, 400, 432, 448)
@@ -563,22 +568,23 @@ def apply_windowed(image: torch.Tensor, psf: PSFProvider, op, *, scheme: WindowS
                    optical_center=None, region=None, chunk: int | None = None, progress=None,
                    fit: bool = False, pedestal: bool = False, zones: StrideZones | None = None,
                    least_fit: int | None = None) -> torch.Tensor:
-    """Run ``op(patches, otf)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
+    """Run ``op(patches, otf, core)`` in every window and blend the cores (the machinery of :func:`blur_windowed`).
 
-    ``patches`` is ``(k, B, C, w, w)`` (image rows ``y - w/2 .. y + w/2 - 1`` around each window's pixel
-    ``y = ceil(position)``), ``otf`` is ``(k, 1, 1 or C, w, w/2 + 1)`` (``rfft2`` of the PSF at the window's
-    position, moved to ``[0, 0]``; one for all channels or one per channel), broadcasting against the patches;
-    ``op`` returns either processed patches of the same shape (real), whose central ``core`` is kept, or
-    their spectra (complex, ``rfft2`` layout), of which only the core is inverse transformed
-    (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or with ``fit`` (for an ``op`` that convolves with
-    the PSF, whose core then does not depend on the window beyond the PSF's reach) the :func:`fitted_windows`
-    size of the PSF's support at the window's position plus the core (at least ``least_fit`` px), the PSF computed on
-    the ``window`` grid and folded onto ``w`` (:func:`fold_psf`). A window whose PSF outgrows ``window`` (support plus
-    core) takes :func:`grown_window` px instead, its PSF computed on that grid (:func:`window_sizes`): ``op`` must
-    take the size from its patches. Windows of one size are processed together. With ``pedestal`` the provider's uniform pedestal
-    on the ``window`` grid (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller
-    convolves it itself (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px). ``zones``
-    (:class:`StrideZones`): windows of a coarser stride and core in the rings it names (the scheme's elsewhere).
+    ``patches`` is ``(k, B, C, w, w)`` (image rows ``y - w/2 .. y + w/2 - 1`` around each window's pixel ``y =
+    ceil(position)``), ``otf`` is ``(k, 1, 1 or C, w, w/2 + 1)`` (``rfft2`` of the PSF at the window's position, moved
+    to ``[0, 0]``; one for all channels or one per channel), broadcasting against the patches, and ``core`` the
+    window's core (px: the scheme's, or a zone's); ``op`` returns either processed patches of the same shape (real),
+    whose central ``core`` is kept, their cores ``(k, B, C, core, core)`` (real), or their spectra (complex, ``rfft2``
+    layout), of which only the core is inverse transformed (:func:`core_irfft2`). ``w`` is the scheme's ``window``, or
+    with ``fit`` (for an ``op`` that convolves with the PSF, whose core then does not depend on the window beyond the
+    PSF's reach) the :func:`fitted_windows` size of the PSF's support at the window's position plus the core (at least
+    ``least_fit`` px), the PSF computed on the ``window`` grid and folded onto ``w`` (:func:`fold_psf`). A window
+    whose PSF outgrows ``window`` (support plus core) takes :func:`grown_window` px instead, its PSF computed on that
+    grid (:func:`window_sizes`): ``op`` must take the size from its patches. Windows of one size are processed
+    together. With ``pedestal`` the provider's uniform pedestal on the ``window`` grid
+    (:meth:`lenssim.PSFProvider.pedestal_fractions`) is taken out of every PSF: the caller convolves it itself
+    (:func:`blur_windowed` adds it as a :func:`box_mean` over ``window`` px). ``zones`` (:class:`StrideZones`):
+    windows of a coarser stride and core in the rings it names (the scheme's elsewhere).
     """
     check_image(image)
     plan = window_plan(image.shape, psf, scheme, optical_center, region, fit=fit, zones=zones, least_fit=least_fit)
@@ -649,10 +655,11 @@ def window_batches(plan: WindowPlan, psf: PSFProvider, image: torch.Tensor, chun
                    pedestal: bool = False):
     """The plan's windows in batches ``(w, c, anchors, otf)``: the window size ``w`` and core ``c`` (px), the anchor
     pixels ``[(row, col), ...]`` and their OTFs ``(k, 1, 1 or C, w, w/2 + 1)`` in ``image``'s dtype and on its device
-    (see :func:`apply_windowed`), in the order :func:`apply_windowed` visits them."""
+    (see :func:`apply_windowed`), in the order :func:`apply_windowed` visits them. ``chunk``: windows per batch, a
+    function of the window size giving it, or None (:func:`window_chunk`)."""
     win = plan.window
     for w in torch.unique(plan.sizes).tolist():
-        k_chunk = chunk if chunk is not None else window_chunk(image, w)
+        k_chunk = chunk(w) if callable(chunk) else chunk if chunk is not None else window_chunk(image, w)
         otfs = _WindowOTFs(psf, plan.center, w, image.dtype, image.device, symmetric=plan.symmetric, n=max(w, win),
                            pedestal=win if pedestal else None)
         for c in torch.unique(plan.cores[plan.sizes == w]).tolist():
@@ -686,7 +693,7 @@ def weight_sum(plan: WindowPlan, batches, dtype, device) -> torch.Tensor:
 
 
 def run_windows(image: torch.Tensor, plan: WindowPlan, batches, op, progress=None) -> torch.Tensor:
-    """Run ``op(patches, otf)`` in every window of ``batches`` (from :func:`window_batches`, or a list of them kept)
+    """Run ``op(patches, otf, core)`` in every window of ``batches`` (from :func:`window_batches`, or a list of them kept)
     and blend the cores over the plan's region (zeros elsewhere): :func:`apply_windowed`'s work."""
     B, C, H, W = image.shape
     r0, r1, c0, c1 = plan.region
@@ -700,9 +707,11 @@ def run_windows(image: torch.Tensor, plan: WindowPlan, batches, op, progress=Non
         tent2 = tents[c]
         patches = torch.stack([padded[:, :, y + pad - hw: y + pad + hw, x + pad - hw: x + pad + hw]
                                for y, x in anchors])  # (k, B, C, w, w)
-        res = op(patches, otf)
+        res = op(patches, otf, c)
         if res.is_complex():
             cores_k = core_irfft2(res, w, c)
+        elif res.shape[-1] == c:  # the core itself (a whole window where w == c: the same)
+            cores_k = res
         else:
             cores_k = res[..., hw - c // 2: hw + c // 2, hw - c // 2: hw + c // 2]
         for j, (y, x) in enumerate(anchors):
@@ -742,7 +751,7 @@ def blur_windowed(image: torch.Tensor, psf: PSFProvider, *, scheme: WindowScheme
     the axis. ``fit=False``: every window ``scheme.window`` px (the paper's transforms). ``zones``
     (:class:`StrideZones`, e.g. :func:`choose_stride_zones`'s): coarser windows where the PSF varies slowly.
     """
-    def convolve(patches, otf):
+    def convolve(patches, otf, core):
         return torch.fft.rfft2(patches).mul_(otf)
 
     out = apply_windowed(image, psf, convolve, scheme=scheme, optical_center=optical_center, region=region,

@@ -153,7 +153,7 @@ class BlurOperator:
         self._check(x, "x")
         batches, _, _ = self._windows(x)
 
-        def convolve(patches, otf):
+        def convolve(patches, otf, core):
             return torch.fft.rfft2(patches).mul_(otf)
 
         out = run_windows(x, self.plan, batches, convolve, progress)

@@ -5,8 +5,9 @@ declares in its signature only the keyword arguments it uses, from ``noise`` (th
 :class:`pipeline.camera_chain.NoiseModel`: the camera chain's own description of it,
 :meth:`pipeline.camera_chain.CameraChain.noise_model`, so no method keeps a second noise formula), ``scheme`` (the blur's windows), ``optical_center``, ``region`` (rows and columns that must be right) and
 ``progress``, and the dispatcher passes it just those (as colour-science's ``filter_kwargs``). Its
-``options`` are its own settings with their defaults; ``margin(scheme)`` says how far (px) beyond the
-``region`` it reads the observed image (the windowed methods: half a window and a core); ``memory`` what it holds
+``options`` are its own settings with their defaults; ``margin(scheme)`` (or ``margin(scheme, options)`` where an
+option changes it) says how far (px) beyond the ``region`` it reads the observed image (the windowed methods: half a
+window and a core); ``memory`` what it holds
 at its peak beyond the adaptive Wiener (:class:`WorkingMemory`: the whole frame's memory check plans with it).
 
 Adding a method is one file in this package (``pipeline/restoration/NAME.py``) that calls :func:`register`:
@@ -97,10 +98,11 @@ class WorkingMemory:
 @dataclass(frozen=True)
 class RestorationMethod:
     """A restoration method (see the module docstring): ``fn``, a label for figures and tables, its options
-    ``((name, default), ...)``, ``margin(scheme) -> px`` and ``check(options, scheme)``, which raises ``ValueError`` for
-    option values the method refuses (``scheme`` None: those it refuses in any window; called when a
-    :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before any work); ``memory``: its
-    :class:`WorkingMemory`, or ``memory(options) -> WorkingMemory`` where an option changes it."""
+    ``((name, default), ...)``, ``margin(scheme) -> px`` (or ``margin(scheme, options)``) and ``check(options,
+    scheme)``, which raises ``ValueError`` for option values the method refuses (``scheme`` None: those it refuses in
+    any window; called when a :class:`Restoration` is made and, with the windows, by :meth:`Restoration.check` before
+    any work); ``memory``: its :class:`WorkingMemory`, or ``memory(options) -> WorkingMemory`` where an option changes
+    it."""
 
     name: str
     label: str
@@ -166,7 +168,11 @@ class Restoration:
             self.method.check({**dict(self.method.options), **self.options}, scheme)
 
     def margin(self, scheme) -> int:
-        return int(self.method.margin(scheme))
+        """What the method reads beyond its region (px) in the windows of ``scheme``, with these options."""
+        margin = self.method.margin
+        if len(inspect.signature(margin).parameters) > 1:  # margin(scheme, options): an option changes it
+            return int(margin(scheme, {**dict(self.method.options), **self.options}))
+        return int(margin(scheme))
 
     def memory_bytes(self, shape, scheme) -> int:
         """Bytes this restoration holds at its peak beyond the adaptive Wiener (:class:`WorkingMemory`) on an image of

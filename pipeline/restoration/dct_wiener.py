@@ -204,9 +204,9 @@ def dct_wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: Nois
     m = DCT_PATCH_PX - 1
     T = opponent_matrix(dtype, device)
 
-    def restore(patches, H):
+    def restore(patches, H, core):
         win = patches.shape[-1]
-        half, core = win // 2, scheme.core
+        half = win // 2
         mu, var_n, HP, sx, P = model.terms(patches, H)
         spectrum = model.deviation_spectrum(patches, mu).mul_(H.conj().resolve_conj())
         G_r = P / (HP + alpha * var_n / sx).clamp_min(tiny)

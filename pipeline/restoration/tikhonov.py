@@ -288,7 +288,7 @@ def tikhonov_windowed(observed: torch.Tensor, psf: PSFProvider, *, weight=TIKHON
     tiny = torch.finfo(observed.dtype).eps ** 2  # weight 0 where |H| = 0: no 0 / 0
     tapers = {}
 
-    def op(patches, otf):
+    def op(patches, otf, core):
         H = otf
         win = patches.shape[-1]
         if win not in tapers:

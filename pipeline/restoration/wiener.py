@@ -44,19 +44,21 @@ import math
 
 import torch
 
-from lenssim import PSFProvider, image_psd
+from lenssim import PSFProvider, frame_center, image_psd
 
 from lenssim.torch_utils import HOST, abs_square, centred_variance
 
-from ..blur import PAPER_SCHEME, StrideZones, WindowScheme, apply_windowed
+from ..blur import PAPER_SCHEME, StrideZones, WindowScheme, apply_windowed, core_irfft2, window_chunk, window_count
 from ..blur_operator import RegionProblem
 from ..camera_chain import NoiseModel
 from ..checks import check_image
-from . import RestorationMethod, WorkingMemory, register
+from . import RestorationMethod, WorkingMemory, register, windowed_margin
 
 __all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX",
            "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX",
-           "window_taper"]
+           "window_taper", "WIENER_BANK_LEVELS", "WIENER_BANK_MOST_LEVELS", "WIENER_BANK_MULTIPLE",
+           "WIENER_BANK_STATS_DIVISOR", "WIENER_BANK_WORKING_COPIES", "bank_scheme", "bank_points", "check_bank", "chebyshev_lobatto",
+           "lagrange_weights"]
 
 WIENER_STATS_PX = 128
 """Side (px) of the central square of a window over which the local mean and variance are taken."""
@@ -105,6 +107,39 @@ WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
 
+WIENER_BANK_LEVELS = 4
+"""Most filters per window of the bank evaluation (option ``bank``; see :func:`wiener_windowed`): noise-to-signal
+ratios ``K`` at Chebyshev-Lobatto nodes in ``log K`` between the least and the largest of the window's points, each
+pixel taking the filters' outputs by Lagrange interpolation (0: the paper's one filter per window). Measured against
+the filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg, ISO 100 and 400, E2E design;
+docs/performance.md): with 4 filters every crop nearer the filter than the paper's stride (58.7-86.6 dB against
+52.8-78.4 dB; restored PSNR within 0.017 dB of the filter's against 0.063 dB); with 3, two crops further from it
+(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2, nine crops."""
+
+WIENER_BANK_SPAN_PER_LEVEL = 2.0
+"""The bank's filters per batch of windows: one more than the widest span of its points' ``log K`` (natural log) over
+this, at most ``bank`` (0: always ``bank``). The span's median over 64 px windows is 1.8 on the forest photo, 1.1 on
+the pier (ISO 100). On the 12 crops of :data:`WIENER_BANK_LEVELS`, 2.0 kept every crop nearer the filter than the
+paper's stride (58.6-86.0 dB; PSNR within 0.012 dB of the filter's) and took the whole frame's restoration from 62
+to 57 s (the paper's evaluation: 78 s, the same spell); 3.0 left four crops further from it than the paper's stride
+(forest at 0 and 6 deg: 69.1-72.1 dB against 73.8-75.4 dB), at 53 s."""
+
+WIENER_BANK_MOST_LEVELS = 8
+"""Most filters per window of the bank (each one an inverse transform of the window's spectrum)."""
+
+WIENER_BANK_MULTIPLE = 2
+"""The bank's windows lie at this multiple of the scheme's stride, with this multiple of its core."""
+
+WIENER_BANK_WORKING_COPIES = 6
+"""Values a bank window holds per pixel and channel of its patch (its patch, spectrum, filtered spectrum and a
+level's filter), for its batches' size (:func:`pipeline.blur.window_chunk`): half the paper's windows per batch. On
+the forest photo's squares, batches of the default size (3 to 6 windows of 384-512 px) ran 12-22% slower.
+"""
+
+WIENER_BANK_STATS_DIVISOR = 2
+"""The bank's statistics lie at the scheme's stride divided by this (16 px for the paper's 32), each over the central
+``stats`` px of the window a finer scheme would put there."""
+
 
 def window_taper(window: int, core: int, width: int, dtype=torch.float64, device=HOST) -> torch.Tensor:
     """The ``(window, window)`` separable raised-cosine taper: 1 over the centre, ``0.5 - 0.5 cos(pi (i + 1/2) / n)``
@@ -117,6 +152,67 @@ def window_taper(window: int, core: int, width: int, dtype=torch.float64, device
         t[:n], t[window - n:] = ramp, ramp.flip(0)
     return (t[:, None] * t[None, :]).to(dtype=dtype, device=device)
 
+
+
+def chebyshev_lobatto(n: int) -> tuple[float, ...]:
+    """``n`` Chebyshev-Lobatto nodes on ``[0, 1]``, both ends included: ``(1 - cos(pi j / (n - 1))) / 2`` (``n = 1``:
+    the first end alone)."""
+    if n == 1:
+        return (0.0,)
+    return tuple(0.5 - 0.5 * math.cos(math.pi * j / (n - 1)) for j in range(n))
+
+
+def lagrange_weights(t: torch.Tensor, nodes) -> list[torch.Tensor]:
+    """The Lagrange basis polynomials of ``nodes`` at ``t``: the weights that interpolate values at the nodes to ``t``
+    (a polynomial of degree ``len(nodes) - 1``; they sum to 1)."""
+    out = []
+    for j, xj in enumerate(nodes):
+        w = torch.ones_like(t)
+        for i, xi in enumerate(nodes):
+            if i != j:
+                w = w * ((t - xi) / (xj - xi))
+        out.append(w)
+    return out
+
+
+def bank_points(scheme: WindowScheme) -> tuple[int, int, float]:
+    """The bank's grid of statistics (option ``bank``) inside one of its windows: its step (px), the number ``J`` of
+    points each side of the window's centre whose tents reach its core (``2 J + 1`` along each axis) and the half-width
+    (px) of their tents (the scheme's core over :data:`WIENER_BANK_STATS_DIVISOR`, halved)."""
+    step = scheme.stride // WIENER_BANK_STATS_DIVISOR
+    half = scheme.core / (2 * WIENER_BANK_STATS_DIVISOR)
+    # a point j step px from the centre reaches the core's last pixel (< core / 2 from it) while j step < core / 2 + half
+    return step, math.ceil((WIENER_BANK_MULTIPLE * scheme.core / 2 + half) / step) - 1, half
+
+
+def bank_scheme(scheme: WindowScheme) -> WindowScheme:
+    """The bank's windows: :data:`WIENER_BANK_MULTIPLE` times the scheme's stride and core."""
+    m = WIENER_BANK_MULTIPLE
+    return WindowScheme(scheme.window, m * scheme.stride, m * scheme.core, scheme.anchor, scheme.fit)
+
+
+def check_bank(bank, scheme: WindowScheme | None, stats: int, fit: bool, what: str = "bank") -> None:
+    """``ValueError`` where the bank evaluation cannot run: ``bank`` not 0 or 3 to :data:`WIENER_BANK_MOST_LEVELS`,
+    the scheme's stride not a multiple of :data:`WIENER_BANK_STATS_DIVISOR`, twice its core over its window, or the
+    statistics of the points nearest a window's edge reaching beyond its smallest window (``scheme`` None: the
+    level count alone)."""
+    if isinstance(bank, bool) or not isinstance(bank, int) or not (bank == 0 or 3 <= bank <= WIENER_BANK_MOST_LEVELS):
+        raise ValueError(f"{what}={bank!r} is not allowed: 0 (the paper's evaluation, one filter per window) or a "
+                         f"number of filters from 3 to {WIENER_BANK_MOST_LEVELS}")
+    if not bank or scheme is None:
+        return
+    if scheme.stride % WIENER_BANK_STATS_DIVISOR:
+        raise ValueError(f"{what}={bank}: the bank's statistics lie at the stride over {WIENER_BANK_STATS_DIVISOR}; "
+                         f"the stride {scheme.stride} px is not a multiple of it")
+    if WIENER_BANK_MULTIPLE * scheme.core > scheme.window:
+        raise ValueError(f"{what}={bank}: the bank's windows take {WIENER_BANK_MULTIPLE}x the core "
+                         f"({WIENER_BANK_MULTIPLE * scheme.core} px), over the window ({scheme.window} px)")
+    step, J, _ = bank_points(scheme)
+    least = min(WIENER_FIT_LEAST_PX, scheme.window) if fit and stats <= WIENER_FIT_LEAST_PX else scheme.window
+    reach = J * step + stats // 2
+    if 2 * reach > least:
+        raise ValueError(f"{what}={bank}: the statistics of its points reach {reach} px from a window's centre (stats "
+                         f"{stats} px), beyond the smallest window's half ({least // 2} px); use a smaller stats box")
 
 
 class WindowModel:
@@ -146,19 +242,25 @@ class WindowModel:
         """``rfft2`` of the window's deviation from its local mean, tapered towards the window's edges."""
         return torch.fft.rfft2((patches - mu).mul_(self.grid(patches.shape[-1])[2]))
 
+    def spectral_terms(self, H: torch.Tensor, win: int):
+        """``|H|^2 P``, the blur's gain on the signal's variance ``<|H|^2 P>`` (``(k, 1, 1 or C, 1, 1)``) and ``P``
+        for OTFs ``H`` ``(k, 1, 1 or C, win, win/2+1)``."""
+        P, w, _ = self.grid(win)
+        HP = abs_square(H).mul_(P)
+        # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
+        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
+        return HP, gain, P
+
     def terms(self, patches: torch.Tensor, H: torch.Tensor):
         """The window's local mean, noise variance, ``|H|^2 P`` and signal variance (H: ``(k, 1, 1 or C, win,
         win/2+1)``), and ``P``."""
         win = patches.shape[-1]
         half, stats = win // 2, self.stats
-        P, w, _ = self.grid(win)
         centre = patches[..., half - stats // 2: half + stats // 2, half - stats // 2: half + stats // 2]
         mu = centre.mean(dim=(-2, -1), keepdim=True)
         var_y = centred_variance(centre, mu, (-2, -1))
         var_n = self.noise.variance(mu)
-        HP = abs_square(H).mul_(P)
-        # <|H|^2 P> over the full grid from the half-plane (rfft layout: inner columns count twice)
-        gain = (HP * w).sum(dim=(-2, -1), keepdim=True) / (win * win)
+        HP, gain, P = self.spectral_terms(H, win)
         return mu, var_n, HP, (var_y - var_n).clamp_min(self.floor) / gain, P
 
 
@@ -167,7 +269,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
                     scheme: WindowScheme = PAPER_SCHEME, optical_center=None, region=None, chunk: int | None = None,
                     progress=None, floor: float = 1e-10, local: str = "window",
                     pixel_stats: int = WIENER_PIXEL_STATS_PX, fit: bool | None = None,
-                    taper: int = WIENER_TAPER_PX, zones: StrideZones | None = None) -> torch.Tensor:
+                    taper: int = WIENER_TAPER_PX, zones: StrideZones | None = None, bank: int = 0) -> torch.Tensor:
     """Restore a linear sensor image ``(B, C, H, W)`` blurred by the provider's PSFs, with the noise ``noise``
     describes (:class:`pipeline.camera_chain.NoiseModel`: a camera chain's ``noise_model()``, or
     ``NoiseModel(electrons_per_unit)`` for photon noise alone, ``math.inf``: none).
@@ -178,6 +280,16 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     width (px) of the band along each edge of a window over which ``y - mu`` is tapered (:data:`WIENER_TAPER_PX`; 0:
     none). ``zones``: coarser windows where the PSF varies slowly (:class:`pipeline.blur.StrideZones`, as the blur's;
     None: the scheme's stride everywhere, the paper's restoration).
+
+    ``bank`` (0: off, the paper's evaluation; else 3 to :data:`WIENER_BANK_MOST_LEVELS` filters): the same filter
+    evaluated with :data:`WIENER_BANK_MULTIPLE` times fewer windows along each axis and its statistics on a finer grid.
+    The windows lie at twice the scheme's stride with twice its core. Inside each, the local mean and variance are
+    taken as the paper's windows take them, over the central ``stats`` px, around every point of a grid at half the
+    scheme's stride (:data:`WIENER_BANK_STATS_DIVISOR`): each point has its noise-to-signal ratio ``K``. The window's
+    deviation is filtered at ``bank`` values of ``K`` spanning its points' (Chebyshev-Lobatto nodes in ``log K``), and
+    each pixel takes the outputs with the weights the points' tents and Lagrange interpolation in ``log K`` give it.
+    The paper's windows interpolate the whole filter linearly over 32 px; the bank interpolates the PSF over 64 px
+    but the statistics, which carry most of the stride's error, over 16 px (docs/performance.md).
     Returns the same shape.
     """
     check_image(observed, "observed")
@@ -196,14 +308,19 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     if zones is not None and not zones.uniform and local == "pixel":
         raise ValueError("zones are not allowed with local='pixel' (its per-pixel bank is sized to the scheme's core)")
     fit = scheme.fit if fit is None else fit
+    check_bank(bank, scheme, stats, fit)
+    if bank and (local != "window" or (zones is not None and not zones.uniform)):
+        raise ValueError(f"bank={bank} evaluates the paper's filter (local='window') on its own windows: not with "
+                         f"local={local!r} or stride zones")
     if fit and stats > WIENER_FIT_LEAST_PX:  # the statistics need windows of at least ``stats`` px
         fit = False
     tiny = torch.finfo(observed.dtype).eps ** 2  # guards the noise-free inverse filter (|H| = 0) against 0 / 0
-    model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=scheme.core, floor=floor,
+    windows = bank_scheme(scheme) if bank else scheme
+    model = WindowModel(noise, rho0=rho0, stats=stats, taper=taper, core=windows.core, floor=floor,
                         dtype=observed.dtype, device=observed.device)
     window_terms, deviation_spectrum = model.terms, model.deviation_spectrum
 
-    def restore(patches, otf):
+    def restore(patches, otf, core):
         H = otf
         win = patches.shape[-1]
         mu, var_n, HP, sx, P = window_terms(patches, H)
@@ -217,13 +334,10 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
         out[..., 0, 0] += dc
         return out  # spectrum: apply_windowed inverse transforms only the core
 
-    core = scheme.core
     levels = torch.tensor(WIENER_PIXEL_LEVELS, dtype=torch.float64, device=HOST).log()  # scalars read one at a time
 
-    def restore_per_pixel(patches, otf):
+    def restore_per_pixel(patches, otf, core):
         from kornia.filters import box_blur
-
-        from ..blur import core_irfft2
 
         H = otf
         win = patches.shape[-1]
@@ -253,20 +367,109 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
             if j < len(WIENER_PIXEL_LEVELS) - 1:
                 wj = torch.where(t > levels[j], ((levels[j + 1] - t) / (levels[j + 1] - levels[j])).clamp(0, 1), wj)
             out += r_j * wj.to(out.dtype)
-        out += mu
-        full = torch.zeros_like(patches)  # apply_windowed keeps the central core of a real result
-        full[..., half - core // 2: half + core // 2, half - core // 2: half + core // 2] = out
-        return full
+        return out.add_(mu)  # the core itself: run_windows blends it as it is
 
-    return apply_windowed(observed, psf, restore_per_pixel if local == "pixel" else restore, scheme=scheme,
-                          optical_center=optical_center, region=region, chunk=chunk, progress=progress,
-                          fit=fit, least_fit=WIENER_FIT_LEAST_PX, zones=zones)
+    if bank:
+        center = optical_center if optical_center is not None else frame_center(observed.shape)
+        op = _bank_restore(model, noise, scheme, bank, center, tiny)
+        if chunk is None:  # smaller batches: the bank holds more per window
+            chunk = lambda w: window_chunk(observed, w, WIENER_BANK_WORKING_COPIES)  # noqa: E731
+        if progress is not None:  # counted in the scheme's windows, as the paper's evaluation counts them
+            progress = _scaled_progress(progress, window_count(observed.shape, scheme, center, region=region),
+                                        window_count(observed.shape, windows, center, region=region))
+    else:
+        op = restore_per_pixel if local == "pixel" else restore
+    return apply_windowed(observed, psf, op, scheme=windows, optical_center=optical_center, region=region,
+                          chunk=chunk, progress=progress, fit=fit, least_fit=WIENER_FIT_LEAST_PX, zones=zones)
+
+
+def _scaled_progress(progress, total: int, windows: int):
+    """``progress`` called with whole numbers adding up to ``total`` over ``windows`` windows done."""
+    done = [0, 0]
+
+    def step(k: int):
+        done[0] += k
+        emit = done[0] * total // max(windows, 1) - done[1]
+        if emit:
+            done[1] += emit
+            progress(emit)
+
+    return step
+
+
+def _bank_restore(model: WindowModel, noise: NoiseModel, scheme: WindowScheme, bank: int, center, tiny: float):
+    """The bank evaluation's ``op(patches, otf, core)`` (:func:`wiener_windowed`, option ``bank``): the cores of the
+    bank's windows, ``(k, B, C, core, core)``."""
+    step, J, half_width = bank_points(scheme)
+    offsets = torch.arange(-J, J + 1, dtype=torch.float64, device=HOST) * step  # the points, from the window's centre
+    # every window lies the same fraction of a pixel before its anchor pixel (blur.axis_positions)
+    shifts = [math.ceil(c) - c if scheme.anchor == "axis" else 0.0 for c in center]
+    per_level = WIENER_BANK_SPAN_PER_LEVEL
+    stats, floor = model.stats, model.floor
+    box = 2 * (stats // 2)  # as the paper's windows take their central square
+    reach = J * step + box // 2  # the points' squares reach this far from the window's centre
+    g = math.gcd(step, box)  # the squares are sums of g x g blocks, the points g-block multiples apart
+    starts = torch.arange(2 * J + 1, device=model.device) * (step // g)
+    tents = {}
+
+    def point_tents(core: int):
+        """Per axis, each point's tent over the core's pixels, normalised to sum 1 at every pixel: ``(2J+1, core)``."""
+        if core not in tents:
+            d = torch.arange(-core // 2, core // 2, dtype=torch.float64, device=HOST)
+            axes = []
+            for shift in shifts:
+                t = (1 - (d[None, :] + shift - offsets[:, None]).abs() / half_width).clamp_min(0)
+                axes.append((t / t.sum(dim=0, keepdim=True)).to(dtype=model.dtype, device=model.device))
+            tents[core] = axes
+        return tents[core]
+
+    def box_sums(x: torch.Tensor) -> torch.Tensor:
+        """Sums of ``x`` ``(..., 2 reach, 2 reach)`` (float64) over the ``box`` px squares at the points, ``(..., 2J+1,
+        2J+1)``: its ``g x g`` blocks summed, then the blocks' running sums differenced."""
+        nb = x.shape[-1] // g
+        S = x.reshape(x.shape[:-2] + (nb, g, nb, g)).sum(dim=(-3, -1))
+        S = torch.nn.functional.pad(S.cumsum(dim=-2).cumsum(dim=-1), (1, 0, 1, 0))
+        a = box // g
+        S = S.index_select(-2, starts + a) - S.index_select(-2, starts)
+        return S.index_select(-1, starts + a) - S.index_select(-1, starts)
+
+    def restore_bank(patches, otf, core):
+        H = otf
+        win = patches.shape[-1]
+        half = win // 2
+        HP, gain, P = model.spectral_terms(H, win)
+        sub = patches[..., half - reach: half + reach, half - reach: half + reach].to(torch.float64)
+        m1 = box_sums(sub).div_(box * box)  # each point's local mean and variance, as its own window takes them
+        var_y = box_sums(sub.square()).div_(box * box).sub_(m1.square())  # sub may be the patches themselves
+        var_n = noise.variance(m1)
+        K = var_n * gain.to(torch.float64) / (var_y - var_n).clamp_min(floor)  # each point's noise-to-signal ratio
+        mu = m1[..., J:J + 1, J:J + 1].to(patches.dtype)  # the window's own: the reference of its deviation
+        kappa = K.clamp_min(tiny).log()
+        lo = kappa.amin(dim=(-2, -1), keepdim=True)
+        span = kappa.amax(dim=(-2, -1), keepdim=True) - lo
+        t = (kappa - lo) / span.clamp_min(1e-12)  # 0 where the points agree: the first node, exactly
+        ty, tx = point_tents(core)
+        spec = model.deviation_spectrum(patches, mu).mul_(H.conj().resolve_conj())
+        out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
+        filtered = torch.empty_like(spec)
+        G = torch.empty(spec.shape, dtype=HP.dtype, device=HP.device)  # each level's filter, per channel
+        levels = bank if not per_level else min(bank, 1 + math.ceil(float(span.max()) / per_level))
+        nodes = chebyshev_lobatto(levels)
+        for x, lam in zip(nodes, lagrange_weights(t, nodes)):
+            level = (lo + x * span).exp().to(HP.dtype)  # (k, B, C, 1, 1), >= tiny > 0: no 0 / 0
+            torch.div(P, torch.add(HP, level, out=G), out=G)
+            r = core_irfft2(torch.mul(spec, G, out=filtered), win, core)
+            out.addcmul_(torch.einsum("...ij,iy,jx->...yx", lam.to(out.dtype), ty, tx), r)
+        return out.add_(mu)
+
+    return restore_bank
 
 
 def _wiener(observed, psf, *, noise, scheme, optical_center=None, region=None,
-            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window", taper=WIENER_TAPER_PX):
-    return wiener_windowed(observed, psf, noise=noise, stats=stats, rho0=rho0, scheme=scheme, optical_center=optical_center, region=region,
-                           progress=progress, local=local, taper=taper)
+            progress=None, stats=WIENER_STATS_PX, rho0=WIENER_RHO0, local="window", taper=WIENER_TAPER_PX, bank=0):
+    return wiener_windowed(observed, psf, noise=noise, stats=stats, rho0=rho0, scheme=scheme,
+                           optical_center=optical_center, region=region, progress=progress, local=local, taper=taper,
+                           bank=bank)
 
 
 def check_wiener_options(options, scheme, method: str = "wiener"):
@@ -288,10 +491,23 @@ def check_wiener_options(options, scheme, method: str = "wiener"):
                          f"the core; window={scheme.window}, core={scheme.core}")
 
 
+def _check_wiener(options, scheme):
+    check_wiener_options(options, scheme)
+    bank = options["bank"]
+    check_bank(bank, scheme, options["stats"], scheme is None or scheme.fit, "wiener option bank")
+    if bank and options["local"] != "window":
+        raise ValueError(f"wiener option bank={bank} evaluates the paper's filter: not with local={options['local']!r}")
+
+
+def _wiener_margin(scheme, options=None) -> int:
+    """What the Wiener reads beyond its region: half a window and a core, the bank's core where ``bank`` is on."""
+    return windowed_margin(bank_scheme(scheme) if (options or {}).get("bank") else scheme)
+
+
 register(RestorationMethod("wiener", "adaptive Wiener", "adaptive local Wiener filter in the blur's windows (paper)",
                            _wiener, (("stats", WIENER_STATS_PX), ("rho0", WIENER_RHO0), ("local", "window"),
-                                     ("taper", WIENER_TAPER_PX)),
-                           check=check_wiener_options, memory=WorkingMemory()))  # none beyond itself: the frame plan's measure
+                                     ("taper", WIENER_TAPER_PX), ("bank", 0)), margin=_wiener_margin,
+                           check=_check_wiener, memory=WorkingMemory()))  # none beyond itself: the frame plan's measure
 
 
 def wiener_start(problem: RegionProblem, observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseModel,
