@@ -283,11 +283,12 @@ def _memory_limit(args):
 
 def _methods(args, scheme):
     """The restorations ``simulate`` runs: ``--restore NAME[:key=value,...] ...`` (default: the adaptive Wiener
-    filter), plus ``--rl N`` (shorthand, kept from 0.1: Richardson-Lucy with N iterations besides them)."""
+    filter; for the whole frame in its bank evaluation, :data:`pipeline.simulate.FRAME_METHOD`), plus ``--rl N``
+    (shorthand, kept from 0.1: Richardson-Lucy with N iterations besides them)."""
     from pipeline.restoration import parse_restoration
-    from pipeline.simulate import check_methods
+    from pipeline.simulate import FRAME_METHOD, check_methods
 
-    specs = [parse_restoration(m) for m in (args.restore or ["wiener"])]
+    specs = [parse_restoration(m) for m in (args.restore or [FRAME_METHOD if args.full_frame else "wiener"])]
     if args.rl is not None:
         specs = [r for r in specs if r.name != "richardson_lucy"] + [parse_restoration(f"richardson_lucy:iterations={args.rl}")]
     return check_methods(specs, scheme=scheme)
@@ -938,8 +939,10 @@ def register(sub) -> None:
     p.add_argument("--denoise", type=float, default=0.0, metavar="STRENGTH",
                    help="gently denoise the photo first (wavelet, strength in (0, 2]; off by default, as a paper option)")
     p.add_argument("--restore", nargs="+", metavar="NAME[:KEY=VALUE,...]",
-                   help=f"restoration methods to run, each with its options ({methods}; default: wiener), e.g. "
-                        "--restore wiener tikhonov:weight=0.003 richardson_lucy:iterations=30; --full-frame takes one")
+                   help=f"restoration methods to run, each with its options ({methods}; default: wiener; for "
+                        "--full-frame wiener:bank=4, the same filter evaluated in half the work and nearer its fine "
+                        "limit, docs/performance.md), e.g. --restore wiener tikhonov:weight=0.003 "
+                        "richardson_lucy:iterations=30; --full-frame takes one")
     p.add_argument("--rl", type=int, default=None, metavar="N",
                    help="shorthand: also restore with N (1 to %d) iterations of windowed Richardson-Lucy (slow)"
                         % MAX_RL_ITERATIONS)

@@ -47,12 +47,18 @@ from .checks import check_boxes, check_full_well, check_provider, check_scene
 from .photo import Photo
 from .quality import psnr_srgb, ssim_srgb
 from .restoration import Restoration, restore
+from .restoration.wiener import WIENER_BANK_LEVELS
 
 __all__ = ["CropResult", "FrameResult", "crop_at_field_angle", "simulate_crops", "simulate_frame", "crops_from_frame",
            "DEFAULT_METHODS", "score_frame", "frame_memory_bytes", "FRAME_WORKING_COPIES", "MAP_TILE_PX",
-           "largest_crop_angle_deg", "fitting_angles"]
+           "largest_crop_angle_deg", "fitting_angles", "FRAME_METHOD"]
 
 DEFAULT_METHODS = ("wiener",)
+
+FRAME_METHOD = f"wiener:bank={WIENER_BANK_LEVELS}"
+"""The whole frame's restoration unless one is named: the paper's adaptive Wiener filter in its bank evaluation
+(:func:`pipeline.restoration.wiener.wiener_windowed`, option ``bank``), nearer the filter than the paper's own stride
+on every crop measured (docs/performance.md) and half its work. Crops keep the paper's evaluation (``wiener``)."""
 
 
 @dataclass
@@ -470,13 +476,13 @@ def _provider_key(psf: PSFProvider):
 
 
 def simulate_frame(ideal: torch.Tensor, psf: PSFProvider, full_well: float, *, seed: int = 0,
-                   scheme: WindowScheme = PAPER_SCHEME, method="wiener", sensor: Sensor | CameraChain,
+                   scheme: WindowScheme = PAPER_SCHEME, method=FRAME_METHOD, sensor: Sensor | CameraChain,
                    progress=None, dtype: torch.dtype = torch.float32, checkpoint=None,
                    restoration_psf: PSFProvider | dict | None = None,
                    blur_zones: StrideZones | str | None = None) -> FrameResult:
     """The whole frame: blur with ``psf``, noise (seeded) and restoration by ``method`` (a name,
-    ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops) with the PSFs of
-    ``restoration_psf`` (default ``psf``).
+    ``"NAME:key=value,..."`` or a :class:`pipeline.restoration.Restoration`, as for crops; default
+    :data:`FRAME_METHOD`) with the PSFs of ``restoration_psf`` (default ``psf``).
 
     ``restoration_psf`` may also be a mapping ``{tag: provider}`` (tags: letters, digits, ``_``; e.g.
     ``{"nominal": LensPSF(...), "calibrated": as_built}``): the frame is blurred and exposed once and the one
