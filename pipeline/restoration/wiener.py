@@ -114,7 +114,7 @@ pixel taking the filters' outputs by Lagrange interpolation (0: the paper's one 
 the filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg, ISO 100 and 400, E2E design;
 docs/performance.md): with 4 filters every crop nearer the filter than the paper's stride (58.7-86.6 dB against
 52.8-78.4 dB; restored PSNR within 0.017 dB of the filter's against 0.063 dB); with 3, two crops further from it
-(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2, nine crops."""
+(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2 (a prototype), all six forest crops."""
 
 WIENER_BANK_SPAN_PER_LEVEL = 2.0
 """The bank's filters per batch of windows: one more than the widest span of its points' ``log K`` (natural log) over
