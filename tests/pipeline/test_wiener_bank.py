@@ -15,24 +15,10 @@ from pipeline.restoration import Restoration, parse_restoration
 from pipeline.restoration.wiener import (WIENER_BANK_MOST_LEVELS, bank_scheme, chebyshev_lobatto, lagrange_weights,
                                          wiener_windowed)
 
+from .test_restoration import delta, scene  # smooth colour blobs with a band of fine bars; a delta PSF
+
 E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 SCHEME = WindowScheme(256, 32, 64)
-
-
-def scene(h=192, w=192, seed=0):
-    """Smooth colour blobs with a band of fine bars: flat and busy regions side by side (the statistics vary)."""
-    g = torch.Generator().manual_seed(seed)
-    x = torch.rand(1, 3, h // 8, w // 8, generator=g, dtype=torch.float64)
-    x = torch.nn.functional.interpolate(x, size=(h, w), mode="bicubic", align_corners=False).clamp(0, 1)
-    bars = (torch.arange(w) // 3 % 2).to(torch.float64)
-    x[..., h // 2 - 16:h // 2 + 16, :] = 0.1 + 0.8 * bars
-    return x * 0.9 + 0.05
-
-
-def delta(rows, cols, n):
-    p = torch.zeros(len(rows), n, n, dtype=torch.float64)
-    p[:, n // 2, n // 2] = 1
-    return p
 
 
 def test_lagrange_weights_reproduce_polynomials_of_their_degree():
