@@ -1,7 +1,7 @@
 """Issue 46, item 3: the restoration's speed levers judged against an exact reference, not against the paper's stride.
 
     python benchmarks/bench_restoration_reference.py [PHOTO ...] [--design end_to_end_paper] [--crop 512]
-        [--angles 0 6 12] [--isos 400 100] [--levers zoned stride64 fit256 bank3 bank4 bank4/2]
+        [--angles 0 6 12] [--isos 400 100] [--levers zoned stride64 fit256 bank3 bank4]
         [--reference-stride 8] [--threads 2]
         [--colour]
 
@@ -21,9 +21,7 @@ the same noise), then restored by:
   whole frame, applied to the restoration: twice the stride where the PSF varies slowly), ``stride64`` (64 px, cores of
   128 px everywhere), ``fit256`` (windows fitted to the PSF down to 256 px instead of
   :data:`pipeline.restoration.wiener.WIENER_FIT_LEAST_PX`), ``bankN`` (the bank evaluation, ``wiener:bank=N``: windows
-  at twice the stride, statistics at half of it, N filters per window) and ``bankN/S`` (at most N filters, one more
-  per S of the window's span of ``log K``: :data:`pipeline.restoration.wiener.WIENER_BANK_SPAN_PER_LEVEL`; ``bankN``
-  alone runs N always).
+  at twice the stride, statistics at half of it, N filters per window).
 
 Printed per crop and ISO: each restoration's PSNR and SSIM against the ideal image (sRGB), and its distance from the
 reference: the PSNR difference (dB) and the PSNR of it against the reference restored image (dB: higher is closer).
@@ -54,7 +52,7 @@ DEFAULT_PHOTOS = ("outdoor_misty_forest_6016x4016.jpg", "outdoor_pier_sunset_547
 
 
 def _variant(name: str, *, stride: int | None = None, zones=None, least_fit: int | None = None,
-             fit: bool | None = None, bank: int = 0, span_per_level: float | None = None) -> str:
+             fit: bool | None = None, bank: int = 0) -> str:
     """Register (once, for this run) a Wiener restoration at another stride, with zones, another least fit,
     (``fit=False``) the scheme's whole window everywhere, or the bank evaluation of ``bank`` filters."""
     key = f"bench_{name}"
@@ -63,16 +61,14 @@ def _variant(name: str, *, stride: int | None = None, zones=None, least_fit: int
 
     def fn(observed, psf, *, noise, scheme, optical_center=None, region=None, progress=None):
         s = replace(scheme, stride=stride, core=2 * stride) if stride else scheme
-        old, old_span = wiener_module.WIENER_FIT_LEAST_PX, wiener_module.WIENER_BANK_SPAN_PER_LEVEL
+        old = wiener_module.WIENER_FIT_LEAST_PX
         if least_fit is not None:
             wiener_module.WIENER_FIT_LEAST_PX = least_fit
-        if span_per_level is not None:
-            wiener_module.WIENER_BANK_SPAN_PER_LEVEL = span_per_level
         try:
             return wiener_module.wiener_windowed(observed, psf, noise=noise, scheme=s, optical_center=optical_center,
                                                  region=region, progress=progress, zones=zones, fit=fit, bank=bank)
         finally:
-            wiener_module.WIENER_FIT_LEAST_PX, wiener_module.WIENER_BANK_SPAN_PER_LEVEL = old, old_span
+            wiener_module.WIENER_FIT_LEAST_PX = old
 
     def margin(scheme):
         s = replace(scheme, stride=stride, core=2 * stride) if stride else scheme
@@ -92,8 +88,7 @@ def main() -> int:
     ap.add_argument("--angles", nargs="+", type=float, default=[0.0, 6.0, 12.0])
     ap.add_argument("--isos", nargs="+", type=int, default=[400, 100])
     ap.add_argument("--levers", nargs="*", default=["zoned", "stride64", "fit256", "bank3", "bank4"],
-                    help="zoned, stride64, fit256, bankN (N filters per window) or bankN/S (at most N, one per S of "
-                         "the points' log K span)")
+                    help="zoned, stride64, fit256 or bankN (the bank evaluation, N filters per window)")
     ap.add_argument("--reference-stride", type=int, default=8)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--colour", action="store_true")
@@ -127,8 +122,7 @@ def main() -> int:
             elif lever == "stride64":
                 names["stride64"] = _variant("stride64", stride=64)
             elif lever.startswith("bank"):
-                n, _, per = lever[4:].partition("/")
-                names[lever] = _variant(lever.replace("/", "_"), bank=int(n), span_per_level=float(per or 0))
+                names[lever] = _variant(lever, bank=int(lever[4:]))
             else:
                 names["fit256"] = _variant("fit256", least_fit=256)
         methods = list(dict.fromkeys(names.values()))

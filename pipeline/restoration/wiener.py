@@ -114,15 +114,10 @@ pixel taking the filters' outputs by Lagrange interpolation (0: the paper's one 
 the filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg, ISO 100 and 400, E2E design;
 docs/performance.md): with 4 filters every crop nearer the filter than the paper's stride (58.7-86.6 dB against
 52.8-78.4 dB; restored PSNR within 0.017 dB of the filter's against 0.063 dB); with 3, two crops further from it
-(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2 (a prototype), all six forest crops."""
-
-WIENER_BANK_SPAN_PER_LEVEL = 2.0
-"""The bank's filters per batch of windows: one more than the widest span of its points' ``log K`` (natural log) over
-this, at most ``bank`` (0: always ``bank``). The span's median over 64 px windows is 1.8 on the forest photo, 1.1 on
-the pier (ISO 100). On the 12 crops of :data:`WIENER_BANK_LEVELS`, 2.0 kept every crop nearer the filter than the
-paper's stride (58.6-86.0 dB; PSNR within 0.012 dB of the filter's) and took the whole frame's restoration from 62
-to 57 s (the paper's evaluation: 78 s, the same spell); 3.0 left four crops further from it than the paper's stride
-(forest at 0 and 6 deg: 69.1-72.1 dB against 73.8-75.4 dB), at 53 s."""
+(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2 (a prototype), all six forest crops. Fewer filters
+where a batch's points agree (one more per 2.0 of their span of ``log K``) kept every crop nearer and took the whole
+frame's restoration from 62 to 57 s, but the result jumped by up to 2e-3 where a rounding moved a span across a
+step (float32 against float64 on a test scene: 2.3e-3 against 2.3e-7 with 4 filters always): not kept."""
 
 WIENER_BANK_MOST_LEVELS = 8
 """Most filters per window of the bank (each one an inverse transform of the window's spectrum)."""
@@ -155,10 +150,7 @@ def window_taper(window: int, core: int, width: int, dtype=torch.float64, device
 
 
 def chebyshev_lobatto(n: int) -> tuple[float, ...]:
-    """``n`` Chebyshev-Lobatto nodes on ``[0, 1]``, both ends included: ``(1 - cos(pi j / (n - 1))) / 2`` (``n = 1``:
-    the first end alone)."""
-    if n == 1:
-        return (0.0,)
+    """``n >= 2`` Chebyshev-Lobatto nodes on ``[0, 1]``, both ends included: ``(1 - cos(pi j / (n - 1))) / 2``."""
     return tuple(0.5 - 0.5 * math.cos(math.pi * j / (n - 1)) for j in range(n))
 
 
@@ -404,7 +396,7 @@ def _bank_restore(model: WindowModel, noise: NoiseModel, scheme: WindowScheme, b
     offsets = torch.arange(-J, J + 1, dtype=torch.float64, device=HOST) * step  # the points, from the window's centre
     # every window lies the same fraction of a pixel before its anchor pixel (blur.axis_positions)
     shifts = [math.ceil(c) - c if scheme.anchor == "axis" else 0.0 for c in center]
-    per_level = WIENER_BANK_SPAN_PER_LEVEL
+    nodes = chebyshev_lobatto(bank)
     stats, floor = model.stats, model.floor
     box = 2 * (stats // 2)  # as the paper's windows take their central square
     reach = J * step + box // 2  # the points' squares reach this far from the window's centre
@@ -453,8 +445,6 @@ def _bank_restore(model: WindowModel, noise: NoiseModel, scheme: WindowScheme, b
         out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)
         filtered = torch.empty_like(spec)
         G = torch.empty(spec.shape, dtype=HP.dtype, device=HP.device)  # each level's filter, per channel
-        levels = bank if not per_level else min(bank, 1 + math.ceil(float(span.max()) / per_level))
-        nodes = chebyshev_lobatto(levels)
         for x, lam in zip(nodes, lagrange_weights(t, nodes)):
             level = (lo + x * span).exp().to(HP.dtype)  # (k, B, C, 1, 1), >= tiny > 0: no 0 / 0
             torch.div(P, torch.add(HP, level, out=G), out=G)

@@ -111,3 +111,18 @@ def test_bank_options_are_checked_before_any_work():
         wiener_windowed(scene(), E2E, noise=NoiseModel(100.0), scheme=SCHEME, bank=True)
     # its windows reach further: the crop margin grows by a core
     assert Restoration("wiener", {"bank": 3}).margin(PAPER_SCHEME) == Restoration("wiener").margin(PAPER_SCHEME) + 64
+
+
+def test_bank_follows_the_device_and_dtype(device_dtype):
+    """The bank runs where its input lies and in its precision (kornia's device x dtype cases; CUDA where a GPU is
+    present), the same result as on the CPU in float64 to the precision's rounding."""
+    device, dtype = device_dtype
+    x = scene()
+    center = (96 + 700, 96 + 900)
+    noisy = add_poisson_noise(blur_windowed(x, E2E, scheme=SCHEME, optical_center=center), 800.0, seed=6)
+    kw = dict(noise=NoiseModel(800.0), scheme=SCHEME, optical_center=center, stats=64, bank=4)
+    want = wiener_windowed(noisy, E2E, **kw)
+    got = wiener_windowed(noisy.to(device=device, dtype=dtype), E2E, **kw)
+    assert got.device.type == device.type and got.dtype == dtype
+    tol = 1e-9 if dtype == torch.float64 else 1e-5  # float32: 2.3e-7 on this CPU
+    torch.testing.assert_close(got.cpu().double(), want, rtol=0, atol=tol)
