@@ -1,7 +1,7 @@
 """Issue 46, item 3: the restoration's speed levers judged against an exact reference, not against the paper's stride.
 
     python benchmarks/bench_restoration_reference.py [PHOTO ...] [--design end_to_end_paper] [--crop 512]
-        [--angles 0 6 12] [--isos 400 100] [--levers zoned stride64 fit256 bank3 bank4]
+        [--angles 0 6 12] [--isos 400 100] [--levers zoned stride64 fit256 bank3 bank4 bank3l bank3x4]
         [--reference-stride 8] [--threads 2]
         [--colour]
 
@@ -21,7 +21,9 @@ the same noise), then restored by:
   whole frame, applied to the restoration: twice the stride where the PSF varies slowly), ``stride64`` (64 px, cores of
   128 px everywhere), ``fit256`` (windows fitted to the PSF down to 256 px instead of
   :data:`pipeline.restoration.wiener.WIENER_FIT_LEAST_PX`), ``bankN`` (the bank evaluation, ``wiener:bank=N``: windows
-  at twice the stride, statistics at half of it, N filters per window).
+  at twice the stride, statistics at half of it, N filters per window at Chebyshev-Gauss nodes in ``log K``),
+  ``bankNl`` (the same at Chebyshev-Lobatto nodes, the span's ends included: the bank's first form), ``bankNxM`` (its
+  windows at M times the stride, :data:`pipeline.restoration.wiener.WIENER_BANK_MULTIPLE` replaced).
 
 Printed per crop and ISO: each restoration's PSNR and SSIM against the ideal image (sRGB), and its distance from the
 reference: the PSNR difference (dB) and the PSNR of it against the reference restored image (dB: higher is closer).
@@ -51,8 +53,13 @@ DEFAULT_PHOTOS = ("outdoor_misty_forest_6016x4016.jpg", "outdoor_pier_sunset_547
 """The two test photos of docs/performance.md (in the shared photo folder beside the project)."""
 
 
+def chebyshev_lobatto(n: int) -> tuple[float, ...]:
+    """``n >= 2`` Chebyshev-Lobatto nodes on ``[0, 1]``, both ends included (the bank's first form)."""
+    return tuple(0.5 - 0.5 * math.cos(math.pi * j / (n - 1)) for j in range(n))
+
+
 def _variant(name: str, *, stride: int | None = None, zones=None, least_fit: int | None = None,
-             fit: bool | None = None, bank: int = 0) -> str:
+             fit: bool | None = None, bank: int = 0, multiple: int | None = None, nodes=None) -> str:
     """Register (once, for this run) a Wiener restoration at another stride, with zones, another least fit,
     (``fit=False``) the scheme's whole window everywhere, or the bank evaluation of ``bank`` filters."""
     key = f"bench_{name}"
@@ -61,19 +68,23 @@ def _variant(name: str, *, stride: int | None = None, zones=None, least_fit: int
 
     def fn(observed, psf, *, noise, scheme, optical_center=None, region=None, progress=None):
         s = replace(scheme, stride=stride, core=2 * stride) if stride else scheme
-        old = wiener_module.WIENER_FIT_LEAST_PX
+        old = wiener_module.WIENER_FIT_LEAST_PX, wiener_module.WIENER_BANK_MULTIPLE, wiener_module.chebyshev_gauss
+        if nodes is not None:
+            wiener_module.chebyshev_gauss = nodes
         if least_fit is not None:
             wiener_module.WIENER_FIT_LEAST_PX = least_fit
+        if multiple is not None:
+            wiener_module.WIENER_BANK_MULTIPLE = multiple
         try:
             return wiener_module.wiener_windowed(observed, psf, noise=noise, scheme=s, optical_center=optical_center,
                                                  region=region, progress=progress, zones=zones, fit=fit, bank=bank)
         finally:
-            wiener_module.WIENER_FIT_LEAST_PX = old
+            wiener_module.WIENER_FIT_LEAST_PX, wiener_module.WIENER_BANK_MULTIPLE, wiener_module.chebyshev_gauss = old
 
     def margin(scheme):
         s = replace(scheme, stride=stride, core=2 * stride) if stride else scheme
-        core = s.core * (max(zones.multiples) if zones is not None else wiener_module.WIENER_BANK_MULTIPLE if bank
-                         else 1)
+        core = s.core * (max(zones.multiples) if zones is not None
+                         else (multiple or wiener_module.WIENER_BANK_MULTIPLE) if bank else 1)
         return max(s.window // 2 + core, scheme.window // 2 + scheme.core)
 
     register(RestorationMethod(key, name, f"benchmark-only Wiener variant {name}", fn, (), margin=margin))
@@ -88,7 +99,8 @@ def main() -> int:
     ap.add_argument("--angles", nargs="+", type=float, default=[0.0, 6.0, 12.0])
     ap.add_argument("--isos", nargs="+", type=int, default=[400, 100])
     ap.add_argument("--levers", nargs="*", default=["zoned", "stride64", "fit256", "bank3", "bank4"],
-                    help="zoned, stride64, fit256 or bankN (the bank evaluation, N filters per window)")
+                    help="zoned, stride64, fit256 or bankN[l][xM] (the bank evaluation, N filters per window; l: at "
+                         "Lobatto nodes; xM: windows at M times the stride)")
     ap.add_argument("--reference-stride", type=int, default=8)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--colour", action="store_true")
@@ -121,8 +133,10 @@ def main() -> int:
                 print(f"# {Path(path).stem}: zones {z.to_dict()}", flush=True)
             elif lever == "stride64":
                 names["stride64"] = _variant("stride64", stride=64)
-            elif lever.startswith("bank"):
-                names[lever] = _variant(lever, bank=int(lever[4:]))
+            elif lever.startswith("bank"):  # bankN[l][xM]: N filters (l: at Lobatto nodes), windows at M x the stride
+                n, _, m = lever[4:].partition("x")
+                names[lever] = _variant(lever, bank=int(n.rstrip("l")), multiple=int(m) if m else None,
+                                        nodes=chebyshev_lobatto if n.endswith("l") else None)
             else:
                 names["fit256"] = _variant("fit256", least_fit=256)
         methods = list(dict.fromkeys(names.values()))

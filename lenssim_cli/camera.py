@@ -940,7 +940,7 @@ def register(sub) -> None:
                    help="gently denoise the photo first (wavelet, strength in (0, 2]; off by default, as a paper option)")
     p.add_argument("--restore", nargs="+", metavar="NAME[:KEY=VALUE,...]",
                    help=f"restoration methods to run, each with its options ({methods}; default: wiener; for "
-                        "--full-frame wiener:bank=4, the same filter evaluated in half the work and nearer its fine "
+                        "--full-frame wiener:bank=3, the same filter evaluated in less work and nearer its fine "
                         "limit, docs/performance.md), e.g. --restore wiener tikhonov:weight=0.003 "
                         "richardson_lucy:iterations=30; --full-frame takes one")
     p.add_argument("--rl", type=int, default=None, metavar="N",

@@ -57,7 +57,7 @@ from . import RestorationMethod, WorkingMemory, register, windowed_margin
 __all__ = ["wiener_windowed", "wiener_start", "WindowModel", "check_wiener_options", "WIENER_STATS_PX",
            "WIENER_FIT_LEAST_PX", "WIENER_LOCAL", "WIENER_PIXEL_LEVELS", "WIENER_PIXEL_STATS_PX", "WIENER_TAPER_PX",
            "window_taper", "WIENER_BANK_LEVELS", "WIENER_BANK_MOST_LEVELS", "WIENER_BANK_MULTIPLE",
-           "WIENER_BANK_STATS_DIVISOR", "WIENER_BANK_WORKING_COPIES", "bank_scheme", "bank_points", "check_bank", "chebyshev_lobatto",
+           "WIENER_BANK_STATS_DIVISOR", "WIENER_BANK_WORKING_COPIES", "bank_scheme", "bank_points", "check_bank", "chebyshev_gauss",
            "lagrange_weights"]
 
 WIENER_STATS_PX = 128
@@ -107,17 +107,19 @@ WIENER_RHO0 = 0.97
 """The filter's image prior: correlation per pixel of the ``rho0^|r|`` model (the value of the paper's image
 model, Section 2.3; a method option, ``wiener:rho0=...``)."""
 
-WIENER_BANK_LEVELS = 4
-"""Most filters per window of the bank evaluation (option ``bank``; see :func:`wiener_windowed`): noise-to-signal
-ratios ``K`` at Chebyshev-Lobatto nodes in ``log K`` between the least and the largest of the window's points, each
-pixel taking the filters' outputs by Lagrange interpolation (0: the paper's one filter per window). Measured against
-the filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg, ISO 100 and 400, E2E design;
-docs/performance.md): with 4 filters every crop nearer the filter than the paper's stride (58.7-86.6 dB against
-52.8-78.4 dB; restored PSNR within 0.017 dB of the filter's against 0.063 dB); with 3, two crops further from it
-(pier, 6 deg: 65.5 / 66.3 dB against 66.0 / 67.3 dB); with 2 (a prototype), all six forest crops. Fewer filters
-where a batch's points agree (one more per 2.0 of their span of ``log K``) kept every crop nearer and took the whole
-frame's restoration from 62 to 57 s, but the result jumped by up to 2e-3 where a rounding moved a span across a
-step (float32 against float64 on a test scene: 2.3e-3 against 2.3e-7 with 4 filters always): not kept."""
+WIENER_BANK_LEVELS = 3
+"""Filters per window of the bank evaluation that the whole frame runs (option ``bank``; see :func:`wiener_windowed`):
+noise-to-signal ratios ``K`` at Chebyshev-Gauss nodes in ``log K`` over the span of the window's points, each pixel
+taking the filters' outputs by Lagrange interpolation (0: the paper's one filter per window). Measured against the
+filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg, ISO 100 and 400, E2E design;
+docs/performance.md): with 3 filters every crop nearer the filter's image than the paper's stride (58.5-84.2 dB
+against 52.8-78.4 dB) and its restored PSNR within 0.017 dB of the filter's (mean 0.0074 dB; the paper's stride 0.063
+/ 0.025 dB), as near as 4 filters (58.7-87.0 dB; 0.017 / 0.0070 dB) for three quarters of their inverse transforms.
+At Chebyshev-Lobatto nodes (both ends of the span) 3 filters were 0.071 dB from the filter's PSNR on one crop (the
+forest at 11.4 deg, ISO 400; the paper's stride 0.060 there) and up to 3.2 dB further from its image than at Gauss
+nodes (0.2-3.2 dB on 11 crops, equal on the 12th), whose nodal polynomial is 1.5x smaller. Fewer filters where a batch's points agree (one more per 2.0 of their
+span of ``log K``) jumped the result by up to 2e-3 where a rounding moved a span across a step (float32 against
+float64 on a test scene: 2.3e-3 against 2.3e-7 with a fixed count): not kept."""
 
 WIENER_BANK_MOST_LEVELS = 8
 """Most filters per window of the bank (each one an inverse transform of the window's spectrum)."""
@@ -149,9 +151,11 @@ def window_taper(window: int, core: int, width: int, dtype=torch.float64, device
 
 
 
-def chebyshev_lobatto(n: int) -> tuple[float, ...]:
-    """``n >= 2`` Chebyshev-Lobatto nodes on ``[0, 1]``, both ends included: ``(1 - cos(pi j / (n - 1))) / 2``."""
-    return tuple(0.5 - 0.5 * math.cos(math.pi * j / (n - 1)) for j in range(n))
+def chebyshev_gauss(n: int) -> tuple[float, ...]:
+    """``n >= 1`` Chebyshev-Gauss nodes on ``[0, 1]`` (the roots of the degree-``n`` Chebyshev polynomial, increasing,
+    the ends excluded): ``(1 - cos(pi (j + 1/2) / n)) / 2``. Of all ``n`` nodes on an interval they make the least
+    largest nodal polynomial ``prod (t - t_j)``, the factor of a polynomial interpolant's error."""
+    return tuple(0.5 - 0.5 * math.cos(math.pi * (j + 0.5) / n) for j in range(n))
 
 
 def lagrange_weights(t: torch.Tensor, nodes) -> list[torch.Tensor]:
@@ -278,7 +282,7 @@ def wiener_windowed(observed: torch.Tensor, psf: PSFProvider, *, noise: NoiseMod
     The windows lie at twice the scheme's stride with twice its core. Inside each, the local mean and variance are
     taken as the paper's windows take them, over the central ``stats`` px, around every point of a grid at half the
     scheme's stride (:data:`WIENER_BANK_STATS_DIVISOR`): each point has its noise-to-signal ratio ``K``. The window's
-    deviation is filtered at ``bank`` values of ``K`` spanning its points' (Chebyshev-Lobatto nodes in ``log K``), and
+    deviation is filtered at ``bank`` values of ``K`` spanning its points' (Chebyshev-Gauss nodes in ``log K``), and
     each pixel takes the outputs with the weights the points' tents and Lagrange interpolation in ``log K`` give it.
     The paper's windows interpolate the whole filter linearly over 32 px; the bank interpolates the PSF over 64 px
     but the statistics, which carry most of the stride's error, over 16 px (docs/performance.md).
@@ -396,7 +400,7 @@ def _bank_restore(model: WindowModel, noise: NoiseModel, scheme: WindowScheme, b
     offsets = torch.arange(-J, J + 1, dtype=torch.float64, device=HOST) * step  # the points, from the window's centre
     # every window lies the same fraction of a pixel before its anchor pixel (blur.axis_positions)
     shifts = [math.ceil(c) - c if scheme.anchor == "axis" else 0.0 for c in center]
-    nodes = chebyshev_lobatto(bank)
+    nodes = chebyshev_gauss(bank)
     stats, floor = model.stats, model.floor
     box = 2 * (stats // 2)  # as the paper's windows take their central square
     reach = J * step + box // 2  # the points' squares reach this far from the window's centre
@@ -439,7 +443,7 @@ def _bank_restore(model: WindowModel, noise: NoiseModel, scheme: WindowScheme, b
         kappa = K.clamp_min(tiny).log()
         lo = kappa.amin(dim=(-2, -1), keepdim=True)
         span = kappa.amax(dim=(-2, -1), keepdim=True) - lo
-        t = (kappa - lo) / span.clamp_min(1e-12)  # 0 where the points agree: the first node, exactly
+        t = (kappa - lo) / span.clamp_min(1e-12)  # where the points agree every level is their K: one filter
         ty, tx = point_tents(core)
         spec = model.deviation_spectrum(patches, mu).mul_(H.conj().resolve_conj())
         out = torch.zeros(patches.shape[:-2] + (core, core), dtype=patches.dtype, device=patches.device)

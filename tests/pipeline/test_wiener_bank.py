@@ -12,7 +12,7 @@ from lenssim_studies.paper import PAPER_CAMERA
 from pipeline import NoiseModel, add_poisson_noise
 from pipeline.blur import PAPER_SCHEME, WindowScheme, blur_windowed, window_count
 from pipeline.restoration import Restoration, parse_restoration
-from pipeline.restoration.wiener import (WIENER_BANK_MOST_LEVELS, bank_scheme, chebyshev_lobatto, lagrange_weights,
+from pipeline.restoration.wiener import (WIENER_BANK_LEVELS, WIENER_BANK_MOST_LEVELS, bank_scheme, chebyshev_gauss, lagrange_weights,
                                          wiener_windowed)
 
 from .test_restoration import delta, scene  # smooth colour blobs with a band of fine bars; a delta PSF
@@ -21,13 +21,28 @@ E2E = LensPSF(PAPER_CAMERA, Design(s=-0.775, Q_back=-2.4))
 SCHEME = WindowScheme(256, 32, 64)
 
 
+def test_chebyshev_gauss_nodes_are_the_chebyshev_roots_with_the_least_nodal_polynomial():
+    """Against numpy's Chebyshev roots on [-1, 1] mapped to [0, 1], and the minimax property the bank relies on: the
+    nodal polynomial ``prod (t - t_j)`` peaks at ``2^(1 - 2n)`` on [0, 1], below the Chebyshev-Lobatto nodes' (both
+    ends included) and evenly spaced nodes'."""
+    t = np.linspace(0.0, 1.0, 20001)
+    for n in (3, 4, 6):
+        nodes = np.array(chebyshev_gauss(n))
+        roots = np.sort(np.polynomial.chebyshev.chebroots([0] * n + [1]))
+        np.testing.assert_allclose(nodes, (roots + 1) / 2, rtol=0, atol=1e-14)
+        peak = lambda x: float(np.abs(np.prod(t[:, None] - np.asarray(x)[None, :], axis=1)).max())  # noqa: E731
+        assert peak(nodes) == pytest.approx(2.0 ** (1 - 2 * n), rel=1e-6)
+        lobatto = (1 - np.cos(np.pi * np.arange(n) / (n - 1))) / 2
+        assert peak(nodes) < 0.7 * peak(lobatto) and peak(nodes) < peak(np.linspace(0, 1, n))
+
+
 def test_lagrange_weights_reproduce_polynomials_of_their_degree():
     """Against numpy's own polynomial fit through the same nodes: the weights interpolate any polynomial of degree
     ``n - 1`` exactly and sum to 1."""
     t = torch.linspace(-0.2, 1.2, 29, dtype=torch.float64)
     for n in (3, 4, 6):
-        nodes = chebyshev_lobatto(n)
-        assert nodes[0] == 0 and abs(nodes[-1] - 1) < 1e-15 and list(nodes) == sorted(nodes)
+        nodes = chebyshev_gauss(n)
+        assert 0 < nodes[0] and nodes[-1] < 1 and list(nodes) == sorted(nodes)
         coeffs = np.random.default_rng(n).normal(size=n)
         values = np.polyval(coeffs, nodes)
         w = lagrange_weights(t, nodes)
@@ -76,7 +91,7 @@ def test_bank_is_nearer_the_filter_at_a_fine_stride_than_the_paper_s_stride(cent
     kw = dict(noise=NoiseModel(fwc / float(y.amax())), optical_center=center, region=(64, 192, 64, 192), stats=64)
     reference = wiener_windowed(noisy, E2E, scheme=WindowScheme(256, 8, 16), fit=False, **kw)[..., 64:192, 64:192]
     paper = wiener_windowed(noisy, E2E, scheme=SCHEME, **kw)[..., 64:192, 64:192]
-    bank = wiener_windowed(noisy, E2E, scheme=SCHEME, bank=4, **kw)[..., 64:192, 64:192]
+    bank = wiener_windowed(noisy, E2E, scheme=SCHEME, bank=WIENER_BANK_LEVELS, **kw)[..., 64:192, 64:192]
     coarse = wiener_windowed(noisy, E2E, scheme=bank_scheme(SCHEME), **kw)[..., 64:192, 64:192]
 
     def db(a):
