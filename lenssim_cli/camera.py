@@ -947,7 +947,7 @@ def register(sub) -> None:
                    help="shorthand: also restore with N (1 to %d) iterations of windowed Richardson-Lucy (slow)"
                         % MAX_RL_ITERATIONS)
     p.add_argument("--full-frame", action="store_true",
-                   help="simulate the whole frame (sensor.png, restored.png, whole-frame PSNR/SSIM; ~1.6 min at 24 MP on "
+                   help="simulate the whole frame (sensor.png, restored.png, whole-frame PSNR/SSIM; ~1.5 min at 24 MP on "
                         "2 CPU cores; resumes after an interruption) instead of crops only")
     p.add_argument("--as-built", type=int, metavar="SEED",
                    help="render through one manufactured lens (drawn from --grade/--tolerances with SEED) and restore "
