@@ -115,12 +115,12 @@ filter at a stride of 16 px on 12 crops of the forest and pier photos (0-11 deg,
 docs/performance.md): with 3 filters every crop nearer the filter's image than the paper's stride (58.5-84.2 dB
 against 52.8-78.4 dB) and its restored PSNR within 0.017 dB of the filter's (mean 0.0074 dB; the paper's stride 0.063
 / 0.025 dB): on the PSNR as near as 4 filters (0.017 / 0.0070 dB; their images 58.7-87.0 dB from the filter's), for
-three quarters of their inverse transforms.
-At Chebyshev-Lobatto nodes (both ends of the span) 3 filters were 0.071 dB from the filter's PSNR on one crop (the
-forest at 11.4 deg, ISO 400; the paper's stride 0.060 there) and up to 3.2 dB further from its image than at Gauss
-nodes (0.2-3.2 dB on 11 crops, equal on the 12th), whose nodal polynomial is 1.5x smaller. Fewer filters where a batch's points agree (one more per 2.0 of their
-span of ``log K``) jumped the result by up to 2e-3 where a rounding moved a span across a step (float32 against
-float64 on a test scene: 2.3e-3 against 2.3e-7 with a fixed count): not kept."""
+three quarters of their inverse transforms. At Chebyshev-Lobatto nodes (both ends of the span) 3 filters were 0.071
+dB from the filter's PSNR on one crop (the forest at 11.4 deg, ISO 400; the paper's stride 0.060 there) and up to 3.2
+dB further from its image than at Gauss nodes (0.2-3.2 dB on 11 crops, equal on the 12th), whose nodal polynomial is
+1.5x smaller. Fewer filters where a batch's points agree (one more per 2.0 of their span of ``log K``) jumped the
+result by up to 2e-3 where a rounding moved a span across a step (float32 against float64 on a test scene: 2.3e-3
+against 2.3e-7 with a fixed count): not kept."""
 
 WIENER_BANK_MOST_LEVELS = 8
 """Most filters per window of the bank (each one an inverse transform of the window's spectrum)."""
