@@ -93,10 +93,10 @@ def best_focus_shift(p: Prescription, fields=None) -> float:
     depth = BEST_FOCUS_RANGE_DEPTHS * 4 * (seq.primary_wavelength_um * 1e-3) * par.working_f_number**2
     start = par.image_z_mm - p.image_z_mm
     px, py = pupil_grid(BEST_FOCUS_PUPIL_GRID)
+    maps = [seq.through_focus(f, px, py) for f in fields]  # each field traced once: a plane moves its sphere only
 
     def mean_rms(shift):
-        at = SequentialLens(p, image_shift_mm=float(shift))
-        return sum(at.wavefront(f, px, py).rms_waves() for f in fields) / len(fields)
+        return sum(at(float(shift)).rms_waves() for at in maps) / len(fields)
 
     for _ in range(BEST_FOCUS_EXPANSIONS + 1):
         lo, hi = start - depth, start + depth

@@ -725,6 +725,15 @@ class SequentialLens:
         A :attr:`batched` lens gives every design's map at once: ``opd_waves``, ``valid (B, R)``, ``chief_mm (B, 3)``,
         ``image_mm (B, R, 3)``, the radius ``(B,)``, differentiable in the design's numbers; ``reference_mm`` may then
         hold tensors ``(B,)``."""
+        return self.through_focus(field, px, py, wavelength_um, aim=aim, vignette=vignette)(reference_mm=reference_mm)
+
+    def through_focus(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
+                      aim: str = "real", vignette: bool = True):
+        """:meth:`wavefront` as a function of a further image-plane shift: ``at(shift_mm=0.0, reference_mm=None)``
+        gives the map :meth:`wavefront` gives (the same numbers, bit for bit) for this lens with its image plane moved
+        ``shift_mm`` (mm) further along the axis. The rays are traced once, here: moving the plane moves only the
+        reference sphere (its centre, and its radius through the exit pupil), so a focus search costs a trace per
+        field, not per plane."""
         lam = self.primary_wavelength_um if wavelength_um is None else float(wavelength_um)
         par = self.paraxial(lam)
         n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
@@ -739,48 +748,55 @@ class SequentialLens:
                                 "semi-diameter, a missed surface or total internal reflection)")
         P, d, o = self.aim(field, px, py, lam, aim)
         rays = self.trace(P, d, lam, opl_start=o, vignette=vignette)
-        z_img = self.image_z_mm
-        z_xp = par.exit_pupil_z_mm
-        if batch:  # as (B, 1) tensors whichever numbers are free
-            z_img, z_xp = (torch.as_tensor(v, dtype=torch.float64, device=dev).expand(self.batch_size, 1)
-                           for v in (z_img, z_xp))
-        cp, cd = chief.points[..., 0, :], chief.directions[..., 0, :]  # (3,), or (B, 3) for a batch
-        Q = cp + ((z_img - cp[..., 2:]) / cd[..., 2:]) * cd
-        finite_xp = True if torch.is_tensor(z_xp) else math.isfinite(z_xp)  # a batch's is finite (paraxial())
-        if reference_mm is not None:
-            if not finite_xp:
-                raise ValueError("reference_mm needs an exit pupil at a finite distance (this lens is telecentric in "
-                                 "image space)")
-            if batch:
-                rx, ry = (torch.as_tensor(v, dtype=torch.float64, device=dev).reshape(-1, 1) for v in reference_mm)
-                Q = torch.cat([rx.expand_as(z_img), ry.expand_as(z_img), z_img], dim=-1)
-            else:
-                Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64,
-                                 device=px.device)
-        Qr = Q.unsqueeze(-2)  # against the rays (R, 3) or (B, R, 3)
-        if finite_xp:
-            E = cp + ((z_xp - cp[..., 2:]) / cd[..., 2:]) * cd
-            R2 = ((Q - E) ** 2).sum(-1, keepdim=True)
-            rc = chief.opl[..., :1] + n_img * ((E - cp) * cd).sum(-1, keepdim=True)  # the chief ray's path to the sphere
-            b = ((rays.points - Qr) * rays.directions).sum(-1)
-            c = ((rays.points - Qr) ** 2).sum(-1) - R2
-            root = torch.sqrt(torch.clamp(b * b - c, min=0.0))
-            s_plane = (z_xp - rays.points[..., 2]) / rays.directions[..., 2]
-            s1, s2 = -b - root, -b + root
-            s = torch.where((s1 - s_plane).abs() <= (s2 - s_plane).abs(), s1, s2)
-            valid = rays.valid & (b * b - c >= 0)
-            radius = torch.sqrt(R2)[..., 0] if batch else float(torch.sqrt(R2))
-        else:  # image-space telecentric: the reference "sphere" is the plane through the chief ray normal to it
-            rc = chief.opl[..., :1]
-            s = ((cp.unsqueeze(-2) - rays.points) * cd.unsqueeze(-2)).sum(-1) / (rays.directions * cd.unsqueeze(-2)).sum(-1)
-            valid = rays.valid
-            radius = math.inf
-        W = (rc - (rays.opl + n_img * s)) / (lam * 1e-3)
-        img = rays.points + ((z_img - rays.points[..., 2]) / rays.directions[..., 2]).unsqueeze(-1) * rays.directions
-        W = torch.where(valid, W, torch.full_like(W, math.nan))  # traced (through extended surfaces if not vignette)
-        valid = valid & rays.passed
-        return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
-                            radius, rays.aperture_ratio)
+        z_xp0 = par.exit_pupil_z_mm
+
+        def at(shift_mm: float = 0.0, reference_mm: tuple[float, float] | None = None) -> WavefrontMap:
+            z_img, z_xp = self.image_z_mm + shift_mm, z_xp0
+            if batch:  # as (B, 1) tensors whichever numbers are free
+                z_img, z_xp = (torch.as_tensor(v, dtype=torch.float64, device=dev).expand(self.batch_size, 1)
+                               for v in (z_img, z_xp))
+            cp, cd = chief.points[..., 0, :], chief.directions[..., 0, :]  # (3,), or (B, 3) for a batch
+            Q = cp + ((z_img - cp[..., 2:]) / cd[..., 2:]) * cd
+            finite_xp = True if torch.is_tensor(z_xp) else math.isfinite(z_xp)  # a batch's is finite (paraxial())
+            if reference_mm is not None:
+                if not finite_xp:
+                    raise ValueError("reference_mm needs an exit pupil at a finite distance (this lens is telecentric "
+                                     "in image space)")
+                if batch:
+                    rx, ry = (torch.as_tensor(v, dtype=torch.float64, device=dev).reshape(-1, 1) for v in reference_mm)
+                    Q = torch.cat([rx.expand_as(z_img), ry.expand_as(z_img), z_img], dim=-1)
+                else:
+                    Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64,
+                                     device=px.device)
+            Qr = Q.unsqueeze(-2)  # against the rays (R, 3) or (B, R, 3)
+            if finite_xp:
+                E = cp + ((z_xp - cp[..., 2:]) / cd[..., 2:]) * cd
+                R2 = ((Q - E) ** 2).sum(-1, keepdim=True)
+                # the chief ray's path to the sphere
+                rc = chief.opl[..., :1] + n_img * ((E - cp) * cd).sum(-1, keepdim=True)
+                b = ((rays.points - Qr) * rays.directions).sum(-1)
+                c = ((rays.points - Qr) ** 2).sum(-1) - R2
+                root = torch.sqrt(torch.clamp(b * b - c, min=0.0))
+                s_plane = (z_xp - rays.points[..., 2]) / rays.directions[..., 2]
+                s1, s2 = -b - root, -b + root
+                s = torch.where((s1 - s_plane).abs() <= (s2 - s_plane).abs(), s1, s2)
+                valid = rays.valid & (b * b - c >= 0)
+                radius = torch.sqrt(R2)[..., 0] if batch else float(torch.sqrt(R2))
+            else:  # image-space telecentric: the reference "sphere" is the plane through the chief ray normal to it
+                rc = chief.opl[..., :1]
+                s = (((cp.unsqueeze(-2) - rays.points) * cd.unsqueeze(-2)).sum(-1)
+                     / (rays.directions * cd.unsqueeze(-2)).sum(-1))
+                valid = rays.valid
+                radius = math.inf
+            W = (rc - (rays.opl + n_img * s)) / (lam * 1e-3)
+            img = (rays.points
+                   + ((z_img - rays.points[..., 2]) / rays.directions[..., 2]).unsqueeze(-1) * rays.directions)
+            W = torch.where(valid, W, torch.full_like(W, math.nan))  # traced (through extended surfaces unless vignette)
+            valid = valid & rays.passed
+            return WavefrontMap(px.reshape(-1).to(torch.float64), py.reshape(-1).to(torch.float64), W, valid, Q, img,
+                                radius, rays.aperture_ratio)
+
+        return at
 
     def paraxial_beam_heights_mm(self, wavelength_um: float | None = None) -> list[float]:
         """Per surface, the paraxial beam's extent (mm): the axial marginal ray's height plus the chief ray's at the

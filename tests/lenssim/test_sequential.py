@@ -262,3 +262,26 @@ def test_aiming_that_does_not_converge_beyond_the_pupil_leaves_the_ray_untraced(
     monkeypatch.setattr(seq_mod, "AIM_ITERATIONS", 1)
     with pytest.raises(seq_mod.RayTraceError, match="did not converge"):
         lens.wavefront(6.205, px[2:] * 1.9, py[2:] * 1.9)
+
+
+@pytest.mark.parametrize("name", ["cooke_triplet", "double_gauss"])
+def test_through_focus_is_the_refocused_lens_s_wavefront_bit_for_bit(name):
+    """SequentialLens.through_focus (the rays traced once, the reference sphere moved per plane) against a lens built
+    with its image plane moved (SequentialLens(image_shift_mm=...).wavefront, every ray traced again): the same
+    numbers, bit for bit, at several planes, fields and a reference point; the best-focus search rests on it."""
+    from lenssim.io.prescription_file import read_lens
+
+    p = read_lens(name)
+    px, py = pupil_grid(12)
+    lens = SequentialLens(p)
+    for field in (0.0, max(p.fields)):
+        at = lens.through_focus(field, px, py)
+        for shift in (0.0, -0.35, 0.0123, 1.5):
+            want = SequentialLens(p, image_shift_mm=shift).wavefront(field, px, py)
+            got = at(shift)
+            assert torch.equal(got.opd_waves.nan_to_num(7.0), want.opd_waves.nan_to_num(7.0))
+            assert torch.equal(got.valid, want.valid) and torch.equal(got.image_mm, want.image_mm)
+            assert got.reference_radius_mm == want.reference_radius_mm and torch.equal(got.chief_mm, want.chief_mm)
+            assert not torch.equal(got.opd_waves.nan_to_num(7.0), at(shift + 0.1).opd_waves.nan_to_num(7.0))
+        ref = SequentialLens(p, image_shift_mm=0.2).wavefront(field, px, py, reference_mm=(0.01, 0.3))
+        assert torch.equal(at(0.2, reference_mm=(0.01, 0.3)).opd_waves.nan_to_num(7.0), ref.opd_waves.nan_to_num(7.0))
