@@ -18,6 +18,7 @@ as a run in one process; the final file is assembled from those files in the sam
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -112,6 +113,30 @@ def check_scheduler(address: str) -> None:
 
 
 @contextmanager
+def _environment_kept():
+    """This process's environment as it was on entry, put back by the function yielded and on exit.
+
+    dask's nanny sets its workers' variables (``distributed.nanny.pre-spawn-environ``: ``OMP_NUM_THREADS=1``,
+    ``MKL_NUM_THREADS=1``, ``OPENBLAS_NUM_THREADS=1``, ``PYTHONHASHSEED``, ...) in the spawning process's own
+    ``os.environ`` before it starts each worker, and leaves them there: every later subprocess of the caller then ran
+    on one thread (measured: the any-lens gallery example, a subprocess of the test suite after a local cluster,
+    14 -> 37 s). The nanny sets them again before each spawn (a restarted worker keeps its settings)."""
+    saved = dict(os.environ)
+
+    def restore() -> None:
+        for key in [k for k in os.environ if k not in saved]:
+            del os.environ[key]
+        for key, value in saved.items():
+            if os.environ.get(key) != value:
+                os.environ[key] = value
+
+    try:
+        yield restore
+    finally:
+        restore()
+
+
+@contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None):
     """A ``distributed.Client``: of the scheduler at ``scheduler``, or of a new ``LocalCluster`` of ``workers``
     processes (one task at a time each), closed on exit."""
@@ -133,10 +158,13 @@ def dask_client(scheduler: str | None = None, workers: int | None = None):
     workers = check_int("workers", workers, 1)
     import dask
 
-    # no MALLOC_TRIM_THRESHOLD_ in the workers' environment (see WORKER_MALLOC)
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
+    # no MALLOC_TRIM_THRESHOLD_ in the workers' environment (see WORKER_MALLOC); this process's own environment is
+    # left as it was (the nanny writes the workers' variables into it)
+    with _environment_kept() as restore, \
+            dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        restore()
         yield client
 
 

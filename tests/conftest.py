@@ -14,6 +14,28 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+@pytest.fixture(autouse=True)
+def _environment_unchanged():
+    """Every test leaves the process's environment as it found it (monkeypatch's changes are undone before this
+    runs): a variable left behind reaches every later test's subprocesses (a dask LocalCluster's
+    ``OMP_NUM_THREADS=1`` and ``MALLOC_TRIM_THRESHOLD_`` once slowed the rest of the suite's subprocesses 2.6x)."""
+    import os
+
+    # pytest's own (set for each phase of a test), and torch's inductor's cache folder (set once, the first time a test
+    # makes torch import it, for the rest of the process)
+    own = {"PYTEST_CURRENT_TEST", "TORCHINDUCTOR_CACHE_DIR"}
+
+    before = {k: v for k, v in os.environ.items() if k not in own}
+    yield
+    changed = sorted(k for k in set(before) | set(os.environ) if k not in own and before.get(k) != os.environ.get(k))
+    if changed:
+        for k in changed:
+            if k in before:
+                os.environ[k] = before[k]
+            else:
+                del os.environ[k]
+        pytest.fail(f"the test left the environment changed: {', '.join(changed)}", pytrace=False)
+
 
 def _device_dtypes():
     """Every (device, dtype) case, the CUDA ones skipped where no GPU is present (shown as skipped, not left out)."""

@@ -52,10 +52,28 @@ def test_a_worker_killed_mid_task_is_survived():
     assert killed and got == expected
 
 
+def _omp_threads():
+    return os.environ.get("OMP_NUM_THREADS")
+
+
+def test_a_local_cluster_leaves_the_caller_s_environment_as_it_was():
+    """dask's nanny writes its workers' variables (OMP_NUM_THREADS=1, MKL_NUM_THREADS=1, PYTHONHASHSEED, ...) into the
+    spawning process's os.environ and leaves them: every later subprocess of the caller ran on one thread. The workers
+    keep dask's settings; the caller's environment is its own again, while the cluster runs and after it."""
+    before = dict(os.environ)
+    with dask_client(workers=1) as client:
+        assert dict(os.environ) == before
+        assert set(client.run(_omp_threads).values()) == {"1"}
+    assert dict(os.environ) == before
+
+
 def test_a_scheduler_address_is_used_and_an_absent_one_is_a_clear_error(serial_file, tmp_path, monkeypatch):
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    from lenssim_studies.cluster import _environment_kept
+
+    with _environment_kept(), LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                           dashboard_address=None) as cluster:
         out = tmp_path / "remote.nc"
         run_sweep(CFG, out, device="cpu", show_progress=False, scheduler=cluster.scheduler_address)
     assert out.read_bytes() == serial_file.read_bytes()
