@@ -21,9 +21,10 @@ def _environment_unchanged():
     ``OMP_NUM_THREADS=1`` and ``MALLOC_TRIM_THRESHOLD_`` once slowed the rest of the suite's subprocesses 2.6x)."""
     import os
 
-    # pytest's own (set for each phase of a test), and torch's inductor's cache folder (set once, the first time a test
-    # makes torch import it, for the rest of the process)
-    own = {"PYTEST_CURRENT_TEST", "TORCHINDUCTOR_CACHE_DIR"}
+    # pytest's own (set for each phase of a test), and those a library sets for itself when it is first imported, which
+    # may be inside whichever test comes first (OpenImageIO's root, pyviz_comms' mark, torch inductor's cache folder,
+    # matplotlib's config folder where the home has none)
+    own = {"PYTEST_CURRENT_TEST", "OpenImageIO_ROOT", "_PYVIZ_COMMS_INSTALLED", "TORCHINDUCTOR_CACHE_DIR", "MPLCONFIGDIR"}
 
     before = {k: v for k, v in os.environ.items() if k not in own}
     yield
