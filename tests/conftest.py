@@ -5,6 +5,22 @@ def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", default=False, help="run paper-scale (slow) tests")
 
 
+def pytest_sessionstart(session):
+    """The project's own modules compiled to bytecode once, before any test: where ``PYTHONDONTWRITEBYTECODE`` is set
+    (as on this project's machines) no import writes it, so every subprocess a test starts (the console command, the
+    examples, the explorer's servers) compiled every module of the project again, 1.3 s of its 3.6 s start here.
+    Python reads bytecode that exists whatever that variable says; the caches are ``__pycache__`` folders, which git
+    ignores. Measured on the subprocess-heavy test files (install, hardening, the browser, the camera commands): 227.9
+    -> 204.6 s."""
+    import compileall
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for package in ("lenssim", "pipeline", "lenssim_studies", "lenssim_cli", "examples", "benchmarks"):
+        if (root / package).is_dir():
+            compileall.compile_dir(root / package, quiet=2)
+
+
 def pytest_collection_modifyitems(config, items):
     if config.getoption("--runslow"):
         return
