@@ -75,7 +75,7 @@ from ..model.camera import Camera
 from ..checks import check_shape
 from ..model.design import Design
 from ..model.numerics import DEFAULT_NUMERICS, Numerics
-from .sequential import SequentialLens
+from .sequential import Fields, SequentialLens
 from ..torch_utils import HOST, abs_square, as_tensor, broadcast_shape
 from ..validate import OTF_BYTES_PER_SAMPLE, NumericalError, ResourceLimitError, check_finite, check_int
 
@@ -762,6 +762,8 @@ TABLE_INITIAL_NODES = 9
 """Field-angle nodes of the table before bisection (from the axis to the largest angle, evenly)."""
 TABLE_MAX_NODES = 257
 """Most field-angle nodes of the table (the bisection stops there and the error reached is reported)."""
+TABLE_TRACE_FIELDS = 32
+"""Most field nodes of a wavefront table traced in one bundle (about 3,300 rays each at :data:`TABLE_GRID`)."""
 TABLE_TOLERANCE_WAVES = 0.01
 """Largest error (waves) of the table's angle interpolation at the mid-nodes, over the unvignetted pupil."""
 PHASE_SIGN = -1.0
@@ -888,70 +890,89 @@ class WavefrontTable:
 def chief_point_mm(seq: SequentialLens, alpha: float, lam: float) -> tuple[float, float]:
     """Where the chief ray of field ``alpha`` (deg) at ``lam`` meets the image plane: its ``(x, y)`` (mm; ``x`` is 0
     for a centred lens, and taken as exactly 0 there)."""
+    return _chief_points_mm(seq, Fields([alpha]), lam)[0]
+
+
+def _chief_points_mm(seq: SequentialLens, fields: Fields, lam: float) -> list[tuple[float, float]]:
+    """:func:`chief_point_mm` of every field of ``fields``, traced at once."""
     zero = torch.zeros(1, dtype=torch.float64, device=HOST)
-    w = seq.wavefront(alpha, zero, zero, lam)
-    return (0.0 if seq.is_centred else float(w.chief_mm[0])), float(w.chief_mm[1])
+    chief = seq.wavefront(fields, zero, zero, lam).chief_mm  # (F, 3)
+    return [(0.0 if seq.is_centred else float(c[0]), float(c[1])) for c in chief]
 
 
-def _trace_node(seq: SequentialLens, alpha: float, lams, scale_mm: float, grid: int):
-    """One field node: per wavelength, the OPD map against the sphere centred on the primary wavelength's chief-ray
-    point, the vignetting, the disc's unvignetted samples, and the largest distance (mm) of a ray's image point from
-    the paraxial point ``scale tan(alpha)``; and the distortion (mm) of the primary chief ray."""
+def _trace_nodes(seq: SequentialLens, alphas, lams, scale_mm: float, grid: int) -> list:
+    """Field nodes ``alphas`` (deg), traced at once (each as it would be alone): per node and wavelength, the OPD map
+    against the sphere centred on the primary wavelength's chief-ray point, the vignetting, the disc's unvignetted
+    samples, and the largest distance (mm) of a ray's image point from the paraxial point ``scale tan(alpha)``; and
+    the distortion (mm) of the primary chief ray: ``[(maps per wavelength, distortion) per node]``."""
     coords, e = _meridional_grid(grid)
     Y, X = torch.meshgrid(coords, coords, indexing="ij")
     inside = X**2 + Y**2 <= (1 + 2 * (coords[1] - coords[0])) ** 2
-    paraxial = scale_mm * math.tan(math.radians(alpha))
-    chief_x, chief = chief_point_mm(seq, alpha, seq.primary_wavelength_um)
-    out = []
-    for lam in lams:
-        w = seq.wavefront(alpha, X[inside], Y[inside], lam, reference_mm=(chief_x, chief), vignette=False)
-        W = torch.zeros(grid, grid, dtype=torch.float64, device=HOST)
-        V = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
-        T = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
-        W[inside] = torch.nan_to_num(w.opd_waves, nan=0.0)
-        V[inside] = w.valid
-        T[inside] = ~torch.isnan(w.opd_waves)  # traced through the surfaces extended beyond their semi-diameters
-        ratio = torch.full((grid, grid), APERTURE_UNTRACED, dtype=torch.float64, device=HOST)
-        ratio[inside] = torch.where(T[inside], w.aperture_ratio, torch.full_like(w.aperture_ratio, APERTURE_UNTRACED))
-        disc = V & (X**2 + Y**2 <= 1)
-        if not bool(disc.any()):
-            raise ValueError(f"field {alpha:.4g} deg at {lam:g} um: every ray is vignetted")
-        pts = w.image_mm[w.valid][:, :2]
-        spot = float(torch.hypot(pts[:, 0] - chief_x, pts[:, 1] - paraxial).max())
-        out.append((_inpaint(W, T), ratio, spot, disc))
-    return out, chief - paraxial
+    fields = Fields(alphas)
+    chiefs = _chief_points_mm(seq, fields, seq.primary_wavelength_um)
+    ref = ([c[0] for c in chiefs], [c[1] for c in chiefs])
+    maps = [seq.wavefront(fields, X[inside], Y[inside], lam, reference_mm=ref, vignette=False) for lam in lams]
+    nodes = []
+    for f, alpha in enumerate(fields.values):
+        paraxial = scale_mm * math.tan(math.radians(alpha))
+        chief_x, chief = chiefs[f]
+        out = []
+        for lam, w in zip(lams, maps):
+            opd, valid, ratio_in, image = w.opd_waves[f], w.valid[f], w.aperture_ratio[f], w.image_mm[f]
+            W = torch.zeros(grid, grid, dtype=torch.float64, device=HOST)
+            V = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
+            T = torch.zeros(grid, grid, dtype=torch.bool, device=HOST)
+            W[inside] = torch.nan_to_num(opd, nan=0.0)
+            V[inside] = valid
+            T[inside] = ~torch.isnan(opd)  # traced through the surfaces extended beyond their semi-diameters
+            ratio = torch.full((grid, grid), APERTURE_UNTRACED, dtype=torch.float64, device=HOST)
+            ratio[inside] = torch.where(T[inside], ratio_in, torch.full_like(ratio_in, APERTURE_UNTRACED))
+            disc = V & (X**2 + Y**2 <= 1)
+            if not bool(disc.any()):
+                raise ValueError(f"field {alpha:.4g} deg at {lam:g} um: every ray is vignetted")
+            pts = image[valid][:, :2]
+            spot = float(torch.hypot(pts[:, 0] - chief_x, pts[:, 1] - paraxial).max())
+            out.append((_inpaint(W, T), ratio, spot, disc))
+        nodes.append((out, chief - paraxial))
+    return nodes
 
 
 def wavefront_table(seq: SequentialLens, wavelengths_um, max_angle_deg: float, image_scale_mm: float, *,
                     grid: int = TABLE_GRID, tolerance_waves: float = TABLE_TOLERANCE_WAVES,
                     max_nodes: int = TABLE_MAX_NODES, progress=None) -> WavefrontTable:
     """The :class:`WavefrontTable` of ``seq`` at ``wavelengths_um`` from the axis to ``max_angle_deg`` (see the module
-    docstring); ``progress(k)`` is called with the number of traced maps as they are traced."""
+    docstring); ``progress(k)`` is called with the number of traced maps as they are traced. The initial nodes are
+    traced together, and each bisection round's mid-nodes together (at most :data:`TABLE_TRACE_FIELDS` a trace):
+    every node's map is what it would be traced alone, and the bisection's choices are made in the same order."""
     lams = tuple(float(v) for v in wavelengths_um)
     amax = float(max_angle_deg)
     nodes = torch.linspace(0, amax, TABLE_INITIAL_NODES if amax > 0 else 1, dtype=torch.float64, device=HOST).tolist()
     maps: dict[float, tuple] = {}
 
-    def trace(a):
-        if a not in maps:
-            maps[a] = _trace_node(seq, a, lams, image_scale_mm, grid)
-            if progress is not None:
-                progress(len(lams))
-        return maps[a][0]
+    def trace(angles):
+        new = [a for a in dict.fromkeys(angles) if a not in maps]
+        for i in range(0, len(new), TABLE_TRACE_FIELDS):
+            part = new[i:i + TABLE_TRACE_FIELDS]
+            for a, m in zip(part, _trace_nodes(seq, part, lams, image_scale_mm, grid)):
+                maps[a] = m
+                if progress is not None:
+                    progress(len(lams))
 
-    for a in nodes:
-        trace(a)
+    trace(nodes)
+    known_nodes = set(nodes)  # the nodes a stencil may use: those traced before, in the bisection's order
     err = 0.0
     todo = list(zip(nodes, nodes[1:]))  # intervals whose mid-node is checked
     left = 0.0
-    while todo and len(maps) < max_nodes:
+    while todo and len(known_nodes) < max_nodes:
         refine, left = [], 0.0
+        trace([(a0 + a1) / 2 for a0, a1 in todo])  # the round's mid-nodes at once
         for a0, a1 in todo:
-            known = torch.tensor(sorted(maps), dtype=torch.float64, device=HOST)
+            known = torch.tensor(sorted(known_nodes), dtype=torch.float64, device=HOST)
             mid = (a0 + a1) / 2
             idx, wts = _stencil(known, torch.tensor([mid], dtype=torch.float64, device=HOST))
             stencil = [float(known[i]) for i in idx[0]]
-            m = trace(mid)
+            known_nodes.add(mid)
+            m = maps[mid][0]
             e = 0.0
             for k, (Wm, _, _, dm) in enumerate(m):
                 both = dm.clone()

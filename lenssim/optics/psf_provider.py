@@ -37,7 +37,7 @@ from ..torch_utils import HOST, tensor_of
 from .psf_bank import (SAMPLINGS, TABLE_MAX_NODES, WavefrontTable, _paraxial_image_heights, cached_wavefront_table,
                        image_scale_mm, max_wavefront_slope, nice_fft_size, pedestal_fraction, psfs_from_table,
                        spectral_coefficients)
-from .sequential import SequentialLens
+from .sequential import Fields, SequentialLens
 from .wavefront_models import validate_wavefront_model
 
 __all__ = ["PSFProvider", "DerivedPSF", "LensPSF", "FunctionPSF", "AsBuiltPSF", "SequentialPSF",
@@ -490,12 +490,12 @@ class SequentialPSF(PSFProvider):
         px = torch.cat([torch.cos(t), gx[inside]])
         py = torch.cat([torch.sin(t), gy[inside]])
         spot = 0.0
-        for k in range(EXTENT_FIELDS):
-            alpha = self.max_field_deg * k / (EXTENT_FIELDS - 1)
-            paraxial = self.image_scale_mm * math.tan(math.radians(alpha))
-            for lam in self.quadrature()[0]:
-                w = self.lens.wavefront(alpha, px, py, lam)
-                pts = w.image_mm[w.valid][:, :2]
+        fields = Fields([self.max_field_deg * k / (EXTENT_FIELDS - 1) for k in range(EXTENT_FIELDS)])
+        for lam in self.quadrature()[0]:  # every field at once, each as alone
+            w = self.lens.wavefront(fields, px, py, lam)
+            for f, alpha in enumerate(fields.values):
+                paraxial = self.image_scale_mm * math.tan(math.radians(alpha))
+                pts = w.image_mm[f][w.valid[f]][:, :2]
                 if pts.numel():
                     spot = max(spot, float(torch.hypot(pts[:, 0], pts[:, 1] - paraxial).max()))
         return math.ceil(2 * spot / (self.sensor.pixel_pitch_um * 1e-3)) + self.margin_px()

@@ -60,7 +60,7 @@ from ..model.surface_kinds import NEWTON_ITERATIONS, refract
 from .paraxial import seidel_surface_sums
 from ..torch_utils import HOST
 
-__all__ = ["SequentialLens", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
+__all__ = ["SequentialLens", "Fields", "ParaxialData", "RayBundle", "WavefrontMap", "AIM_METHODS", "AIM_TOLERANCE",
            "AIM_ITERATIONS", "NEWTON_ITERATIONS", "RayTraceError", "surfaces_lens", "trace_rays_opl", "trace_rays"]
 
 AIM_METHODS = ("real", "paraxial")
@@ -81,6 +81,50 @@ FD_STEP = 1e-7
 def _any(condition) -> bool:
     """A condition on numbers that may be floats or tensors (a batch of designs): true if it holds for any."""
     return bool(condition.any()) if torch.is_tensor(condition) else bool(condition)
+
+
+def _times(v: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """``v @ A`` for vectors ``v`` ``(..., 3)`` and a ``(3, 3)`` matrix, element by element: the same numbers whatever
+    the leading shape (a matrix product's kernel, and so its rounding, depends on the number of rows)."""
+    return v[..., 0:1] * A[0] + v[..., 1:2] * A[1] + v[..., 2:3] * A[2]
+
+
+class Fields:
+    """Several fields traced at once (a lens of floats): their values ``(F, 1)`` (deg or mm, float64) and, for an
+    object at infinity, each angle's sine, cosine and tangent ``(F, 1)``, computed as a single field's are (Python's
+    ``math``), so that every ray is traced as it would be alone, bit for bit. Rays of ``F`` fields are ``(F, R, ...)``."""
+
+    def __init__(self, values, device=HOST):
+        vals = [float(v) for v in (values.reshape(-1).tolist() if torch.is_tensor(values) else values)]
+        if not vals:
+            raise ValueError("fields: at least one field")
+        self.values = vals
+
+        def col(v):
+            return torch.tensor(v, dtype=torch.float64, device=device).reshape(-1, 1)
+
+        self.field = col(vals)
+        rad = [math.radians(v) for v in vals]
+        self.sin, self.cos, self.tan = col([math.sin(a) for a in rad]), col([math.cos(a) for a in rad]), \
+            col([math.tan(a) for a in rad])
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def take(self, index: torch.Tensor) -> "Fields":
+        """The fields at ``index`` (a 1-D tensor of positions), in that order."""
+        out = object.__new__(Fields)
+        out.values = [self.values[i] for i in index.tolist()]
+        out.field, out.sin, out.cos, out.tan = (v[index] for v in (self.field, self.sin, self.cos, self.tan))
+        return out
+
+
+def _field_named(field, index=None) -> str:
+    """A field's value for a message: ``field`` a float, or of :class:`Fields` the one at ``index`` (a flat index into
+    rays ``(F, R)``, or the field's own)."""
+    if not isinstance(field, Fields):
+        return f"{field:g}"
+    return f"{field.values[0 if index is None else index]:g}"
 
 
 class RayTraceError(ValueError):
@@ -340,7 +384,7 @@ class SequentialLens:
         if i not in self._frames:
             return points
         A, b = self._frames[i]
-        return (points - b) @ A
+        return _times(points - b, A)
 
     @property
     def primary_wavelength_um(self) -> float:
@@ -550,9 +594,9 @@ class SequentialLens:
                 X, N, t, ok, rho = self._intersect(P, d, s, self._vz[i], valid)
             else:  # in the surface's nominal frame (its motion undone), then back: distances and angles kept
                 A, b = frame
-                X, N, t, ok, rho = self._intersect((P - b) @ A, d @ A, s, self._vz[i], valid)
-                X = X @ A.T + b
-                N = N @ A.T
+                X, N, t, ok, rho = self._intersect(_times(P - b, A), _times(d, A), s, self._vz[i], valid)
+                X = _times(X, A.T) + b
+                N = _times(N, A.T)
             if s.semi_diameter_mm is not None and i != stop:
                 within = rho <= s.semi_diameter_mm**2 * (1 + 1e-12)
                 ratio = torch.maximum(ratio, torch.sqrt(rho.clamp(min=0)) / s.semi_diameter_mm)
@@ -575,13 +619,22 @@ class SequentialLens:
         """Rays of a field, parametrised by ``(x, y)``: the point on the plane ``z_start`` (object at infinity) or the
         point on the plane of surface 1's vertex the ray aims at (finite object). Returns starts, directions, OPL."""
         p = self.prescription
+        several = isinstance(field, Fields)
         if p.object_at_infinity:
-            a = math.radians(field)
-            d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64, device=x.device).expand(*x.shape, 3)
+            if several:  # (F, 1, 3), each field's direction
+                d = torch.stack([torch.zeros_like(field.sin), field.sin, field.cos], dim=-1).expand(*x.shape, 3)
+            else:
+                a = math.radians(field)
+                d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64,
+                                 device=x.device).expand(*x.shape, 3)
             z = z_start.expand_as(x) if torch.is_tensor(z_start) else torch.full_like(x, z_start)
             P = torch.stack([x, y, z], dim=-1)
             return P, d, None
-        O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64, device=x.device)
+        if several:
+            O = torch.stack([torch.zeros_like(field.field), -field.field,
+                             torch.full_like(field.field, -p.object_distance_mm)], dim=-1).expand(*x.shape, 3)
+        else:
+            O = torch.tensor([0.0, -field, -p.object_distance_mm], dtype=torch.float64, device=x.device)
         if self.numbers is not None:  # surface 1's vertex is at z = 0 whatever the design: the object does not move
             O = O.expand(*x.shape, 3)
         target = torch.stack([x, y, torch.zeros_like(x)], dim=-1)
@@ -609,9 +662,10 @@ class SequentialLens:
             return local[..., :2].norm(dim=-1)  # (B, 1)
         return float(local[0, :2].norm())
 
-    def aim(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
+    def aim(self, field, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None,
             method: str = "real"):
-        """Rays of ``field`` (deg or mm) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
+        """Rays of ``field`` (deg or mm; or :class:`Fields`, several at once: rays ``(F, R, 3)``, each field's as if
+        aimed alone, bit for bit) through pupil points ``(px, py)`` (unit disc): ``(starts, directions,
         opl_start)`` (a start of NaN, not traced, where the aiming did not converge for a point beyond the unit disc or
         a ray that would not pass the lens's semi-diameters; for a ray within the disc that would pass it is a
         :class:`RayTraceError`). ``method``: ``"real"`` (each ray meets the stop surface at
@@ -630,6 +684,9 @@ class SequentialLens:
         par = self.paraxial(lam)
         r_ep = p.entrance_pupil_diameter_mm / 2
         batch = self.numbers is not None
+        several = isinstance(field, Fields)
+        if several and batch:
+            raise ValueError("several fields at once are traced through a lens of floats, not a batch of designs")
         px = px.to(torch.float64).reshape(-1)
         py = py.to(torch.float64).reshape(-1)
         if batch:
@@ -638,15 +695,16 @@ class SequentialLens:
         if p.object_at_infinity:
             # a plane before the lens and the entrance pupil
             z_start = (torch.clamp(z_ep, max=0.0) if torch.is_tensor(z_ep) else min(0.0, z_ep)) - r_ep
-            t = math.tan(math.radians(field))
+            t = field.tan if several else math.tan(math.radians(field))
             x0, y0 = px * r_ep, py * r_ep + (z_start - z_ep) * t
         else:
             z_start = 0.0
             s = p.object_distance_mm / (p.object_distance_mm + z_ep)  # from the object through the pupil to z = 0
+            f = field.field if several else field
             x0 = px * r_ep * s
-            y0 = -field + (py * r_ep + field) * s
-        if batch:  # every design's rays (B, R)
-            shape = (self.batch_size, px.shape[0])
+            y0 = -f + (py * r_ep + f) * s
+        if batch or several:  # every design's rays (B, R), or every field's (F, R)
+            shape = (self.batch_size if batch else len(field), px.shape[0])
             x0, y0 = torch.broadcast_to(x0, shape), torch.broadcast_to(y0, shape)
         x, y = x0.clone(), y0.clone()
         if method == "paraxial":
@@ -655,20 +713,21 @@ class SequentialLens:
         stop_r = self.aimed_stop_radius_mm(lam)
         target = torch.stack([px, py], dim=-1) * (stop_r.unsqueeze(-1) if torch.is_tensor(stop_r) else stop_r)
 
-        def at_stop(xv, yv):
-            P, d, o = self._beam(field, xv, yv, lam, z_start)
+        def at_stop(xv, yv, fld=field):
+            P, d, o = self._beam(fld, xv, yv, lam, z_start)
             b = self.trace(P, d, lam, upto=k, opl_start=o, vignette=False)
             return self._to_local(k, b.points)[..., :2], b.valid  # in the stop's own frame if it is misaligned
 
         h = FD_STEP * r_ep
 
-        def newton_step(s0, ok, r):
-            """The Newton step ``J^-1 r`` (where it can be taken, else 0) at ``(x, y)``, ``J`` by differences (no
-            gradient: only ``r`` may carry one)."""
+        def newton_step(s0, ok, r, xv=None, yv=None, fld=field):
+            """The Newton step ``J^-1 r`` (where it can be taken, else 0) at ``(xv, yv)`` (default ``(x, y)``), ``J``
+            by differences (no gradient: only ``r`` may carry one)."""
+            xv, yv = (x, y) if xv is None else (xv, yv)
             with torch.no_grad():
                 s0 = s0.detach()
-                sx, okx = at_stop(x + h, y)
-                sy, oky = at_stop(x, y + h)
+                sx, okx = at_stop(xv + h, yv, fld)
+                sy, oky = at_stop(xv, yv + h, fld)
                 J = torch.stack([(sx - s0) / h, (sy - s0) / h], dim=-1)  # (R, 2 [stop xy], 2 [x, y])
                 det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
                 good = ok & okx & oky & (det.abs() > 0)
@@ -678,9 +737,23 @@ class SequentialLens:
             return torch.where(good, dx, torch.zeros_like(dx)), torch.where(good, dy, torch.zeros_like(dy))
 
         grad = batch and torch.is_grad_enabled()
-        with torch.no_grad() if grad else contextlib.nullcontext():
-            converged = False
+        done = None  # several fields: (F, 1), the fields whose rays have all converged (they step no further)
+        converged = False
+        if several:  # each field steps until its own rays have all converged, as it would alone; only those traced
+            s0, ok = at_stop(x, y)
             for _ in range(AIM_ITERATIONS):
+                met = ((s0 - target).abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok
+                done = met.all(-1, keepdim=True)
+                if bool(done.all()):
+                    converged = True
+                    break
+                j = torch.nonzero(~done[:, 0])[:, 0]
+                sub = field.take(j)
+                dx, dy = newton_step(s0[j], ok[j], s0[j] - target, x[j], y[j], sub)
+                x[j], y[j] = x[j] - dx, y[j] - dy
+                s0[j], ok[j] = at_stop(x[j], y[j], sub)
+        with torch.no_grad() if grad else contextlib.nullcontext():
+            for _ in range(0 if several else AIM_ITERATIONS):
                 s0, ok = at_stop(x, y)
                 r = s0 - target
                 if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok).all()):
@@ -697,6 +770,8 @@ class SequentialLens:
         if not converged:
             s0, ok = at_stop(x, y)
             bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * stop_r)
+            if several:  # only the fields that had not converged, as each alone
+                bad = bad & ~done
             if bool(bad.any()):
                 # tolerated, and not traced: a point beyond the unit disc (a table's margin for interpolation), or a
                 # ray that would not pass the lens where the search stopped (grazing a rim it is vignetted by)
@@ -704,14 +779,16 @@ class SequentialLens:
                 passes = self.trace(P, d, lam, opl_start=o, vignette=False).passed
                 fatal = bad & (px.square() + py.square() <= 1.0) & passes
                 if bool(fatal.any()):
-                    raise RayTraceError(f"field {field:g}: ray aiming at the stop (surface {k + 1}) did not converge "
-                                        f"in {AIM_ITERATIONS} steps for {int(fatal.sum())} of {bad.numel()} pupil "
-                                        "points")
+                    j = int(torch.nonzero(fatal.reshape(-1, fatal.shape[-1]).any(-1))[0]) if several else 0
+                    one = fatal.reshape(-1, fatal.shape[-1])[j] if several else fatal
+                    raise RayTraceError(f"field {_field_named(field, j)}: ray aiming at the stop (surface {k + 1}) did "
+                                        f"not converge in {AIM_ITERATIONS} steps for {int(one.sum())} of {one.numel()} "
+                                        "pupil points")
                 x = torch.where(bad, torch.full_like(x, math.nan), x)
         return self._beam(field, x, y, lam, z_start)
 
     # -- wavefront ---------------------------------------------------------------------------------------------------
-    def wavefront(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
+    def wavefront(self, field, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
                   aim: str = "real", reference_mm: tuple[float, float] | None = None,
                   vignette: bool = True) -> WavefrontMap:
         """The OPD (waves at ``wavelength_um``, default the primary) at pupil points ``(px, py)`` of ``field`` against
@@ -724,10 +801,12 @@ class SequentialLens:
 
         A :attr:`batched` lens gives every design's map at once: ``opd_waves``, ``valid (B, R)``, ``chief_mm (B, 3)``,
         ``image_mm (B, R, 3)``, the radius ``(B,)``, differentiable in the design's numbers; ``reference_mm`` may then
-        hold tensors ``(B,)``."""
+        hold tensors ``(B,)``. Several fields at once (``field`` a :class:`Fields` of ``F``, a lens of floats): the
+        same leading axis ``(F, ...)``, each field's map what it would be alone, bit for bit; ``reference_mm`` then
+        holds a value per field."""
         return self.through_focus(field, px, py, wavelength_um, aim=aim, vignette=vignette)(reference_mm=reference_mm)
 
-    def through_focus(self, field: float, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
+    def through_focus(self, field, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
                       aim: str = "real", vignette: bool = True):
         """:meth:`wavefront` as a function of a further image-plane shift: ``at(shift_mm=0.0, reference_mm=None)``
         gives the map :meth:`wavefront` gives (the same numbers, bit for bit) for this lens with its image plane moved
@@ -738,14 +817,18 @@ class SequentialLens:
         par = self.paraxial(lam)
         n_img = self.index_after(len(self.prescription.surfaces) - 1, lam)
         batch = self.numbers is not None
+        several = isinstance(field, Fields)
+        lead = batch or several  # a leading axis: designs (B, ...) or fields (F, ...)
         dev = self.device if batch else px.device
         zero = torch.zeros(1, dtype=torch.float64, device=dev)
         P0, d0, o0 = self.aim(field, zero, zero, lam, aim)
         chief = self.trace(P0, d0, lam, opl_start=o0)
         if not bool(chief.valid.all()):
-            where = int(chief.clipped_at.reshape(-1)[int(torch.nonzero(~chief.valid.reshape(-1))[0])])
-            raise RayTraceError(f"field {field:g}: the chief ray does not pass (stopped at surface {where}: its "
-                                "semi-diameter, a missed surface or total internal reflection)")
+            j = int(torch.nonzero(~chief.valid.reshape(-1))[0])
+            where = int(chief.clipped_at.reshape(-1)[j])
+            raise RayTraceError(f"field {_field_named(field, j if several else None)}: the chief ray does not pass "
+                                f"(stopped at surface {where}: its semi-diameter, a missed surface or total internal "
+                                "reflection)")
         P, d, o = self.aim(field, px, py, lam, aim)
         rays = self.trace(P, d, lam, opl_start=o, vignette=vignette)
         z_xp0 = par.exit_pupil_z_mm
@@ -765,6 +848,10 @@ class SequentialLens:
                 if batch:
                     rx, ry = (torch.as_tensor(v, dtype=torch.float64, device=dev).reshape(-1, 1) for v in reference_mm)
                     Q = torch.cat([rx.expand_as(z_img), ry.expand_as(z_img), z_img], dim=-1)
+                elif several:  # a point per field (F, 3)
+                    rx, ry = (torch.as_tensor(v, dtype=torch.float64, device=dev).reshape(-1, 1).expand(len(field), 1)
+                              for v in reference_mm)
+                    Q = torch.cat([rx, ry, torch.full_like(rx, z_img)], dim=-1)
                 else:
                     Q = torch.tensor([float(reference_mm[0]), float(reference_mm[1]), z_img], dtype=torch.float64,
                                      device=px.device)
@@ -781,7 +868,7 @@ class SequentialLens:
                 s1, s2 = -b - root, -b + root
                 s = torch.where((s1 - s_plane).abs() <= (s2 - s_plane).abs(), s1, s2)
                 valid = rays.valid & (b * b - c >= 0)
-                radius = torch.sqrt(R2)[..., 0] if batch else float(torch.sqrt(R2))
+                radius = torch.sqrt(R2)[..., 0] if lead else float(torch.sqrt(R2))
             else:  # image-space telecentric: the reference "sphere" is the plane through the chief ray normal to it
                 rc = chief.opl[..., :1]
                 s = (((cp.unsqueeze(-2) - rays.points) * cd.unsqueeze(-2)).sum(-1)

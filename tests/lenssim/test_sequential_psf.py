@@ -145,6 +145,26 @@ def test_a_wide_grid_holds_the_support_and_a_pedestal(cooke, n):
     assert torch.allclose(p[:, n // 2 + d], p[:, n // 2 - d], atol=1e-12)
 
 
+def test_a_table_traced_many_nodes_at_once_is_the_table_traced_node_by_node():
+    """The double Gauss's table at a tolerance that refines it unevenly (19 nodes, bisected near the axis), its nodes
+    traced in bundles (lenssim.optics.psf_bank.TABLE_TRACE_FIELDS; each node's map as alone, bit for bit:
+    test_several_fields_at_once_are_each_field_traced_alone_bit_for_bit) and each round's mid-nodes checked in the
+    bisection's order: the nodes, error and sums the node-by-node table gave before bundles existed (pinned from
+    1953cdf, 2026-12-02, where they were equal bit for bit)."""
+    from lenssim.optics.psf_provider import image_scale_mm
+
+    seq = SequentialLens(read_lens("double_gauss"))
+    bundled = wavefront_table(seq, (0.5876,), max(seq.prescription.fields), image_scale_mm(seq), grid=32,
+                              tolerance_waves=0.01)
+    step = 12.41 / 32
+    want = [0, 1, 2, 3, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30, 32]
+    assert bundled.angles_deg.tolist() == pytest.approx([step * k for k in want], abs=1e-12)
+    assert bundled.interpolation_error_waves == pytest.approx(0.009936937571858095, rel=1e-6)
+    assert float(bundled.opd_waves.abs().sum()) == pytest.approx(1449153.7119259683, rel=1e-9)
+    assert float(bundled.spot_radius_mm.sum()) == pytest.approx(8.624135074090853, rel=1e-9)
+    assert float(bundled.distortion_mm.abs().sum()) == pytest.approx(2.2691957030620626, rel=1e-9)
+
+
 def test_the_table_interpolates_to_the_directly_traced_psf(cooke):
     """Between the table's nodes, the OPD is within twice the table's tolerance of the OPD traced at that very angle
     (a table with the angle as a node), and the PSFs differ by no more than that phase error allows."""
