@@ -65,8 +65,10 @@ __all__ = ["SequentialLens", "Fields", "ParaxialData", "RayBundle", "WavefrontMa
 
 AIM_METHODS = ("real", "paraxial")
 AIM_ITERATIONS = 60
-"""Most Newton steps of the real-ray aiming (each a real trace of the bundle and two of its neighbours; the loop
-stops as soon as every ray has converged, usually in a few steps: rays grazing a steep rim can take tens)."""
+"""Most Newton steps of the real-ray aiming (each a real trace of the rays still searching and two of their
+neighbours). Through a lens of floats each ray stops as soon as it has converged (usually in a few steps: rays grazing
+a steep rim can take tens), so a ray's result does not depend on the rays traced with it; a batch of designs steps
+every ray until its last has converged."""
 AIM_TOLERANCE = 1e-9
 """Aiming converged: every ray meets the stop within this fraction of the stop's radius of its target."""
 AXIAL_RIM_RAYS = 64
@@ -98,7 +100,7 @@ class Fields:
         vals = [float(v) for v in (values.reshape(-1).tolist() if torch.is_tensor(values) else values)]
         if not vals:
             raise ValueError("fields: at least one field")
-        self.values = vals
+        self._values = vals
 
         def col(v):
             return torch.tensor(v, dtype=torch.float64, device=device).reshape(-1, 1)
@@ -108,13 +110,20 @@ class Fields:
         self.sin, self.cos, self.tan = col([math.sin(a) for a in rad]), col([math.cos(a) for a in rad]), \
             col([math.tan(a) for a in rad])
 
+    @property
+    def values(self) -> list[float]:
+        """The fields (deg or mm), in order."""
+        if self._values is None:
+            self._values = self.field.reshape(-1).tolist()
+        return self._values
+
     def __len__(self) -> int:
-        return len(self.values)
+        return self.field.shape[0]
 
     def take(self, index: torch.Tensor) -> "Fields":
-        """The fields at ``index`` (a 1-D tensor of positions), in that order."""
+        """The fields at ``index`` (a 1-D tensor of positions, repeats allowed), in that order."""
         out = object.__new__(Fields)
-        out.values = [self.values[i] for i in index.tolist()]
+        out._values = None
         out.field, out.sin, out.cos, out.tan = (v[index] for v in (self.field, self.sin, self.cos, self.tan))
         return out
 
@@ -736,24 +745,14 @@ class SequentialLens:
             dy = (-J[..., 1, 0] * r[..., 0] + J[..., 0, 0] * r[..., 1]) / det
             return torch.where(good, dx, torch.zeros_like(dx)), torch.where(good, dy, torch.zeros_like(dy))
 
-        grad = batch and torch.is_grad_enabled()
-        done = None  # several fields: (F, 1), the fields whose rays have all converged (they step no further)
+        if not batch:  # a lens of floats: each ray steps until it has converged, and only those are traced
+            x, y = self._aim_rays(field if several else Fields([field]), x, y, px, py, lam, z_start, target, stop_r,
+                                  at_stop, newton_step)
+            return self._beam(field, x, y, lam, z_start)
+        grad = torch.is_grad_enabled()
         converged = False
-        if several:  # each field steps until its own rays have all converged, as it would alone; only those traced
-            s0, ok = at_stop(x, y)
-            for _ in range(AIM_ITERATIONS):
-                met = ((s0 - target).abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok
-                done = met.all(-1, keepdim=True)
-                if bool(done.all()):
-                    converged = True
-                    break
-                j = torch.nonzero(~done[:, 0])[:, 0]
-                sub = field.take(j)
-                dx, dy = newton_step(s0[j], ok[j], s0[j] - target, x[j], y[j], sub)
-                x[j], y[j] = x[j] - dx, y[j] - dy
-                s0[j], ok[j] = at_stop(x[j], y[j], sub)
         with torch.no_grad() if grad else contextlib.nullcontext():
-            for _ in range(0 if several else AIM_ITERATIONS):
+            for _ in range(AIM_ITERATIONS):
                 s0, ok = at_stop(x, y)
                 r = s0 - target
                 if bool(((r.abs().amax(-1) <= AIM_TOLERANCE * stop_r) | ~ok).all()):
@@ -770,22 +769,65 @@ class SequentialLens:
         if not converged:
             s0, ok = at_stop(x, y)
             bad = ok & ((s0 - target).abs().amax(-1) > AIM_TOLERANCE * stop_r)
-            if several:  # only the fields that had not converged, as each alone
-                bad = bad & ~done
             if bool(bad.any()):
-                # tolerated, and not traced: a point beyond the unit disc (a table's margin for interpolation), or a
-                # ray that would not pass the lens where the search stopped (grazing a rim it is vignetted by)
-                P, d, o = self._beam(field, x, y, lam, z_start)
-                passes = self.trace(P, d, lam, opl_start=o, vignette=False).passed
-                fatal = bad & (px.square() + py.square() <= 1.0) & passes
-                if bool(fatal.any()):
-                    j = int(torch.nonzero(fatal.reshape(-1, fatal.shape[-1]).any(-1))[0]) if several else 0
-                    one = fatal.reshape(-1, fatal.shape[-1])[j] if several else fatal
-                    raise RayTraceError(f"field {_field_named(field, j)}: ray aiming at the stop (surface {k + 1}) did "
-                                        f"not converge in {AIM_ITERATIONS} steps for {int(one.sum())} of {one.numel()} "
-                                        "pupil points")
-                x = torch.where(bad, torch.full_like(x, math.nan), x)
+                x = self._unaimed(field, bad, x, y, px, py, lam, z_start)
         return self._beam(field, x, y, lam, z_start)
+
+    def _aim_rays(self, fields: Fields, x, y, px, py, lam, z_start, target, stop_r, at_stop, newton_step):
+        """The real aiming of a lens of floats (:meth:`aim`): the rays of every field of ``fields`` (starting points
+        ``x, y``, ``(R,)`` for one field or ``(F, R)``) as one flat bundle, each ray taking Newton steps until it meets
+        its target within :data:`AIM_TOLERANCE` (or cannot be traced to the stop), then left where it is, so a ray
+        is what it would be traced alone, in any bundle, bit for bit. Returns ``x, y`` of the input's shape (NaN where
+        the aiming was tolerated not to converge)."""
+        shape = x.shape
+        F, R = len(fields), px.shape[0]
+        X, Y = x.reshape(-1).clone(), y.reshape(-1).clone()
+        rows = torch.arange(F, device=X.device).repeat_interleave(R)
+        goal = target.reshape(-1, 2).repeat(F, 1)  # (F R, 2)
+        tol = AIM_TOLERANCE * stop_r
+
+        def at(idx, fld):
+            s, o = at_stop(X[idx, None], Y[idx, None], fld)
+            return s[:, 0], o[:, 0]
+
+        active = torch.arange(F * R, device=X.device)
+        s0, ok = at(active, fields.take(rows))
+        for _ in range(AIM_ITERATIONS):
+            r = s0[active] - goal[active]
+            left = ((r.abs().amax(-1) > tol) & ok[active])
+            active, r = active[left], r[left]
+            if not active.numel():
+                break
+            fld = fields.take(rows[active])
+            dx, dy = newton_step(s0[active, None], ok[active, None], r[:, None], X[active, None], Y[active, None], fld)
+            X[active], Y[active] = X[active] - dx[:, 0], Y[active] - dy[:, 0]
+            s0[active], ok[active] = at(active, fld)
+        else:
+            r = s0[active] - goal[active]
+            active = active[(r.abs().amax(-1) > tol) & ok[active]]
+        if active.numel():  # not converged in AIM_ITERATIONS steps
+            bad = torch.zeros(F * R, dtype=torch.bool, device=X.device)
+            bad[active] = True
+            X = self._unaimed(fields, bad.reshape(F, R), X.reshape(F, R), Y.reshape(F, R), px, py, lam,
+                              z_start).reshape(-1)
+        return X.reshape(shape), Y.reshape(shape)
+
+    def _unaimed(self, field, bad, x, y, px, py, lam, z_start):
+        """``x`` with NaN at the rays ``bad`` whose aiming did not converge, where that is tolerated (not traced): a
+        point beyond the unit disc (a table's margin for interpolation), or a ray that would not pass the lens where
+        the search stopped (grazing a rim it is vignetted by); any other is a :class:`RayTraceError` naming its
+        field."""
+        P, d, o = self._beam(field, x, y, lam, z_start)
+        passes = self.trace(P, d, lam, opl_start=o, vignette=False).passed
+        fatal = bad & (px.square() + py.square() <= 1.0) & passes
+        if bool(fatal.any()):
+            several = isinstance(field, Fields)
+            j = int(torch.nonzero(fatal.reshape(-1, fatal.shape[-1]).any(-1))[0]) if several else 0
+            one = fatal.reshape(-1, fatal.shape[-1])[j] if several else fatal
+            raise RayTraceError(f"field {_field_named(field, j)}: ray aiming at the stop (surface "
+                                f"{self.prescription.stop_index + 1}) did not converge in {AIM_ITERATIONS} steps for "
+                                f"{int(one.sum())} of {one.numel()} pupil points")
+        return torch.where(bad, torch.full_like(x, math.nan), x)
 
     # -- wavefront ---------------------------------------------------------------------------------------------------
     def wavefront(self, field, px: torch.Tensor, py: torch.Tensor, wavelength_um: float | None = None, *,
