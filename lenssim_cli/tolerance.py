@@ -90,8 +90,7 @@ DEFAULT_SENSITIVITY_LENSES = 200
 """Lenses per tolerance term of the singlet's sensitivity table by default."""
 MAX_LENS_COPIES = 100_000
 """Most copies of a Monte Carlo of any lens (each traces its own wavefront table: far past a day's run)."""
-LENS_REFUSED = (("--yield", "yield_"), ("--sensitivity-lenses", "sensitivity_lenses"), ("--scheduler", "scheduler"),
-                ("--workers", "workers"), ("--worker-threads", "worker_threads"))
+LENS_REFUSED = (("--yield", "yield_"), ("--sensitivity-lenses", "sensitivity_lenses"))
 """Flags of the singlet's Monte Carlo that a Monte Carlo of any lens does not take."""
 
 
@@ -145,6 +144,10 @@ def cmd_tolerance_lens(args) -> int:
     for a in args.angles or ():
         if not (math.isfinite(a) and 0 <= a <= amax):
             raise ValueError(f"--angles {a:g} is not allowed: field angles from 0 to the lens's largest, {amax:g} deg")
+    if args.scheduler is not None:
+        from lenssim_studies.cluster import check_scheduler
+
+        check_scheduler(args.scheduler)
     out = check_output_dir(args.out)
     select_device(args.device)
     seq, shift = refocused_lens(p, args.refocus or "file")
@@ -159,7 +162,8 @@ def cmd_tolerance_lens(args) -> int:
     t0 = time.perf_counter()
     with output_lock(out):  # one run at a time writes this folder; a second run resumes the Monte Carlo
         out.mkdir(parents=True, exist_ok=True)
-        ds = run_tolerance(run, out / "tolerance.nc", show_progress=not args.quiet,
+        ds = run_tolerance(run, out / "tolerance.nc", show_progress=not args.quiet, scheduler=args.scheduler,
+                           workers=args.workers, worker_threads=args.worker_threads,
                            attrs={"refocus": args.refocus or "file", "file": str(args.lens)})
         summary = summarise_lens_tolerance(ds, ref_snr)
         text = lens_tolerance_report(ds, summary)

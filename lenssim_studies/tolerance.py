@@ -8,8 +8,9 @@ path); a summary (mean, median, 90th and 99th percentiles, the bootstrap standar
 yields), a sensitivity table (each tolerance alone) and figures.
 
 **Any sequential lens** (:class:`LensToleranceRun`): copies with tolerances per surface, each traced on real rays
-(:func:`lenssim.tolerancing.lens_copies`), in chunks of :data:`CHUNK_COPIES`; the nominal lens's values at the
-copies' and the default numerics are variables of the result.
+(:func:`lenssim.tolerancing.lens_copies`), in chunks of :data:`CHUNK_COPIES` (in this process, or as dask tasks on
+the same cluster path, each worker evaluating the nominal lens once); the nominal lens's values at the copies' and the
+default numerics are variables of the result.
 
 One machinery for both (:func:`run_tolerance`): each chunk written to ``out.partial/chunk_NNNNN.npz`` with its index,
 the run's digest and a SHA-256 of its arrays, so a killed run resumes where it stopped, every resumed chunk is verified
@@ -257,24 +258,66 @@ def _singlet_plan(run: ToleranceRun, device, scheduler, workers, worker_threads)
             on_cluster if scheduler is not None or workers is not None else None)
 
 
-def _lens_plan(run: LensToleranceRun):
-    """How the copies of any lens are computed: ``(compute, dataset, weight, desc, unit, None)`` of
-    :func:`run_tolerance` (the nominal lens evaluated first: the reference of every copy, :func:`lens_copies`)."""
+def _lens_copy_rows(copy, ranges, i: int, progress) -> dict:
+    """Chunk ``i`` of a Monte Carlo of any lens: its copies' rows (``copy(k)``) as arrays of :data:`_ROW_KEYS`."""
+    rows = []
+    for k in range(*ranges[i]):
+        rows.append(copy(k))
+        if progress is not None:
+            progress(1)
+    return {key: np.stack([np.asarray(torch.as_tensor(r[key], dtype=torch.float64)) for r in rows])
+            for key in _ROW_KEYS}
+
+
+_WORKER_COPIES: dict[str, Callable] = {}
+"""On a dask worker: the copy function of the Monte Carlo of any lens with this digest (its nominal lens evaluated
+once per worker process: the reference of every copy)."""
+
+
+def _lens_chunk_task(run: LensToleranceRun, digest: str, index: int, device: str, threads: int):
+    """On a dask worker: chunk ``index`` of a Monte Carlo of any lens -> ``(index, arrays, sha256)``."""
+    from .cluster import ClusterError, _numeric_malloc, with_threads
+
+    _numeric_malloc()
+    if run.digest() != digest:
+        raise ClusterError(f"the worker's lenssim reads this tolerance run differently (digest {run.digest()} != "
+                           f"{digest}): install the client's lenssim version on every worker")
+
+    def compute():
+        if digest not in _WORKER_COPIES:
+            _WORKER_COPIES.clear()  # one run's nominal lens kept at a time
+            _WORKER_COPIES[digest] = lens_copies(run.psf, run.tolerances, run.n_copies, seed=run.seed,
+                                                 snr_db=run.snr_db, rho0=run.rho0, angles_deg=run.angles,
+                                                 coarse=run.coarse, numerics=run.numerics, compare_default=False)[0]
+        return _lens_copy_rows(_WORKER_COPIES[digest], run.chunks(), index, None)
+
+    chunk = with_threads(threads, compute)
+    return index, chunk, _checksum(chunk)
+
+
+def _lens_plan(run: LensToleranceRun, scheduler=None, workers=None, worker_threads=None):
+    """How the copies of any lens are computed: ``(compute, dataset, weight, desc, unit, cluster)`` of
+    :func:`run_tolerance` (the nominal lens evaluated first: the reference of every copy, :func:`lens_copies`). With
+    ``scheduler`` or ``workers`` the chunks are dask tasks, each worker evaluating the nominal lens once for itself
+    (its copies' numerics only); the copies are the same computation as in this process (equal bit for bit at the
+    same torch threads per task, ``worker_threads``)."""
     copy, dataset = lens_copies(run.psf, run.tolerances, run.n_copies, seed=run.seed, snr_db=run.snr_db,
                                 rho0=run.rho0, angles_deg=run.angles, coarse=run.coarse, numerics=run.numerics)
     ranges = run.chunks()
+    where = scheduler or (f"{workers} local workers" if workers is not None else None)
 
-    def compute(i, progress):
-        rows = []
-        for k in range(*ranges[i]):
-            rows.append(copy(k))
-            progress(1)
-        return {key: np.stack([np.asarray(torch.as_tensor(r[key], dtype=torch.float64)) for r in rows])
-                for key in _ROW_KEYS}
+    def on_cluster(todo):
+        from .cluster import compute_chunks, dask_client
 
-    return (compute, lambda chunks: dataset([{key: torch.from_numpy(np.asarray(c[key][j])) for key in _ROW_KEYS}
-                                             for c in chunks for j in range(c["efl_mm"].shape[0])]),
-            lambda i: ranges[i][1] - ranges[i][0], "manufactured copies", "copy", None)
+        with dask_client(scheduler, workers) as client:
+            yield from compute_chunks(client, run, todo, device="cpu", threads=worker_threads, task=_lens_chunk_task,
+                                      kind="tolerance")
+
+    return (lambda i, progress: _lens_copy_rows(copy, ranges, i, progress),
+            lambda chunks: dataset([{key: torch.from_numpy(np.asarray(c[key][j])) for key in _ROW_KEYS}
+                                    for c in chunks for j in range(c["efl_mm"].shape[0])]),
+            lambda i: ranges[i][1] - ranges[i][0], "manufactured copies" + (f" on {where}" if where else ""), "copy",
+            on_cluster if where else None)
 
 
 def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, *, device: str = "auto",
@@ -287,16 +330,14 @@ def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, 
     Resumption as the sweeps': finished chunks in ``out.partial/`` carry their index, the run's digest and a SHA-256
     of their arrays; a chunk that fails its check is reported (:class:`lenssim.validate.ResumeWarning`) and computed
     again. ``out`` must not be an existing file other than the finished result of the same run (verified before it is
-    returned). With ``workers`` or ``scheduler`` the singlet's chunks are dask tasks (:mod:`lenssim_studies.cluster`);
-    the file is the same, byte for byte. ``attrs``: more attributes of the dataset (descriptive: not part of the
+    returned). With ``workers`` or ``scheduler`` the chunks are dask tasks (:mod:`lenssim_studies.cluster`); the file
+    is the same, byte for byte, at the same torch threads per task (``worker_threads``, default this process's). ``attrs``: more attributes of the dataset (descriptive: not part of the
     digest).
     """
     out = Path(out)
     if scheduler is not None and workers is not None:
         raise ValueError("give either a scheduler address or a number of local workers, not both")
     lens = isinstance(run, LensToleranceRun)
-    if lens and (scheduler is not None or workers is not None):
-        raise ValueError("a Monte Carlo of any lens runs in this process: no scheduler or workers")
     digest = run.digest()
     done = open_resumable(out, digest, "tolerance output", "tolerance run",
                           check=lambda ds: result_mismatch(ds, {"lens": np.arange(run.count), "snr": run.snr_db},
@@ -304,7 +345,8 @@ def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, 
     if done is not None:
         return done
     compute, dataset, weight, desc, unit, cluster = (
-        _lens_plan(run) if lens else _singlet_plan(run, device, scheduler, workers, worker_threads))
+        _lens_plan(run, scheduler, workers, worker_threads) if lens
+        else _singlet_plan(run, device, scheduler, workers, worker_threads))
     part = out.with_name(out.name + ".partial")
     if part.exists():
         for p in part.glob(".*"):

@@ -275,6 +275,22 @@ def test_an_interrupted_run_resumes_verifies_its_chunks_and_equals_one_run(singl
         run_tolerance(other, out, show_progress=False)
 
 
+def test_two_local_workers_write_the_in_process_file_byte_for_byte(singlet, tmp_path):
+    """The Monte Carlo of any lens as dask tasks on a local cluster of two processes (each evaluating the nominal lens
+    for itself, at the process's torch threads per task): the file the run in this process writes, byte for byte."""
+    pytest.importorskip("distributed")
+    from lenssim_studies.tolerance import LensToleranceRun, run_tolerance
+
+    p, seq = singlet
+    run = LensToleranceRun(_provider(p, seq), SURFACE_GRADES["commercial"], 3, 5, SNR, 0.937, SMALL,
+                           angles_deg=(0.0, 3.0), chunk_copies=1)
+    here, there = tmp_path / "here.nc", tmp_path / "cluster.nc"
+    run_tolerance(run, here, show_progress=False)
+    ds = run_tolerance(run, there, show_progress=False, workers=2)
+    assert there.read_bytes() == here.read_bytes()
+    assert ds.sizes["lens"] == 3 and not (tmp_path / "cluster.nc.partial").exists()
+
+
 def test_grades_take_the_singlets_decentres_and_tilts():
     for name, t in GRADES.items():
         s = SURFACE_GRADES[name]
