@@ -324,6 +324,18 @@ def _field(coeffs, radius, azimuth_rad, supersample, dtype, device, terms=None):
     return torch.polar(amp.expand_as(W), -2 * math.pi * W)
 
 
+def _kept(a: torch.Tensor, dim: int, keep: torch.Tensor) -> torch.Tensor:
+    """``a.index_select(dim, keep)``; where ``keep`` is a run of consecutive indices that may wrap past the end (a
+    window about the DFT origin), as one or two slices (the same values: a copy, not a gather, several times
+    faster on complex tensors)."""
+    n, w, k0 = a.shape[dim], keep.numel(), int(keep[0])
+    if not torch.equal(keep, (torch.arange(w, device=keep.device) + k0) % n):
+        return a.index_select(dim, keep)
+    if k0 + w <= n:
+        return a.narrow(dim, k0, w)
+    return torch.cat([a.narrow(dim, k0, n - k0), a.narrow(dim, 0, w - (n - k0))], dim)
+
+
 def _intensity(field: torch.Tensor, n: int, *, area=None, keep: torch.Tensor | None = None) -> torch.Tensor:
     """``|DFT_n(field)|^2`` ``(B, n, n)`` of a pupil field on its box ``(B, rows, cols)`` zero-padded to ``n x n``: the
     pupil -> PSF step of every lens kind. ``keep`` ``(w,)``: the indices (DFT order) of the rows and columns to keep
@@ -333,8 +345,8 @@ def _intensity(field: torch.Tensor, n: int, *, area=None, keep: torch.Tensor | N
     if keep is None:
         a = torch.fft.fft2(field, s=(n, n))
     else:
-        a = torch.fft.fft(field, n=n, dim=-1).index_select(-1, keep)
-        a = torch.fft.fft(a, n=n, dim=-2).index_select(-2, keep)
+        a = _kept(torch.fft.fft(field, n=n, dim=-1), -1, keep)
+        a = _kept(torch.fft.fft(a, n=n, dim=-2), -2, keep)
     p = abs_square(a)
     return p if area is None else p.div_((n * n) * area)
 

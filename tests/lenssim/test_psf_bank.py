@@ -302,3 +302,15 @@ def test_a_spectrum_otf_summed_before_its_transform_equals_the_weighted_per_wave
                       for k, (lam, w) in enumerate(zip(spec.wavelengths_um, spec.weights)))
             assert torch.allclose(got, ref, atol=1e-12, rtol=0)
             assert float(got[..., 0, 0].real.min()) == 1.0
+
+
+def test_a_window_about_the_dft_origin_is_kept_as_slices_with_the_gather_s_values():
+    """lenssim.optics.psf_bank._kept: a run of indices that wraps past the end (as the PSF window about frequency 0),
+    one that does not, and indices that are no run, each equal to index_select, bit for bit, along either axis."""
+    from lenssim.optics.psf_bank import _kept
+
+    a = torch.randn(2, 12, 12, dtype=torch.complex128)
+    for keep in (torch.tensor([9, 10, 11, 0, 1, 2]), torch.arange(3, 8), torch.tensor([0, 2, 5]),
+                 torch.tensor([11, 0]), torch.arange(12).roll(4)):
+        for dim in (-1, -2):
+            assert torch.equal(_kept(a, dim, keep), a.index_select(dim, keep)), (keep, dim)
