@@ -455,8 +455,8 @@ def _otf_quarters(psf_centered: torch.Tensor, m: int, mirrored: bool):
     q = m // 2 + 1
     if not mirrored:
         return H[..., :q, :q], None
-    neg = torch.remainder(-torch.arange(q, device=H.device), m)
-    return H[..., :q, :q], H[..., :q, :].index_select(-1, neg)
+    # columns 0, m - 1, ..., m - q + 1 (sample k at -k/m): two slices, the second reversed (a copy, not a gather)
+    return H[..., :q, :q], torch.cat([H[..., :q, :1], H[..., :q, m - q + 1:].flip(-1)], dim=-1)
 
 
 def _rms_wavefront(psf: SequentialPSF, angles: torch.Tensor, registered: bool,
