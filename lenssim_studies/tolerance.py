@@ -275,7 +275,8 @@ once per worker process: the reference of every copy)."""
 
 
 def _lens_chunk_task(run: LensToleranceRun, digest: str, index: int, device: str, threads: int):
-    """On a dask worker: chunk ``index`` of a Monte Carlo of any lens -> ``(index, arrays, sha256)``."""
+    """On a dask worker: chunk ``index`` of a Monte Carlo of any lens -> ``(index, arrays, sha256)`` (``device`` is
+    the cluster path's argument: the real-ray tracer of a lens of floats runs on the host)."""
     from .cluster import ClusterError, _numeric_malloc, with_threads
 
     _numeric_malloc()
@@ -331,8 +332,8 @@ def run_tolerance(run: ToleranceRun | LensToleranceRun, out: str | os.PathLike, 
     of their arrays; a chunk that fails its check is reported (:class:`lenssim.validate.ResumeWarning`) and computed
     again. ``out`` must not be an existing file other than the finished result of the same run (verified before it is
     returned). With ``workers`` or ``scheduler`` the chunks are dask tasks (:mod:`lenssim_studies.cluster`); the file
-    is the same, byte for byte, at the same torch threads per task (``worker_threads``, default this process's). ``attrs``: more attributes of the dataset (descriptive: not part of the
-    digest).
+    is the same, byte for byte, at the same torch threads per task (``worker_threads``, default this process's).
+    ``attrs``: more attributes of the dataset (descriptive: not part of the digest).
     """
     out = Path(out)
     if scheduler is not None and workers is not None:

@@ -120,6 +120,15 @@ class Fields:
     def __len__(self) -> int:
         return self.field.shape[0]
 
+    def to(self, device) -> "Fields":
+        """The same fields with their columns on ``device`` (itself if they are there already)."""
+        if self.field.device == torch.device(device):
+            return self
+        out = object.__new__(Fields)
+        out._values = self._values
+        out.field, out.sin, out.cos, out.tan = (v.to(device) for v in (self.field, self.sin, self.cos, self.tan))
+        return out
+
     def take(self, index: torch.Tensor) -> "Fields":
         """The fields at ``index`` (a 1-D tensor of positions, repeats allowed), in that order."""
         out = object.__new__(Fields)
@@ -634,8 +643,8 @@ class SequentialLens:
                 d = torch.stack([torch.zeros_like(field.sin), field.sin, field.cos], dim=-1).expand(*x.shape, 3)
             else:
                 a = math.radians(field)
-                d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64,
-                                 device=x.device).expand(*x.shape, 3)
+                d = torch.tensor([0.0, math.sin(a), math.cos(a)], dtype=torch.float64, device=x.device)
+                d = d.expand(*x.shape, 3)
             z = z_start.expand_as(x) if torch.is_tensor(z_start) else torch.full_like(x, z_start)
             P = torch.stack([x, y, z], dim=-1)
             return P, d, None
@@ -700,6 +709,8 @@ class SequentialLens:
         py = py.to(torch.float64).reshape(-1)
         if batch:
             px, py = px.to(self.device), py.to(self.device)
+        if several:  # the fields' columns follow the pupil points' device
+            field = field.to(px.device)
         z_ep = par.entrance_pupil_z_mm
         if p.object_at_infinity:
             # a plane before the lens and the entrance pupil
@@ -746,8 +757,8 @@ class SequentialLens:
             return torch.where(good, dx, torch.zeros_like(dx)), torch.where(good, dy, torch.zeros_like(dy))
 
         if not batch:  # a lens of floats: each ray steps until it has converged, and only those are traced
-            x, y = self._aim_rays(field if several else Fields([field]), x, y, px, py, lam, z_start, target, stop_r,
-                                  at_stop, newton_step)
+            x, y = self._aim_rays(field if several else Fields([field], device=px.device), x, y, px, py, lam, z_start,
+                                  target, stop_r, at_stop, newton_step)
             return self._beam(field, x, y, lam, z_start)
         grad = torch.is_grad_enabled()
         converged = False

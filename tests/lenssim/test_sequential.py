@@ -347,6 +347,8 @@ def test_several_fields_stop_aiming_each_on_its_own_and_name_the_one_that_fails(
     (test_aiming_that_does_not_converge_beyond_the_pupil_leaves_the_ray_untraced), beside the axis: cut short, that
     field's rays are left untraced as alone, the axis's are untouched, and a point within the disc that cannot be
     aimed is an error naming its field. A batch of designs refuses several fields."""
+    from dataclasses import replace
+
     import lenssim.optics.sequential as seq_mod
     from lenssim.io.prescription_file import read_lens
     from lenssim.optics.sequential import Fields
@@ -367,13 +369,7 @@ def test_several_fields_stop_aiming_each_on_its_own_and_name_the_one_that_fails(
     with pytest.raises(RayTraceError, match=r"^field 30: the chief ray does not pass \(stopped at surface 2"):
         vignetting.wavefront(Fields([0.0, 30.0, 31.0]), *pupil_grid(4))
     batch = SequentialLens(lens.prescription, numbers=tuple(
-        dataclasses_replace(s, thickness_mm=torch.full((2, 1), s.thickness_mm, dtype=torch.float64))
+        replace(s, thickness_mm=torch.full((2, 1), s.thickness_mm, dtype=torch.float64))
         for s in lens.prescription.surfaces))
     with pytest.raises(ValueError, match="several fields at once are traced through a lens of floats"):
         batch.wavefront(Fields([0.0, 1.0]), px, py)
-
-
-def dataclasses_replace(obj, **kw):
-    from dataclasses import replace
-
-    return replace(obj, **kw)
